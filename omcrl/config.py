@@ -1,0 +1,365 @@
+"""Configuration: one dataclass per stage, YAML presets, validation and overrides.
+
+Every field carries its allowed range or choices in ``metadata`` so a bad value is rejected with an error
+naming the field, the value and what is allowed, before any work starts. Presets live in
+``omcrl/presets/{smoke,quick,paper}.yaml`` and list only the fields that differ from the defaults below.
+
+Example
+-------
+>>> cfg = load_config("quick", overrides=["env.image_size=64", "pretrain.mask_prob=0.3"])
+>>> cfg.env.image_size
+64
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+PRESETS = ("smoke", "quick", "paper")
+PRESET_DIR = Path(__file__).parent / "presets"
+
+
+class ConfigError(ValueError):
+    """A configuration value is invalid; the message names the field, the value and what is allowed."""
+
+
+def _f(default: Any, *, lo: float | None = None, hi: float | None = None, choices: tuple | None = None,
+       doc: str = "", **kw: Any) -> Any:
+    """Declare a dataclass field with validation metadata (inclusive bounds ``lo``/``hi``, or ``choices``)."""
+    md = {"lo": lo, "hi": hi, "choices": choices, "doc": doc}
+    if isinstance(default, (list, dict, tuple)) and not isinstance(default, tuple):
+        return field(default_factory=lambda d=default: type(d)(d), metadata=md, **kw)
+    return field(default=default, metadata=md, **kw)
+
+
+@dataclass
+class EnvConfig:
+    """The simulated flight task (paper V-A, V-D). Units: metres, seconds, radians unless stated."""
+
+    scene: str = _f("box", choices=("box", "furniture", "barrier", "tree"), doc="scene generator")
+    image_size: int = _f(64, lo=16, hi=512, doc="square camera image side (px)")
+    frame_stack: int = _f(3, lo=1, hi=16, doc="L, frames per observation stack")
+    control_hz: float = _f(10.0, lo=1.0, hi=100.0, doc="control (and render) rate (Hz)")
+    max_steps: int = _f(400, lo=1, hi=100000, doc="truncation horizon (steps); paper H_max = 5000")
+    arena_half: float = _f(8.0, lo=2.0, hi=100.0, doc="arena is [-a, a]^2 (m)")
+    altitude: float = _f(1.0, lo=0.2, hi=5.0, doc="fixed flight altitude (m)")
+    drone_radius: float = _f(0.15, lo=0.01, hi=1.0, doc="collision sphere radius (m)")
+    goal_radius: float = _f(0.3, lo=0.01, hi=5.0, doc="success when distance to goal <= this (m)")
+    goal_distance: tuple[float, float] = _f((4.0, 10.0), doc="sampled start-goal straight distance range (m)")
+    max_speed: float = _f(1.5, lo=0.05, hi=10.0, doc="|vx|, |vy| command limit (m/s)")
+    max_yaw_rate: float = _f(1.5, lo=0.05, hi=10.0, doc="|wz| command limit (rad/s)")
+    velocity_tau: float = _f(0.2, lo=0.0, hi=5.0, doc="first-order velocity response time constant (s)")
+    max_accel: float = _f(4.0, lo=0.1, hi=100.0, doc="linear acceleration limit (m/s^2)")
+    fov_deg: float = _f(82.6, lo=10.0, hi=170.0, doc="camera field of view (deg), DJI Tello")
+    near: float = _f(0.05, lo=0.001, hi=1.0, doc="camera near plane (m)")
+    far: float = _f(20.0, lo=1.0, hi=1000.0, doc="camera far plane; depth is clipped to it (m)")
+    n_obstacles: int = _f(0, lo=0, hi=400, doc="obstacle count; 0 means the scene's default")
+    progress: str = _f("difference", choices=("difference", "literal"),
+                       doc="progress reward: 0.1(d_{t-1}-d_t) (potential-based) or the paper's 0.1(d_init-d_t)")
+    progress_scale: float = _f(0.1, lo=0.0, hi=100.0, doc="progress reward coefficient")
+    goal_reward: float = _f(10.0, doc="terminal reward on success")
+    collision_penalty: float = _f(-1.0, doc="terminal reward on collision or leaving the arena")
+    step_penalty_horizon: int = _f(0, lo=0, hi=1000000, doc="H_max in -1/H_max per step; 0 means max_steps")
+    grid_resolution: float = _f(0.1, lo=0.01, hi=1.0, doc="occupancy grid cell (m) for planners and SPL")
+
+
+@dataclass
+class DataConfig:
+    """Trajectory collection for upstream pretraining (paper IV-B)."""
+
+    scene: str = _f("box", choices=("box", "furniture", "barrier", "tree"))
+    episodes: int = _f(60, lo=1, hi=1000000, doc="episodes to collect")
+    n_envs: int = _f(2, lo=1, hi=64, doc="parallel environments")
+    mix: dict = _f({"pilot": 0.7, "random": 0.3, "policy": 0.0},
+                   doc="proportions of sources: scripted pilot, random exploration, a given policy")
+    pilot_noise: float = _f(0.3, lo=0.0, hi=2.0, doc="std of Gaussian action noise on the scripted pilot")
+    detour_prob: float = _f(0.1, lo=0.0, hi=1.0, doc="chance per episode of a detour waypoint")
+    random_corr: float = _f(0.9, lo=0.0, hi=0.9999, doc="AR(1) correlation of random exploration actions")
+    max_steps: int = _f(200, lo=1, hi=100000, doc="cap on steps per collected episode")
+    file: str = _f("data/{preset}/box.h5", doc="HDF5 path; {preset} is substituted")
+
+
+@dataclass
+class PretrainConfig:
+    """Upstream masked contrastive learning (paper IV-B, V-D)."""
+
+    method: str = _f("omc", choices=("omc", "curl", "curl_cons"), doc="objective")
+    crop_from: int = _f(72, lo=16, hi=512, doc="stored image size (px); equals env.image_size of the data")
+    crop_to: int = _f(64, lo=16, hi=512, doc="random-crop size (px) fed to the encoder")
+    batch_size: int = _f(32, lo=1, hi=4096, doc="B, sequences per batch")
+    seq_len: int = _f(16, lo=2, hi=256, doc="T, observation stacks per sequence")
+    feature_dim: int = _f(384, lo=8, hi=4096, doc="d, latent size")
+    proj_hidden: int = _f(384, lo=8, hi=4096, doc="hidden width of projection phi")
+    use_projection: bool = _f(True, doc="False gives the 'w/o phi' ablation")
+    transformer_blocks: int = _f(2, lo=1, hi=24, doc="blocks in xi")
+    transformer_ffn: int = _f(768, lo=8, hi=16384, doc="FFN hidden width in xi")
+    dual_transformer: bool = _f(False, doc="momentum xi_k on the key side (ablation 'dualT')")
+    mask_prob: float = _f(0.5, lo=0.0, hi=1.0, doc="rho_m, Bernoulli masking probability")
+    batch_negatives: bool = _f(True, doc="also use other sequences of the batch as negatives (see DEVIATIONS)")
+    temperature: float = _f(0.07, lo=1e-4, hi=10.0, doc="tau in InfoNCE")
+    momentum: float = _f(0.05, lo=0.0, hi=1.0, doc="m in theta_k <- m*theta + (1-m)*theta_k")
+    lr_encoder: float = _f(1e-3, lo=0.0, hi=1.0, doc="Adam lr for f and phi")
+    lr_transformer: float = _f(2e-3, lo=0.0, hi=1.0, doc="peak Adam lr for xi")
+    warmup_steps: int = _f(6000, lo=0, hi=10000000, doc="linear warm-up then inverse-sqrt decay for xi")
+    iterations: int = _f(2000, lo=1, hi=100000000, doc="optimisation steps")
+    cons_stride: int = _f(1, lo=1, hi=100, doc="CURL-cons: step gap between the two consecutive stacks")
+    checkpoint_every: int = _f(200, lo=1, hi=100000000, doc="iterations between checkpoints")
+    num_threads: int = _f(2, lo=1, hi=256, doc="torch intra-op threads")
+
+
+@dataclass
+class RLConfig:
+    """Downstream PPO with optional oracle guidance (paper IV-C, V-D)."""
+
+    total_steps: int = _f(200000, lo=1, hi=10**10, doc="environment steps over all envs")
+    n_envs: int = _f(2, lo=1, hi=256, doc="parallel environments")
+    horizon: int = _f(128, lo=1, hi=100000, doc="rollout steps per env between updates")
+    buffer_size: int = _f(10240, lo=1, hi=10**8, doc="transitions per update (horizon * n_envs when 0)")
+    minibatch: int = _f(1024, lo=1, hi=10**7)
+    epochs: int = _f(3, lo=1, hi=100)
+    lr: float = _f(3e-4, lo=0.0, hi=1.0, doc="initial lr, decays linearly to 0")
+    gamma: float = _f(0.99, lo=0.0, hi=1.0)
+    gae_lambda: float = _f(0.95, lo=0.0, hi=1.0)
+    clip: float = _f(0.2, lo=0.0, hi=10.0)
+    value_coef: float = _f(0.5, lo=0.0, hi=100.0)
+    entropy_coef: float = _f(0.0, lo=0.0, hi=10.0)
+    max_grad_norm: float = _f(0.5, lo=0.0, hi=1000.0)
+    hidden: int = _f(256, lo=8, hi=8192, doc="width of the two actor/critic layers")
+    init_log_std: float = _f(-0.5, lo=-10.0, hi=2.0)
+    alpha_schedule: str = _f("linear", choices=("linear", "exp", "fixed", "none"))
+    alpha_start: float = _f(0.95, lo=0.0, hi=1.0)
+    alpha_decay_steps: int = _f(100000, lo=1, hi=10**10, doc="linear: steps to reach 0")
+    alpha_exp_factor: float = _f(0.95, lo=0.0, hi=1.0, doc="exp: multiply every alpha_exp_every steps")
+    alpha_exp_every: int = _f(1000, lo=1, hi=10**9)
+    beta: float = _f(1.0, lo=0.0, hi=1000.0, doc="KL scale")
+    guide_std: float = _f(0.2, lo=1e-4, hi=10.0, doc="std given to a deterministic guide (NPE)")
+    checkpoint_every: int = _f(20480, lo=1, hi=10**10, doc="env steps between checkpoints")
+    num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads in the learner")
+
+
+@dataclass
+class EvalConfig:
+    """Evaluation harness (paper V-B, VI-A)."""
+
+    episodes: int = _f(50, lo=1, hi=100000, doc="episodes per scene; paper: 200")
+    scenes: list = _f(["box", "furniture", "barrier", "tree"], doc="scenes to evaluate")
+    seed_offset: int = _f(1_000_000, lo=0, hi=10**9, doc="evaluation seeds start here, disjoint from training")
+    success_threshold_os: float = _f(0.5, lo=0.0, hi=10.0, doc="OS radius (m)")
+
+
+@dataclass
+class Config:
+    """Everything a run needs. ``seed`` is explicit: the same seed gives the same result on the CPU."""
+
+    preset: str = _f("quick", choices=PRESETS)
+    seed: int = _f(0, lo=0, hi=2**31 - 1)
+    results_dir: str = _f("results", doc="root of results/<preset>/...")
+    env: EnvConfig = field(default_factory=EnvConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    pretrain: PretrainConfig = field(default_factory=PretrainConfig)
+    rl: RLConfig = field(default_factory=RLConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+    @property
+    def run_root(self) -> Path:
+        """``results/<preset>``."""
+        return Path(self.results_dir) / self.preset
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# ---------------------------------------------------------------- validation
+def _check_value(path: str, f: dataclasses.Field, value: Any) -> Any:
+    """Coerce ``value`` to the field's type and check its bounds; raise ConfigError naming ``path``."""
+    md = f.metadata
+    tp = f.type if not isinstance(f.type, str) else _resolve_type(f.type)
+    origin = typing.get_origin(tp)
+    try:
+        if tp is bool:
+            if isinstance(value, str):
+                if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                    raise ValueError
+                value = value.lower() in ("true", "1", "yes")
+            elif not isinstance(value, (bool, int)):
+                raise ValueError
+            value = bool(value)
+        elif tp is int:
+            if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+                raise ValueError
+            value = int(value)
+        elif tp is float:
+            if isinstance(value, bool):
+                raise ValueError
+            value = float(value)
+            if math.isnan(value):
+                raise ValueError
+        elif tp is str:
+            if not isinstance(value, str):
+                raise ValueError
+        elif origin is tuple:
+            value = tuple(float(v) for v in value)
+            if len(value) != 2 or value[0] > value[1]:
+                raise ValueError
+        elif tp is list or origin is list:
+            if isinstance(value, str):
+                value = [v.strip() for v in value.split(",") if v.strip()]
+            value = list(value)
+        elif tp is dict or origin is dict:
+            if not isinstance(value, dict):
+                raise ValueError
+    except (TypeError, ValueError):
+        raise ConfigError(f"config field '{path}': got {value!r}, expected {_type_name(tp)}") from None
+    lo, hi, choices = md.get("lo"), md.get("hi"), md.get("choices")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"config field '{path}': got {value!r}, allowed values are {list(choices)}")
+    if lo is not None and value < lo or hi is not None and value > hi:
+        raise ConfigError(f"config field '{path}': got {value!r}, allowed range is [{lo}, {hi}]")
+    return value
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _resolve_type(name: str) -> Any:
+    return {"int": int, "float": float, "str": str, "bool": bool, "list": list, "dict": dict,
+            "tuple[float, float]": tuple[float, float]}.get(name, eval(name))  # noqa: S307 - own annotations
+
+
+def _apply(obj: Any, values: dict, prefix: str = "") -> None:
+    """Set ``values`` (nested dict) on dataclass ``obj``, validating each field; unknown names are errors."""
+    by_name = {f.name: f for f in fields(obj)}
+    for key, val in values.items():
+        path = f"{prefix}{key}"
+        if key not in by_name:
+            raise ConfigError(f"config field '{path}' does not exist; known fields: {sorted(by_name)}")
+        cur = getattr(obj, key)
+        if dataclasses.is_dataclass(cur):
+            if not isinstance(val, dict):
+                raise ConfigError(f"config section '{path}': got {val!r}, expected a mapping of fields")
+            _apply(cur, val, prefix=f"{path}.")
+        else:
+            setattr(obj, key, _check_value(path, by_name[key], val))
+
+
+def validate(cfg: Config) -> Config:
+    """Check every field of ``cfg`` and the cross-field rules; return it unchanged or raise ConfigError."""
+
+    def walk(obj: Any, prefix: str) -> None:
+        for f in fields(obj):
+            v = getattr(obj, f.name)
+            if dataclasses.is_dataclass(v):
+                walk(v, f"{prefix}{f.name}.")
+            else:
+                setattr(obj, f.name, _check_value(f"{prefix}{f.name}", f, v))
+
+    walk(cfg, "")
+    for scene in cfg.eval.scenes:
+        if scene not in ("box", "furniture", "barrier", "tree"):
+            raise ConfigError(f"config field 'eval.scenes': unknown scene {scene!r}")
+    mix = cfg.data.mix
+    if set(mix) - {"pilot", "random", "policy"} or any(float(v) < 0 for v in mix.values()):
+        raise ConfigError(f"config field 'data.mix': got {mix!r}, expected non-negative weights for "
+                          "'pilot', 'random', 'policy'")
+    if sum(float(v) for v in mix.values()) <= 0:
+        raise ConfigError(f"config field 'data.mix': got {mix!r}, weights must not all be zero")
+    if cfg.pretrain.crop_to > cfg.pretrain.crop_from:
+        raise ConfigError(f"config field 'pretrain.crop_to': got {cfg.pretrain.crop_to}, must be <= "
+                          f"pretrain.crop_from ({cfg.pretrain.crop_from})")
+    if cfg.rl.minibatch > cfg.rl.buffer_size:
+        raise ConfigError(f"config field 'rl.minibatch': got {cfg.rl.minibatch}, must be <= rl.buffer_size "
+                          f"({cfg.rl.buffer_size})")
+    lo, hi = cfg.env.goal_distance
+    if lo <= cfg.env.goal_radius or hi > 2.0 * math.sqrt(2.0) * cfg.env.arena_half:
+        raise ConfigError(f"config field 'env.goal_distance': got {(lo, hi)}, must lie in "
+                          f"({cfg.env.goal_radius}, {2 * math.sqrt(2) * cfg.env.arena_half:.1f}] m")
+    return cfg
+
+
+# ---------------------------------------------------------------- loading
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``'env.image_size=64'`` -> (['env', 'image_size'], 64). Values are parsed as YAML scalars/lists."""
+    if "=" not in text:
+        raise ConfigError(f"override {text!r}: expected 'section.field=value'")
+    key, raw = text.split("=", 1)
+    return key.strip().split("."), yaml.safe_load(raw) if raw.strip() else ""
+
+
+def load_config(preset: str = "quick", overrides: list[str] | dict | None = None,
+                path: str | Path | None = None) -> Config:
+    """Build a validated Config from a preset, an optional YAML file and ``field=value`` overrides.
+
+    Parameters
+    ----------
+    preset : one of ``smoke``, ``quick``, ``paper``.
+    overrides : ``["env.image_size=64", ...]`` or a nested dict ``{"env": {"image_size": 64}}``.
+    path : a YAML file applied after the preset (for example a saved ``config.yaml`` of a run).
+    """
+    if preset not in PRESETS:
+        raise ConfigError(f"preset: got {preset!r}, allowed values are {list(PRESETS)}")
+    cfg = Config(preset=preset)
+    preset_file = PRESET_DIR / f"{preset}.yaml"
+    _apply(cfg, _read_yaml(preset_file))
+    cfg.preset = preset
+    if path is not None:
+        _apply(cfg, _read_yaml(Path(path)))
+    if isinstance(overrides, dict):
+        _apply(cfg, overrides)
+    else:
+        for text in overrides or []:
+            keys, val = parse_override(text)
+            nested: dict = {}
+            cur = nested
+            for k in keys[:-1]:
+                cur = cur.setdefault(k, {})
+            cur[keys[-1]] = val
+            _apply(cfg, nested)
+    return validate(cfg)
+
+
+def _read_yaml(p: Path) -> dict:
+    if not p.exists():
+        raise ConfigError(f"config file {p} does not exist")
+    try:
+        data = yaml.safe_load(p.read_text()) or {}
+    except yaml.YAMLError as e:
+        raise ConfigError(f"config file {p} is not valid YAML: {e}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {p}: expected a mapping at top level, got {type(data).__name__}")
+    return data
+
+
+def save_config(cfg: Config, directory: str | Path) -> Path:
+    """Write the resolved config as ``config.yaml`` in ``directory`` (atomically) and return its path."""
+    from omcrl.utils.io import atomic_write_text
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    out = d / "config.yaml"
+    atomic_write_text(out, yaml.safe_dump(_plain(cfg.to_dict()), sort_keys=False))
+    return out
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    return x
+
+
+def config_hash(section: Any) -> str:
+    """Short stable hash of a config section (or dict), for caching finished artifacts."""
+    import hashlib
+    import json
+
+    d = dataclasses.asdict(section) if dataclasses.is_dataclass(section) else section
+    return hashlib.sha256(json.dumps(_plain(d), sort_keys=True).encode()).hexdigest()[:12]
