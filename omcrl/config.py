@@ -30,8 +30,15 @@ class ConfigError(ValueError):
     """A configuration value is invalid; the message names the field, the value and what is allowed."""
 
 
-def _f(default: Any, *, lo: float | None = None, hi: float | None = None, choices: tuple | None = None,
-       doc: str = "", **kw: Any) -> Any:
+def _f(
+    default: Any,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    choices: tuple | None = None,
+    doc: str = "",
+    **kw: Any,
+) -> Any:
     """Declare a dataclass field with validation metadata (inclusive bounds ``lo``/``hi``, or ``choices``)."""
     md = {"lo": lo, "hi": hi, "choices": choices, "doc": doc}
     if isinstance(default, (list, dict, tuple)) and not isinstance(default, tuple):
@@ -53,6 +60,7 @@ class EnvConfig:
     drone_radius: float = _f(0.15, lo=0.01, hi=1.0, doc="collision sphere radius (m)")
     goal_radius: float = _f(0.3, lo=0.01, hi=5.0, doc="success when distance to goal <= this (m)")
     goal_distance: tuple[float, float] = _f((4.0, 10.0), doc="sampled start-goal straight distance range (m)")
+    start_yaw_noise: float = _f(0.8, lo=0.0, hi=3.1416, doc="start yaw = bearing to goal +- U(this) (rad)")
     max_speed: float = _f(1.5, lo=0.05, hi=10.0, doc="|vx|, |vy| command limit (m/s)")
     max_yaw_rate: float = _f(1.5, lo=0.05, hi=10.0, doc="|wz| command limit (rad/s)")
     velocity_tau: float = _f(0.2, lo=0.0, hi=5.0, doc="first-order velocity response time constant (s)")
@@ -61,8 +69,12 @@ class EnvConfig:
     near: float = _f(0.05, lo=0.001, hi=1.0, doc="camera near plane (m)")
     far: float = _f(20.0, lo=1.0, hi=1000.0, doc="camera far plane; depth is clipped to it (m)")
     n_obstacles: int = _f(0, lo=0, hi=400, doc="obstacle count; 0 means the scene's default")
-    progress: str = _f("difference", choices=("difference", "literal"),
-                       doc="progress reward: 0.1(d_{t-1}-d_t) (potential-based) or the paper's 0.1(d_init-d_t)")
+    layout_every: int = _f(1, lo=1, hi=10**9, doc="episodes per generated layout (start/goal change every episode)")
+    progress: str = _f(
+        "difference",
+        choices=("difference", "literal"),
+        doc="progress reward: 0.1(d_{t-1}-d_t) (potential-based) or the paper's 0.1(d_init-d_t)",
+    )
     progress_scale: float = _f(0.1, lo=0.0, hi=100.0, doc="progress reward coefficient")
     goal_reward: float = _f(10.0, doc="terminal reward on success")
     collision_penalty: float = _f(-1.0, doc="terminal reward on collision or leaving the arena")
@@ -77,8 +89,10 @@ class DataConfig:
     scene: str = _f("box", choices=("box", "furniture", "barrier", "tree"))
     episodes: int = _f(60, lo=1, hi=1000000, doc="episodes to collect")
     n_envs: int = _f(2, lo=1, hi=64, doc="parallel environments")
-    mix: dict = _f({"pilot": 0.7, "random": 0.3, "policy": 0.0},
-                   doc="proportions of sources: scripted pilot, random exploration, a given policy")
+    mix: dict = _f(
+        {"pilot": 0.7, "random": 0.3, "policy": 0.0},
+        doc="proportions of sources: scripted pilot, random exploration, a given policy",
+    )
     pilot_noise: float = _f(0.3, lo=0.0, hi=2.0, doc="std of Gaussian action noise on the scripted pilot")
     detour_prob: float = _f(0.1, lo=0.0, hi=1.0, doc="chance per episode of a detour waypoint")
     random_corr: float = _f(0.9, lo=0.0, hi=0.9999, doc="AR(1) correlation of random exploration actions")
@@ -220,7 +234,7 @@ def _check_value(path: str, f: dataclasses.Field, value: Any) -> Any:
     lo, hi, choices = md.get("lo"), md.get("hi"), md.get("choices")
     if choices is not None and value not in choices:
         raise ConfigError(f"config field '{path}': got {value!r}, allowed values are {list(choices)}")
-    if lo is not None and value < lo or hi is not None and value > hi:
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
         raise ConfigError(f"config field '{path}': got {value!r}, allowed range is [{lo}, {hi}]")
     return value
 
@@ -230,8 +244,15 @@ def _type_name(tp: Any) -> str:
 
 
 def _resolve_type(name: str) -> Any:
-    return {"int": int, "float": float, "str": str, "bool": bool, "list": list, "dict": dict,
-            "tuple[float, float]": tuple[float, float]}.get(name, eval(name))  # noqa: S307 - own annotations
+    return {
+        "int": int,
+        "float": float,
+        "str": str,
+        "bool": bool,
+        "list": list,
+        "dict": dict,
+        "tuple[float, float]": tuple[float, float],
+    }.get(name, eval(name))
 
 
 def _apply(obj: Any, values: dict, prefix: str = "") -> None:
@@ -267,20 +288,26 @@ def validate(cfg: Config) -> Config:
             raise ConfigError(f"config field 'eval.scenes': unknown scene {scene!r}")
     mix = cfg.data.mix
     if set(mix) - {"pilot", "random", "policy"} or any(float(v) < 0 for v in mix.values()):
-        raise ConfigError(f"config field 'data.mix': got {mix!r}, expected non-negative weights for "
-                          "'pilot', 'random', 'policy'")
+        raise ConfigError(
+            f"config field 'data.mix': got {mix!r}, expected non-negative weights for 'pilot', 'random', 'policy'"
+        )
     if sum(float(v) for v in mix.values()) <= 0:
         raise ConfigError(f"config field 'data.mix': got {mix!r}, weights must not all be zero")
     if cfg.pretrain.crop_to > cfg.pretrain.crop_from:
-        raise ConfigError(f"config field 'pretrain.crop_to': got {cfg.pretrain.crop_to}, must be <= "
-                          f"pretrain.crop_from ({cfg.pretrain.crop_from})")
+        raise ConfigError(
+            f"config field 'pretrain.crop_to': got {cfg.pretrain.crop_to}, must be <= "
+            f"pretrain.crop_from ({cfg.pretrain.crop_from})"
+        )
     if cfg.rl.minibatch > cfg.rl.buffer_size:
-        raise ConfigError(f"config field 'rl.minibatch': got {cfg.rl.minibatch}, must be <= rl.buffer_size "
-                          f"({cfg.rl.buffer_size})")
+        raise ConfigError(
+            f"config field 'rl.minibatch': got {cfg.rl.minibatch}, must be <= rl.buffer_size ({cfg.rl.buffer_size})"
+        )
     lo, hi = cfg.env.goal_distance
     if lo <= cfg.env.goal_radius or hi > 2.0 * math.sqrt(2.0) * cfg.env.arena_half:
-        raise ConfigError(f"config field 'env.goal_distance': got {(lo, hi)}, must lie in "
-                          f"({cfg.env.goal_radius}, {2 * math.sqrt(2) * cfg.env.arena_half:.1f}] m")
+        raise ConfigError(
+            f"config field 'env.goal_distance': got {(lo, hi)}, must lie in "
+            f"({cfg.env.goal_radius}, {2 * math.sqrt(2) * cfg.env.arena_half:.1f}] m"
+        )
     return cfg
 
 
@@ -293,8 +320,9 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return key.strip().split("."), yaml.safe_load(raw) if raw.strip() else ""
 
 
-def load_config(preset: str = "quick", overrides: list[str] | dict | None = None,
-                path: str | Path | None = None) -> Config:
+def load_config(
+    preset: str = "quick", overrides: list[str] | dict | None = None, path: str | Path | None = None
+) -> Config:
     """Build a validated Config from a preset, an optional YAML file and ``field=value`` overrides.
 
     Parameters

@@ -27,7 +27,7 @@ def set_threads(n: int | None = None) -> int:
 def seed_everything(seed: int) -> np.random.Generator:
     """Seed python, numpy and torch (CPU) and return a numpy Generator for explicit use."""
     random.seed(seed)
-    np.random.seed(seed % 2**32)
+    np.random.seed(seed % 2**32)  # noqa: NPY002 - third-party code may still use the legacy global RNG
     try:
         import torch
 

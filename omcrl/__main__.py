@@ -1,0 +1,152 @@
+"""Command line: ``python -m omcrl <stage> --preset P [--set field=value ...] [--config FILE]``.
+
+Every stage is a function that takes a validated :class:`omcrl.config.Config`; the CLI only builds that
+config and calls it, so notebooks, tests and the CLI run the same code. Stages are imported lazily: a stage
+whose module is not there yet fails with a clear message instead of breaking the whole CLI.
+
+Examples
+--------
+    python -m omcrl config --preset smoke --set env.image_size=48
+    python -m omcrl pretrain --preset quick --set pretrain.mask_prob=0.3
+    python -m omcrl notebooks --preset smoke
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from omcrl.config import PRESETS, Config, ConfigError, load_config
+
+# name -> (target "module:function", one-line description)
+STAGES: dict[str, tuple[str, str]] = {
+    "config": ("omcrl.__main__:print_config", "print the resolved config as YAML"),
+    "notebooks": (
+        "omcrl.notebooks:run",
+        "run the notebook chain; executed copies in results/<preset>/executed/",
+    ),
+    "collect": ("omcrl.data.collect:run", "collect trajectory data for pretraining"),
+    "pretrain": ("omcrl.pretrain:run", "pretrain the encoder (masked contrastive / CURL)"),
+    "oracle": ("omcrl.rl:train_oracle", "train the privileged oracle with PPO"),
+    "student": ("omcrl.rl:train_student", "train the visuomotor student with oracle guidance"),
+    "evaluate": ("omcrl.eval:run", "evaluate policies and write tables"),
+}
+
+
+class StageUnavailable(RuntimeError):
+    """The stage is registered but its module or function does not exist (yet)."""
+
+
+def load_stage(name: str, registry: dict[str, tuple[str, str]] | None = None) -> Callable[[Config], Any]:
+    """Import and return the function behind stage ``name``; raise StageUnavailable if it is not there."""
+    reg = STAGES if registry is None else registry
+    if name not in reg:
+        raise StageUnavailable(f"unknown stage {name!r}; stages: {', '.join(reg)}")
+    target = reg[name][0]
+    module_name, func_name = target.split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as e:
+        # Only a missing stage module (or its package) means "not available"; a missing dependency
+        # inside an existing module is a real error and propagates.
+        if e.name and (module_name == e.name or module_name.startswith(e.name + ".")):
+            raise StageUnavailable(
+                f"stage {name!r} is not available yet ({target}: module {e.name} does not exist)"
+            ) from None
+        raise
+    func = getattr(module, func_name, None)
+    if not callable(func):
+        raise StageUnavailable(
+            f"stage {name!r} is not available yet ({target}: {module_name} has no function {func_name})"
+        )
+    return func
+
+
+def print_config(cfg: Config) -> None:
+    """Stage ``config``: print the resolved config as YAML (loadable with ``--config``)."""
+    import yaml
+
+    plain = json.loads(json.dumps(cfg.to_dict()))  # tuples -> lists, as save_config writes them
+    sys.stdout.write(yaml.safe_dump(plain, sort_keys=False))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    stages = "\n".join(f"  {n:<10} {d}" for n, (_, d) in STAGES.items())
+    ap = argparse.ArgumentParser(
+        prog="python -m omcrl",
+        description="Run one stage of the OMC-RL reproduction kit.",
+        epilog=f"stages:\n{stages}\n\nexample: python -m omcrl pretrain --preset quick "
+        "--set pretrain.mask_prob=0.3",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("stage", help="stage to run (see below)")
+    ap.add_argument(
+        "--preset", default="quick", choices=PRESETS, help="configuration preset (default: quick)"
+    )
+    ap.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="override one config field, e.g. --set env.image_size=48 (repeatable)",
+    )
+    ap.add_argument(
+        "--config",
+        metavar="FILE",
+        default=None,
+        help="YAML file applied after the preset and before --set (e.g. a run's config.yaml)",
+    )
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if args.stage not in STAGES:
+        ap.print_usage(sys.stderr)
+        print(f"error: unknown stage {args.stage!r}; stages: {', '.join(STAGES)}", file=sys.stderr)
+        return 2
+    try:
+        cfg = load_config(args.preset, overrides=args.overrides, path=args.config)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    try:
+        func = load_stage(args.stage)
+    except StageUnavailable as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 3
+    t0 = time.perf_counter()
+    try:
+        result = func(cfg)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: stage {args.stage}", file=sys.stderr)
+        return 130
+    except Exception as e:
+        from omcrl.notebooks import NotebookError
+
+        if isinstance(e, NotebookError):
+            print(f"error: {e}", file=sys.stderr)
+            return 1
+        raise
+    if args.stage != "config":
+        if result is not None:
+            print(result)
+        print(
+            f"[omcrl] stage {args.stage} (preset {cfg.preset}) finished in {time.perf_counter() - t0:.1f} s",
+            file=sys.stderr,
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,493 @@
+"""HDF5 trajectory dataset for upstream pretraining (paper IV-B, "Data Collection").
+
+Layout of one file::
+
+    /                       attrs: format_version, image_size, frame_stack, env_config (JSON), kit_version,
+                                   created (ISO UTC), n_episodes (written last, see below)
+    /ep_000000              attrs: scene, seed, source ("pilot" | "random" | "policy"), steps
+        rgb        uint8   (T, 3, H, W)   single frames (not stacks), one chunk per frame, compressed
+        depth      float16 (T, H, W)      metres
+        state      float32 (T, 12)        v (3, body), ω (3), θ (roll, pitch, yaw), Δp_goal (3, body)
+        privileged float32 (T, 6)         Δp to nearest obstacle surface (3, body), Δp_goal (3, body)
+        action     float32 (T, 3)         in [-1, 1]
+        reward     float32 (T,)
+        done       bool    (T,)
+    /ep_000001 ...
+
+Row ``t`` holds the newest frame of the observation the agent saw at step ``t``, the action it took and the
+reward/done that followed. Stacks of ``L`` frames are rebuilt at read time
+(:meth:`TrajectoryDataset.read_stacks`), padding before the episode start by repeating the first frame,
+exactly like the environment does.
+
+Crash safety: a new file is written under a temporary name and renamed when the writer closes. Appending to an
+existing file adds groups and only then bumps the ``n_episodes`` attribute, so an episode half-written when
+the process died has an index ``>= n_episodes``; readers ignore it and the next writer deletes it.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+FORMAT_VERSION = 1
+SOURCES = ("pilot", "random", "policy")
+FIELDS = {  # name -> (dtype, shape after the time axis; "img" = image side)
+    "rgb": (np.uint8, (3, "img", "img")),
+    "depth": (np.float16, ("img", "img")),
+    "state": (np.float32, (12,)),
+    "privileged": (np.float32, (6,)),
+    "action": (np.float32, (3,)),
+    "reward": (np.float32, ()),
+    "done": (np.bool_, ()),
+}
+
+
+class DatasetError(RuntimeError):
+    """A trajectory file is missing, corrupt or does not match what the caller expects (message names it)."""
+
+
+def episode_key(i: int) -> str:
+    """Group name of episode ``i`` (``ep_000042``)."""
+    return f"ep_{i:06d}"
+
+
+def _expected_shape(name: str, image_size: int) -> tuple[int, ...]:
+    return tuple(image_size if s == "img" else s for s in FIELDS[name][1])
+
+
+# ---------------------------------------------------------------- writing
+class EpisodeBuffer:
+    """Accumulate one episode step by step from environment observations (single, not vector, env).
+
+    Example
+    -------
+    >>> buf = EpisodeBuffer()
+    >>> buf.add(obs, action, reward, done)      # obs as returned by env.reset / env.step *before* the action
+    >>> writer.add_episode(**buf.arrays(), scene="box", seed=3, source="pilot")
+    """
+
+    def __init__(self) -> None:
+        self.rows: dict[str, list[np.ndarray]] = {k: [] for k in FIELDS}
+
+    def add(self, obs: dict, action: np.ndarray, reward: float, done: bool) -> None:
+        """Store the newest frame of ``obs['rgb']`` (L, 3, H, W) / ``obs['depth']`` (L, H, W) and the step."""
+        self.rows["rgb"].append(np.asarray(obs["rgb"])[-1])
+        self.rows["depth"].append(np.asarray(obs["depth"])[-1])
+        self.rows["state"].append(np.asarray(obs["state"], np.float32))
+        self.rows["privileged"].append(np.asarray(obs["privileged"], np.float32))
+        self.rows["action"].append(np.asarray(action, np.float32))
+        self.rows["reward"].append(np.float32(reward))
+        self.rows["done"].append(np.bool_(done))
+
+    def __len__(self) -> int:
+        return len(self.rows["action"])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The episode as ``{field: array (T, ...)}``, ready for :meth:`DatasetWriter.add_episode`."""
+        return {k: np.stack(v) for k, v in self.rows.items()}
+
+
+class DatasetWriter:
+    """Write episodes to an HDF5 trajectory file (new, or appended to an existing compatible one).
+
+    Parameters
+    ----------
+    path : target file. If it does not exist it is written to a temporary file in the same folder and renamed
+        on :meth:`close`; if the ``with`` block raises, the temporary file is deleted and
+        ``path`` never appears.
+        If it exists, episodes are appended in place (``"a"`` mode) without touching earlier episodes.
+    image_size : square image side H = W (px).
+    frame_stack : L the data is meant to be used with (stored as metadata; stacks are rebuilt at read time).
+    env_config : the environment configuration (JSON-able dict), stored as metadata.
+    compression : ``"lzf"`` (fast, default) or ``"gzip"`` for the image datasets.
+    """
+
+    def __init__(
+        self, path: str | Path, image_size: int, frame_stack: int, env_config: dict, compression: str = "lzf"
+    ) -> None:
+        import omcrl
+
+        self.path = Path(path)
+        self.image_size = int(image_size)
+        self.frame_stack = int(frame_stack)
+        self.compression = compression
+        self._tmp: Path | None = None
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if self.path.exists():
+            try:
+                self._h5 = h5py.File(self.path, "a")
+            except OSError as e:
+                raise DatasetError(f"dataset {self.path}: cannot open for appending ({e})") from None
+            for key, want in (("image_size", self.image_size), ("frame_stack", self.frame_stack)):
+                got = int(self._h5.attrs.get(key, -1))
+                if got != want:
+                    self._h5.close()
+                    raise DatasetError(
+                        f"dataset {self.path}: cannot append, field '{key}' is {got} in the "
+                        f"file but the writer was given {want}"
+                    )
+            self.n_episodes = int(self._h5.attrs.get("n_episodes", 0))
+            # Remove episodes a crashed writer left half-written (their index is >= n_episodes).
+            for key in list(self._h5.keys()):
+                if key.startswith("ep_") and int(key[3:]) >= self.n_episodes:
+                    del self._h5[key]
+            self._h5.flush()
+        else:
+            fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp")
+            os.close(fd)
+            self._tmp = Path(tmp)
+            self._h5 = h5py.File(self._tmp, "w")
+            a = self._h5.attrs
+            a["format_version"] = FORMAT_VERSION
+            a["image_size"] = self.image_size
+            a["frame_stack"] = self.frame_stack
+            a["env_config"] = json.dumps(env_config, sort_keys=True, default=str)
+            a["kit_version"] = omcrl.__version__
+            a["created"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+            a["n_episodes"] = 0
+            self.n_episodes = 0
+
+    def add_episode(
+        self,
+        *,
+        rgb: np.ndarray,
+        depth: np.ndarray,
+        state: np.ndarray,
+        privileged: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        scene: str,
+        seed: int,
+        source: str,
+    ) -> int:
+        """Append one episode; arrays have a leading time axis T (shapes in the module docstring).
+
+        Returns the episode index. ``n_episodes`` is updated only after all data is flushed.
+        """
+        if source not in SOURCES:
+            raise ValueError(f"source: got {source!r}, allowed values are {list(SOURCES)}")
+        data = {
+            "rgb": rgb,
+            "depth": depth,
+            "state": state,
+            "privileged": privileged,
+            "action": action,
+            "reward": reward,
+            "done": done,
+        }
+        n = len(np.asarray(action))
+        if n < 1:
+            raise ValueError("an episode needs at least one step")
+        arrays = {}
+        for name, arr in data.items():
+            arr = np.asarray(arr)
+            want = (n, *_expected_shape(name, self.image_size))
+            if arr.shape != want:
+                raise ValueError(f"episode field '{name}': got shape {arr.shape}, expected {want}")
+            arrays[name] = arr.astype(FIELDS[name][0], copy=False)
+        idx = self.n_episodes
+        g = self._h5.create_group(episode_key(idx))
+        for name, arr in arrays.items():
+            if name in ("rgb", "depth"):
+                # One chunk per frame: a sequence read decompresses only the frames it needs.
+                g.create_dataset(name, data=arr, chunks=(1, *arr.shape[1:]), compression=self.compression)
+            else:
+                g.create_dataset(name, data=arr)
+        g.attrs["scene"] = str(scene)
+        g.attrs["seed"] = int(seed)
+        g.attrs["source"] = source
+        g.attrs["steps"] = n
+        self._h5.flush()
+        self.n_episodes = idx + 1
+        self._h5.attrs["n_episodes"] = self.n_episodes  # last: marks the episode complete
+        self._h5.flush()
+        return idx
+
+    def close(self, discard: bool = False) -> None:
+        """Close the file; a new file is renamed into place (or deleted when ``discard``)."""
+        if self._h5 is None:
+            return
+        self._h5.close()
+        self._h5 = None
+        if self._tmp is not None:
+            if discard:
+                self._tmp.unlink(missing_ok=True)
+            else:
+                os.replace(self._tmp, self.path)
+
+    def __enter__(self) -> DatasetWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        self.close(discard=exc_type is not None)
+
+    def __del__(self) -> None:  # an abandoned new file never appears under its final name
+        try:
+            if getattr(self, "_h5", None) is not None:
+                self.close(discard=True)
+        except Exception:
+            pass
+
+
+# ---------------------------------------------------------------- reading
+class TrajectoryDataset:
+    """Read-only view of a trajectory file; validated on open, never modified.
+
+    Parameters
+    ----------
+    path : the HDF5 file.
+    image_size, frame_stack : what the caller expects; a different value in the file is a
+        :class:`DatasetError`.
+
+    Attributes
+    ----------
+    episode_lengths : int64 (N,) steps per complete episode.
+    image_size, frame_stack, env_config, kit_version, created
+    """
+
+    def __init__(
+        self, path: str | Path, image_size: int | None = None, frame_stack: int | None = None
+    ) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise DatasetError(f"dataset {self.path}: file does not exist")
+        self._h5: h5py.File | None = None
+        self._pid = -1
+        try:
+            h5 = self._file()
+            attrs = dict(h5.attrs)
+            if "format_version" not in attrs or "n_episodes" not in attrs:
+                raise DatasetError(
+                    f"dataset {self.path}: not an omcrl trajectory file (attribute "
+                    f"'format_version' or 'n_episodes' missing)"
+                )
+            if int(attrs["format_version"]) != FORMAT_VERSION:
+                raise DatasetError(
+                    f"dataset {self.path}: field 'format_version' expected {FORMAT_VERSION}, "
+                    f"got {int(attrs['format_version'])}"
+                )
+            self.image_size = int(attrs["image_size"])
+            self.frame_stack = int(attrs["frame_stack"])
+            self.env_config = json.loads(attrs.get("env_config", "{}"))
+            self.kit_version = str(attrs.get("kit_version", ""))
+            self.created = str(attrs.get("created", ""))
+            for name, want, got in (
+                ("image_size", image_size, self.image_size),
+                ("frame_stack", frame_stack, self.frame_stack),
+            ):
+                if want is not None and int(want) != got:
+                    raise DatasetError(f"dataset {self.path}: field '{name}' expected {int(want)}, got {got}")
+            n = int(attrs["n_episodes"])
+            lengths, sources, scenes = [], [], []
+            for i in range(n):
+                key = episode_key(i)
+                if key not in h5:
+                    raise DatasetError(f"dataset {self.path}: episode '{key}' missing (n_episodes={n})")
+                g = h5[key]
+                steps = int(g.attrs["steps"])
+                for name in FIELDS:
+                    want_shape = (steps, *_expected_shape(name, self.image_size))
+                    if name not in g or g[name].shape != want_shape:
+                        got_shape = g[name].shape if name in g else "missing"
+                        raise DatasetError(
+                            f"dataset {self.path}: field '{key}/{name}' expected shape "
+                            f"{want_shape}, got {got_shape}"
+                        )
+                lengths.append(steps)
+                sources.append(str(g.attrs["source"]))
+                scenes.append(str(g.attrs["scene"]))
+        except OSError as e:  # h5py reports truncated/corrupt files as OSError
+            self.close()
+            raise DatasetError(
+                f"dataset {self.path}: cannot read HDF5 file, truncated or corrupt ({e})"
+            ) from None
+        except (KeyError, ValueError) as e:
+            self.close()
+            raise DatasetError(f"dataset {self.path}: malformed ({e})") from None
+        except DatasetError:
+            self.close()
+            raise
+        self.episode_lengths = np.asarray(lengths, dtype=np.int64)
+        self.sources = sources
+        self.scenes = scenes
+
+    # -- file handle: reopened after fork so DataLoader workers never share one
+    def _file(self) -> h5py.File:
+        if self._h5 is None or self._pid != os.getpid():
+            self._h5 = h5py.File(self.path, "r")
+            self._pid = os.getpid()
+        return self._h5
+
+    def close(self) -> None:
+        if self._h5 is not None:
+            try:
+                self._h5.close()
+            finally:
+                self._h5 = None
+
+    def __enter__(self) -> TrajectoryDataset:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def __len__(self) -> int:
+        return len(self.episode_lengths)
+
+    @property
+    def n_steps(self) -> int:
+        return int(self.episode_lengths.sum())
+
+    # -- metadata
+    @property
+    def fingerprint(self) -> str:
+        """Short sha256 of the file attributes and episode lengths: names the data a model was trained on."""
+        h5 = self._file()
+        attrs = {
+            k: (v.item() if hasattr(v, "item") else str(v)) for k, v in h5.attrs.items() if k != "created"
+        }
+        blob = json.dumps(
+            {"attrs": attrs, "lengths": self.episode_lengths.tolist(), "sources": self.sources},
+            sort_keys=True,
+            default=str,
+        )
+        return hashlib.sha256(blob.encode()).hexdigest()[:12]
+
+    def summary(self) -> dict:
+        """``{"episodes", "steps", "per_source": {source: {"episodes", "steps"}}, "scenes", ...}``."""
+        per: dict[str, dict[str, int]] = {}
+        for src, n in zip(self.sources, self.episode_lengths):
+            d = per.setdefault(src, {"episodes": 0, "steps": 0})
+            d["episodes"] += 1
+            d["steps"] += int(n)
+        return {
+            "path": str(self.path),
+            "episodes": len(self),
+            "steps": self.n_steps,
+            "per_source": per,
+            "scenes": sorted(set(self.scenes)),
+            "image_size": self.image_size,
+            "frame_stack": self.frame_stack,
+            "fingerprint": self.fingerprint,
+        }
+
+    def episode_attrs(self, ep: int) -> dict:
+        """``scene``, ``seed``, ``source``, ``steps`` of episode ``ep``."""
+        g = self._group(ep)
+        return {k: (v.item() if hasattr(v, "item") else v) for k, v in g.attrs.items()}
+
+    # -- data
+    def _group(self, ep: int) -> h5py.Group:
+        if not 0 <= ep < len(self):
+            raise IndexError(f"dataset {self.path}: episode {ep} out of range [0, {len(self)})")
+        return self._file()[episode_key(ep)]
+
+    def read(self, ep: int, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Rows ``start:stop`` of field ``name`` of episode ``ep`` (shapes in the module docstring)."""
+        if name not in FIELDS:
+            raise KeyError(f"unknown field {name!r}; fields are {list(FIELDS)}")
+        try:
+            return self._group(ep)[name][start:stop]
+        except OSError as e:
+            raise DatasetError(f"dataset {self.path}: cannot read '{episode_key(ep)}/{name}' ({e})") from None
+
+    def read_stacks(
+        self,
+        ep: int,
+        ts: Sequence[int] | np.ndarray,
+        frame_stack: int | None = None,
+        frames: np.ndarray | None = None,
+        frames_start: int = 0,
+    ) -> np.ndarray:
+        """Observation stacks h_t of episode ``ep`` at steps ``ts``.
+
+        Returns uint8 (len(ts), 3L, H, W): frames t-L+1 … t, oldest first, channels frame-major (the env's
+        ``obs["rgb"]`` (L, 3, H, W) reshaped); frames before the episode start repeat the first frame.
+        ``frames`` (rows ``frames_start:`` of the episode's rgb) avoids a read when the caller has them.
+        """
+        L = int(frame_stack or self.frame_stack)
+        ts = np.asarray(ts, dtype=np.int64)
+        if frames is None:
+            lo = max(int(ts.min()) - L + 1, 0)
+            frames, frames_start = self.read(ep, "rgb", lo, int(ts.max()) + 1), lo
+        idx = np.clip(ts[:, None] + np.arange(-L + 1, 1)[None, :], 0, None) - frames_start  # (n, L)
+        out = frames[idx]  # (n, L, 3, H, W)
+        return out.reshape(len(ts), 3 * L, *out.shape[-2:])
+
+
+def open_dataset(
+    path: str | Path, image_size: int | None = None, frame_stack: int | None = None
+) -> TrajectoryDataset:
+    """Open and validate a trajectory file (read-only); raises :class:`DatasetError` naming the problem."""
+    return TrajectoryDataset(path, image_size=image_size, frame_stack=frame_stack)
+
+
+def iter_episodes(ds: TrajectoryDataset, fields: Iterable[str] = ("state", "privileged", "action")):
+    """Yield ``(ep, {field: array})`` for every episode (reads one episode at a time)."""
+    for ep in range(len(ds)):
+        yield ep, {f: ds.read(ep, f) for f in fields}
+
+
+def make_synthetic_dataset(
+    path: str | Path,
+    n_episodes: int = 4,
+    length: int | Sequence[int] = 20,
+    image_size: int = 16,
+    frame_stack: int = 3,
+    seed: int = 0,
+    pattern: str = "moving",
+) -> Path:
+    """Write a small synthetic trajectory file with :class:`DatasetWriter` (tests, examples, no simulator).
+
+    ``pattern="ids"``: every pixel of channel 0 is the episode index and of channel 1 the step (mod 256), so a
+    sample's origin can be read back from its pixels. ``pattern="moving"``: a bright square drifts across a
+    per-episode background; ``privileged[:3]`` is the square's offset from the image centre, so the frames
+    carry information a probe can recover and neighbouring frames predict a masked one.
+    """
+    rng = np.random.default_rng(seed)
+    lengths = [int(length)] * n_episodes if np.isscalar(length) else [int(x) for x in length]
+    S = image_size
+    with DatasetWriter(path, S, frame_stack, {"synthetic": pattern}) as w:
+        for ep, T in enumerate(lengths):
+            rgb = np.zeros((T, 3, S, S), np.uint8)
+            priv = np.zeros((T, 6), np.float32)
+            if pattern == "ids":
+                rgb[:, 0] = ep % 256
+                rgb[:, 1] = (np.arange(T) % 256)[:, None, None]
+            else:
+                rgb[:] = rng.integers(0, 80, size=3, dtype=np.uint8)[None, :, None, None]
+                side = max(S // 4, 2)
+                pos = rng.uniform(0, S - side, size=2)
+                vel = rng.uniform(-1.5, 1.5, size=2)
+                for t in range(T):
+                    pos = pos + vel
+                    for a in range(2):  # bounce off the image border
+                        if not 0 <= pos[a] <= S - side:
+                            vel[a] = -vel[a]
+                            pos[a] = np.clip(pos[a], 0, S - side)
+                    y, x = pos.astype(int)
+                    rgb[t, :, y : y + side, x : x + side] = 255
+                    priv[t, :2] = (pos + side / 2 - S / 2) / S
+            w.add_episode(
+                rgb=rgb,
+                depth=rng.uniform(0.5, 5, (T, S, S)).astype(np.float32),
+                state=rng.normal(size=(T, 12)).astype(np.float32),
+                privileged=priv,
+                action=rng.uniform(-1, 1, (T, 3)).astype(np.float32),
+                reward=np.zeros(T, np.float32),
+                done=np.arange(T) == T - 1,
+                scene="box",
+                seed=ep,
+                source=SOURCES[ep % 2],
+            )
+    return Path(path)

@@ -1,0 +1,555 @@
+"""``NavEnv``: first-person drone navigation to a goal, in PyBullet (paper III-A, IV-C, V-A, V-D).
+
+The drone flies at a fixed altitude and is commanded in its body frame with (vx, vy, ωz). Each command goes
+through a first-order velocity response with an acceleration limit (a Tello-like model). A forward camera
+(FOV 82.6°) renders RGB and linear depth with PyBullet's TinyRenderer in DIRECT mode, one physics client per
+env. Collisions, the nearest obstacle and the occupancy map come from the analytic geometry of the scene (see
+:mod:`omcrl.envs.geometry`), never from PyBullet contacts, so one step costs one render.
+
+Observation (dict)
+------------------
+``rgb``        uint8   (L, 3, H, W)  last L camera frames, oldest first
+``depth``      float32 (L, H, W)     linear depth along the optical axis, m, clipped to ``far``
+``state``      float32 (12,)         v (3, body, m/s), ω (3, rad/s), θ (roll, pitch, yaw, rad), Δp_goal (3, body, m)
+``privileged`` float32 (6,)          Δp to the nearest obstacle surface point (3, body, m), Δp_goal (3, body, m)
+
+Action: float32 (3,) in [-1, 1], scaled to (vx, vy, ωz) by ``max_speed`` and ``max_yaw_rate``; values outside
+are clipped, NaN is an error.
+
+Reward (see ARCHITECTURE and docs/DEVIATIONS.md): ``-1/H_max`` per step, plus the progress term
+``progress_scale·(d_{t-1} - d_t)`` (default, potential-based) or the paper's literal ``progress_scale·(d_init -
+d_t)``, plus ``goal_reward`` on success or ``collision_penalty`` on a collision or leaving the arena.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import cv2
+import gymnasium as gym
+import numpy as np
+import pybullet as pb
+from gymnasium import spaces
+
+from omcrl.config import ConfigError, EnvConfig, _check_value
+from omcrl.envs.geometry import Geometry, Primitive
+from omcrl.envs.scenes import SCENES, decor, generate_scene, layout_to_primitives
+from omcrl.envs.textures import texture_file
+from omcrl.planners.grid import OccupancyGrid, build_grid, components, shortest_path
+
+GRAVITY = 9.81
+
+
+@dataclass
+class Disturbance:
+    """Visual disturbances (paper VI-B, real-world tests; VI-C t-SNE), applied at render time.
+
+    Attributes
+    ----------
+    obstacle_colors : ``"random"`` gives each obstacle a random colour (textures kept, tinted).
+    obstacle_texture : a texture kind (e.g. ``"checker"``) put on every obstacle instead of its own.
+    ambient, diffuse, specular : light coefficients in [0, 1] (TinyRenderer); None keeps the default.
+    light_direction : (3,) direction the light comes from; None keeps the default.
+    switch_step : at this step of an episode the light switches to ``switch_ambient``/``switch_diffuse``
+        (the paper's lights-off test); None for no switch.
+    brightness : multiplier on the image (1 = unchanged).
+    hue : hue rotation of the image, degrees.
+    seed : seed for the random colours.
+    """
+
+    obstacle_colors: str | None = None
+    obstacle_texture: str | None = None
+    ambient: float | None = None
+    diffuse: float | None = None
+    specular: float | None = None
+    light_direction: tuple[float, float, float] | None = None
+    switch_step: int | None = None
+    switch_ambient: float = 0.25
+    switch_diffuse: float = 0.15
+    brightness: float = 1.0
+    hue: float = 0.0
+    seed: int = 0
+
+    @classmethod
+    def from_any(cls, d: Disturbance | dict | None) -> Disturbance | None:
+        if d is None or isinstance(d, Disturbance):
+            return d
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ConfigError(f"disturbance: unknown fields {sorted(unknown)}; known: {sorted(known)}")
+        out = cls(**d)
+        if out.obstacle_colors not in (None, "random"):
+            raise ConfigError(f"disturbance.obstacle_colors: got {out.obstacle_colors!r}, expected None or 'random'")
+        if out.brightness < 0:
+            raise ConfigError(f"disturbance.brightness: got {out.brightness}, expected >= 0")
+        return out
+
+
+class NavEnv(gym.Env):
+    """Goal-reaching drone navigation from a monocular camera; see the module docstring for the contract."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        scene: str | None = None,
+        seed: int | None = None,
+        image_size: int | None = None,
+        frame_stack: int | None = None,
+        disturbance: Disturbance | dict | None = None,
+        layout: list[dict] | None = None,
+        config: EnvConfig | None = None,
+        render_mode: str | None = "rgb_array",
+        **overrides: Any,
+    ) -> None:
+        cfg = EnvConfig(**asdict(config)) if config is not None else EnvConfig()
+        # Explicit arguments win over the config; every value is validated like a config field.
+        given = {"scene": scene, "image_size": image_size, "frame_stack": frame_stack}
+        values = {**{k: v for k, v in given.items() if v is not None}, **overrides}
+        by_name = {f.name: f for f in fields(EnvConfig)}
+        for k, v in values.items():
+            if k not in by_name:
+                raise ConfigError(f"env option '{k}' does not exist; known: {sorted(by_name)}")
+            setattr(cfg, k, _check_value(f"env.{k}", by_name[k], v))
+        self.cfg = cfg
+        self.scene = cfg.scene
+        self.disturbance = Disturbance.from_any(disturbance)
+        self.layout = layout_to_primitives(layout) if layout is not None else None
+        self._init_seed = seed
+        self.render_mode = render_mode
+        L, S = cfg.frame_stack, cfg.image_size
+        self.dt = 1.0 / cfg.control_hz
+        self.h_max = cfg.step_penalty_horizon or cfg.max_steps
+        self.observation_space = spaces.Dict(
+            {
+                "rgb": spaces.Box(0, 255, (L, 3, S, S), np.uint8),
+                "depth": spaces.Box(0.0, cfg.far, (L, S, S), np.float32),
+                # Finite bounds that no reachable value exceeds (arena and far plane are tens of metres).
+                "state": spaces.Box(-1e3, 1e3, (12,), np.float32),
+                "privileged": spaces.Box(-1e3, 1e3, (6,), np.float32),
+            }
+        )
+        self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self._scale = np.array([cfg.max_speed, cfg.max_speed, cfg.max_yaw_rate])
+        # Substeps keep each move shorter than the drone radius, so thin walls cannot be tunnelled through.
+        self._substeps = max(1, math.ceil(cfg.max_speed * self.dt / cfg.drone_radius - 1e-9))
+        self._client = pb.connect(pb.DIRECT)
+        self._proj = pb.computeProjectionMatrixFOV(cfg.fov_deg, 1.0, cfg.near, cfg.far)
+        self._built_key: Any = None
+        self._geometry = Geometry()
+        self._prims: list[Primitive] = []
+        self.grid: OccupancyGrid | None = None
+        self.path = np.zeros((0, 2))
+        self._rgb = np.zeros((L, 3, S, S), np.uint8)
+        self._depth = np.zeros((L, S, S), np.float32)
+        self._episode_seed = -1
+        self._layout_seed = -1
+        self._episodes = 0
+        self._has_episode = False
+
+    # ------------------------------------------------------------------ world
+    def _build_world(self, prims: list[Primitive]) -> None:
+        """Recreate all bodies in this env's PyBullet client (visual shapes only: we do our own collisions)."""
+        cid = self._client
+        pb.resetSimulation(physicsClientId=cid)
+        dist = self.disturbance
+        rng = np.random.default_rng(dist.seed if dist else 0)
+        tex_ids: dict[str, int] = {}
+        for p in [*prims, *decor(self.scene, self.cfg.arena_half)]:
+            rgba = p.rgba
+            tex = p.texture
+            if dist is not None and not p.visual_only:
+                if dist.obstacle_texture:
+                    tex = f"{dist.obstacle_texture}:{rng.integers(8)}"
+                if dist.obstacle_colors == "random":
+                    rgba = (*rng.uniform(0.15, 1.0, 3), 1.0)
+            if p.kind == "box":
+                vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=p.size, rgbaColor=rgba, physicsClientId=cid)
+            elif p.kind == "cylinder":
+                vis = pb.createVisualShape(
+                    pb.GEOM_CYLINDER,
+                    radius=p.size[0],
+                    length=2 * p.size[2],
+                    rgbaColor=rgba,
+                    physicsClientId=cid,
+                )
+            else:
+                vis = pb.createVisualShape(pb.GEOM_SPHERE, radius=p.size[0], rgbaColor=rgba, physicsClientId=cid)
+            body = pb.createMultiBody(
+                0,
+                -1,
+                vis,
+                basePosition=p.center,
+                baseOrientation=pb.getQuaternionFromEuler((0, 0, p.yaw)),
+                physicsClientId=cid,
+            )
+            if tex:
+                if tex not in tex_ids:
+                    tex_ids[tex] = pb.loadTexture(texture_file(tex), physicsClientId=cid)
+                pb.changeVisualShape(body, -1, textureUniqueId=tex_ids[tex], rgbaColor=rgba, physicsClientId=cid)
+        self._geometry = Geometry.from_primitives(prims)
+        self._prims = prims
+        c = self.cfg
+        self.grid = build_grid(self._geometry, c.arena_half, c.altitude, c.grid_resolution, c.drone_radius)
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        if seed is None and not self._has_episode and self._init_seed is not None:
+            seed = self._init_seed
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = set(options) - {"start", "goal"}
+        if unknown:
+            raise ValueError(f"reset options: unknown keys {sorted(unknown)}; expected 'start' and/or 'goal'")
+        c = self.cfg
+        for attempt in range(50):
+            # A new layout every `layout_every` episodes (and after a layout with no valid start/goal pair);
+            # with a seed given to reset() the layout always follows from that seed.
+            if seed is not None or attempt > 0 or self._episodes % c.layout_every == 0 or self._layout_seed < 0:
+                self._layout_seed = int(self.np_random.integers(2**31 - 1))
+            layout_seed = self._layout_seed
+            key = ("layout", id(self.layout)) if self.layout is not None else (self.scene, layout_seed)
+            if key != self._built_key:
+                prims = (
+                    self.layout
+                    if self.layout is not None
+                    else generate_scene(self.scene, layout_seed, c.arena_half, c.n_obstacles)
+                )
+                self._build_world(prims)
+                self._built_key = key
+            placed = self._place(options)
+            if placed is not None:
+                break
+            if self.layout is not None:
+                raise ValueError(
+                    "could not find a reachable start/goal pair in the given layout within the "
+                    f"configured goal_distance {c.goal_distance} m"
+                )
+        else:  # pragma: no cover - generators leave plenty of free space
+            raise RuntimeError(f"scene {self.scene!r}: no reachable start/goal found in 50 layouts")
+        start, goal, self.path, self._opt_len = placed
+        self._episode_seed = layout_seed if self.layout is None else -1
+        self._pos = np.array([start[0], start[1], c.altitude])
+        self._yaw = float(start[2])
+        self._vel = np.zeros(2)  # body frame
+        self._wz = 0.0
+        self._acc = np.zeros(2)
+        self._goal = np.array([goal[0], goal[1], c.altitude])
+        self._steps = 0
+        self._d_init = self._d_prev = float(np.linalg.norm(self._goal[:2] - self._pos[:2]))
+        self._min_d = self._d_init
+        self._path_len = 0.0
+        self._has_episode = True
+        self._episodes += 1
+        frame_rgb, frame_depth = self._render_frame()
+        self._rgb[:] = frame_rgb
+        self._depth[:] = frame_depth
+        obs = self._obs(self._geometry.closest(self._pos)[0][0])
+        # The path is a list, not an array: its length varies, and vector envs can only stack fixed shapes.
+        info = {
+            "pose": self.pose,
+            "goal": self._goal[:2].copy(),
+            "path": self.path.tolist(),
+            "optimal_path_length": self._opt_len,
+            "layout_seed": self._episode_seed,
+        }
+        return obs, info
+
+    def _place(self, options: dict) -> tuple | None:
+        """Start (x, y, yaw) and goal (x, y) from ``options`` or sampled free, reachable, at a distance in
+        ``goal_distance``; also the any-angle shortest path. None when this layout has no valid pair."""
+        c = self.cfg
+        grid = self.grid
+        assert grid is not None
+        clearance = c.drone_radius + 0.25
+        rng = self.np_random
+        if "start" in options:
+            start = self._check_point("start", options["start"], with_yaw=True)
+        else:
+            start = None
+        if "goal" in options:
+            goal = self._check_point("goal", options["goal"], with_yaw=False)
+        else:
+            goal = None
+        if start is not None and goal is not None:
+            path, length = shortest_path(grid, start[:2], goal)
+            if not math.isfinite(length):
+                raise ValueError(f"reset options: goal {tuple(goal)} is not reachable from start {tuple(start[:2])}")
+            return start, goal, path, length
+        labels = components(grid)
+        ok = (grid.dist > clearance) & (labels > 0)
+        cells = np.argwhere(ok)
+        pts = grid.to_world(cells)
+        # Cells too near the arena edge would make "leaving the arena" an instant failure.
+        inner = np.all(np.abs(pts) <= c.arena_half - 0.5, axis=1)
+        cells, pts = cells[inner], pts[inner]
+        if len(pts) < 2:
+            return None
+        lab = labels[cells[:, 0], cells[:, 1]]
+        lo, hi = c.goal_distance
+        for _ in range(20):
+            if start is not None or goal is not None:
+                anchor = start[:2] if start is not None else goal
+                aij = grid.to_cell(anchor)
+                alab = labels[aij[0], aij[1]]
+            else:
+                k = rng.integers(len(pts))
+                anchor, alab = pts[k], lab[k]
+            d = np.linalg.norm(pts - anchor, axis=1)
+            cand = pts[(lab == alab) & (d >= lo) & (d <= hi)]
+            if len(cand) == 0:
+                if start is not None or goal is not None:
+                    return None
+                continue
+            other = cand[rng.integers(len(cand))]
+            s_xy, g_xy = (other, goal) if goal is not None and start is None else (anchor, other)
+            path, length = shortest_path(grid, s_xy, g_xy)
+            if not math.isfinite(length):
+                continue
+            if start is not None:
+                yaw = start[2]
+            else:
+                toward = math.atan2(g_xy[1] - s_xy[1], g_xy[0] - s_xy[0])
+                yaw = toward + float(rng.uniform(-c.start_yaw_noise, c.start_yaw_noise))
+            return np.array([s_xy[0], s_xy[1], _wrap(yaw)]), np.asarray(g_xy, np.float64), path, length
+        return None
+
+    def _check_point(self, name: str, value: Any, with_yaw: bool) -> np.ndarray:
+        try:
+            arr = np.asarray(value, dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            raise ValueError(f"reset options['{name}']: got {value!r}, expected numbers") from None
+        want = (2, 3) if with_yaw else (2,)
+        if arr.size not in want or not np.all(np.isfinite(arr)):
+            raise ValueError(
+                f"reset options['{name}']: got {value!r}, expected {'(x, y[, yaw])' if with_yaw else '(x, y)'}"
+                " with finite values in metres/radians"
+            )
+        a = self.cfg.arena_half
+        if np.any(np.abs(arr[:2]) > a):
+            raise ValueError(f"reset options['{name}']: {tuple(arr[:2])} lies outside the arena [-{a}, {a}]^2 m")
+        d = float(self._geometry.closest(np.array([arr[0], arr[1], self.cfg.altitude]))[1][0])
+        if d <= self.cfg.drone_radius:
+            raise ValueError(
+                f"reset options['{name}']: {tuple(arr[:2])} is inside or within the drone radius "
+                f"({self.cfg.drone_radius} m) of an obstacle (clearance {d:.3f} m)"
+            )
+        if with_yaw and arr.size == 2:
+            arr = np.append(arr, 0.0)
+        return arr
+
+    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+        if not self._has_episode:
+            raise RuntimeError("NavEnv.step called before reset()")
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (3,):
+            raise ValueError(f"action: expected shape (3,), got {np.shape(action)}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action contains NaN or inf: {a.tolist()}")
+        cmd = np.clip(a, -1.0, 1.0) * self._scale
+        c = self.cfg
+        dt = self.dt / self._substeps
+        # First-order response toward the command, then the acceleration limit (Tello-like).
+        k = 1.0 - math.exp(-dt / c.velocity_tau) if c.velocity_tau > 0 else 1.0
+        collided = out = False
+        geo = self._geometry
+        for _ in range(self._substeps):
+            dv = (cmd[:2] - self._vel) * k
+            lim = c.max_accel * dt
+            n = float(np.hypot(dv[0], dv[1]))
+            if n > lim:
+                dv *= lim / n
+            self._vel = self._vel + dv
+            self._acc = dv / dt
+            self._wz += (cmd[2] - self._wz) * k
+            self._yaw = _wrap(self._yaw + self._wz * dt)
+            cy, sy = math.cos(self._yaw), math.sin(self._yaw)
+            step_xy = np.array([cy * self._vel[0] - sy * self._vel[1], sy * self._vel[0] + cy * self._vel[1]]) * dt
+            self._pos[:2] += step_xy
+            self._path_len += float(np.hypot(step_xy[0], step_xy[1]))
+            closest, dist = geo.closest(self._pos)
+            if dist[0] <= c.drone_radius:
+                collided = True
+                break
+            if abs(self._pos[0]) > c.arena_half or abs(self._pos[1]) > c.arena_half:
+                out = True
+                break
+        self._steps += 1
+        d = float(np.linalg.norm(self._goal[:2] - self._pos[:2]))
+        self._min_d = min(self._min_d, d)
+        success = not (collided or out) and d <= c.goal_radius
+        if c.progress == "difference":
+            progress = c.progress_scale * (self._d_prev - d)
+        else:
+            progress = c.progress_scale * (self._d_init - d)
+        self._d_prev = d
+        reward = -1.0 / self.h_max + progress
+        if success:
+            reward += c.goal_reward
+        elif collided or out:
+            reward += c.collision_penalty
+        terminated = bool(success or collided or out)
+        truncated = bool(not terminated and self._steps >= c.max_steps)
+        rgb, depth = self._render_frame()
+        self._rgb[:-1] = self._rgb[1:]
+        self._rgb[-1] = rgb
+        self._depth[:-1] = self._depth[1:]
+        self._depth[-1] = depth
+        obs = self._obs(closest[0])
+        info: dict[str, Any] = {"pose": self.pose, "goal": self._goal[:2].copy()}
+        if terminated or truncated:
+            info["metrics"] = {
+                "final_distance": d,
+                "min_distance": self._min_d,
+                "success": bool(success),
+                "collision": bool(collided),
+                "out_of_arena": bool(out),
+                "path_length": self._path_len,
+                "optimal_path_length": self._opt_len,
+                "steps": self._steps,
+                "scene": self.scene,
+                "seed": self._episode_seed,
+            }
+        return obs, float(reward), terminated, truncated, info
+
+    # ------------------------------------------------------------------ sensors
+    @property
+    def pose(self) -> np.ndarray:
+        """(x, y, yaw) in the world frame, m and rad."""
+        return np.array([self._pos[0], self._pos[1], self._yaw])
+
+    def _to_body(self, v: np.ndarray) -> np.ndarray:
+        c, s = math.cos(self._yaw), math.sin(self._yaw)
+        return np.array([c * v[0] + s * v[1], -s * v[0] + c * v[1], v[2]])
+
+    def _obs(self, closest: np.ndarray) -> dict:
+        goal_b = self._to_body(self._goal - self._pos)
+        if self._geometry.n:
+            obst_b = self._to_body(closest - self._pos)
+        else:  # nothing in range: report an obstacle at the far plane straight ahead
+            obst_b = np.array([self.cfg.far, 0.0, 0.0])
+        pitch = math.atan2(self._acc[0], GRAVITY)
+        roll = -math.atan2(self._acc[1], GRAVITY)
+        state = np.array(
+            [self._vel[0], self._vel[1], 0.0, 0.0, 0.0, self._wz, roll, pitch, self._yaw, *goal_b], np.float32
+        )
+        priv = np.concatenate([obst_b, goal_b]).astype(np.float32)
+        return {"rgb": self._rgb.copy(), "depth": self._depth.copy(), "state": state, "privileged": priv}
+
+    def _light(self) -> dict:
+        d = self.disturbance
+        if d is None:
+            return {}
+        kw: dict[str, Any] = {}
+        if d.ambient is not None:
+            kw["lightAmbientCoeff"] = d.ambient
+        if d.diffuse is not None:
+            kw["lightDiffuseCoeff"] = d.diffuse
+        if d.specular is not None:
+            kw["lightSpecularCoeff"] = d.specular
+        if d.light_direction is not None:
+            kw["lightDirection"] = list(d.light_direction)
+        if d.switch_step is not None and self._steps >= d.switch_step:
+            kw["lightAmbientCoeff"] = d.switch_ambient
+            kw["lightDiffuseCoeff"] = d.switch_diffuse
+        return kw
+
+    def _render_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """One TinyRenderer call: RGB (3, H, W) uint8 and linear depth (H, W) float32 in metres."""
+        c = self.cfg
+        eye = self._pos
+        cy, sy = math.cos(self._yaw), math.sin(self._yaw)
+        view = pb.computeViewMatrix(eye.tolist(), [eye[0] + cy, eye[1] + sy, eye[2]], [0.0, 0.0, 1.0])
+        S = c.image_size
+        _, _, rgba, zbuf, _ = pb.getCameraImage(
+            S,
+            S,
+            view,
+            self._proj,
+            renderer=pb.ER_TINY_RENDERER,
+            shadow=0,
+            flags=pb.ER_NO_SEGMENTATION_MASK,
+            physicsClientId=self._client,
+            **self._light(),
+        )
+        rgba = np.asarray(rgba, np.uint8).reshape(S, S, 4)
+        zbuf = np.asarray(zbuf, np.float32).reshape(S, S)
+        depth = c.far * c.near / (c.far - (c.far - c.near) * zbuf)
+        rgb = rgba[..., :3]
+        d = self.disturbance
+        if d is not None and (d.brightness != 1.0 or d.hue != 0.0):
+            rgb = _adjust(rgb, d.brightness, d.hue)
+        return rgb.transpose(2, 0, 1), np.minimum(depth, c.far)
+
+    def render(self) -> np.ndarray:
+        """The newest camera frame as (H, W, 3) uint8."""
+        return self._rgb[-1].transpose(1, 2, 0).copy()
+
+    @property
+    def primitives(self) -> list[Primitive]:
+        """Obstacles of the current layout (collision geometry), for maps and plots."""
+        return list(self._prims)
+
+    def close(self) -> None:
+        if getattr(self, "_client", None) is not None and self._client >= 0:
+            try:
+                pb.disconnect(physicsClientId=self._client)
+            except pb.error:  # already disconnected
+                pass
+            self._client = -1
+
+    def __del__(self) -> None:  # pragma: no cover - best effort at interpreter shutdown
+        try:
+            self.close()
+        except Exception:
+            pass
+
+
+def _adjust(rgb: np.ndarray, brightness: float, hue_deg: float) -> np.ndarray:
+    """Brightness multiplier and hue rotation of an (H, W, 3) uint8 image."""
+    if hue_deg:
+        hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV)
+        # OpenCV stores hue in [0, 180) for uint8 images.
+        hsv[..., 0] = ((hsv[..., 0].astype(np.int32) + round(hue_deg / 2)) % 180).astype(np.uint8)
+        rgb = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+    if brightness != 1.0:
+        rgb = np.clip(rgb.astype(np.float32) * brightness, 0, 255).astype(np.uint8)
+    return rgb
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def make_env(
+    scene: str | None = "box",
+    seed: int | None = 0,
+    image_size: int | None = None,
+    frame_stack: int | None = None,
+    disturbance: Disturbance | dict | None = None,
+    layout: list[dict] | None = None,
+    config: EnvConfig | None = None,
+    **overrides: Any,
+) -> NavEnv:
+    """Build a :class:`NavEnv`.
+
+    ``scene`` is one of ``SCENES``; ``image_size``/``frame_stack`` and other keywords are ``EnvConfig`` fields
+    that override ``config`` (default 64 px, L = 3). ``scene=None`` takes the scene from ``config``.
+    """
+    if scene is None and config is not None:
+        scene = config.scene
+    if scene not in SCENES:
+        raise ConfigError(f"scene: got {scene!r}, expected one of {list(SCENES)}")
+    return NavEnv(
+        scene=scene,
+        seed=seed,
+        image_size=image_size,
+        frame_stack=frame_stack,
+        disturbance=disturbance,
+        layout=layout,
+        config=config,
+        **overrides,
+    )

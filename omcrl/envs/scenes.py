@@ -1,0 +1,461 @@
+"""The four scenes of rising difficulty (paper V-A), generated from a seed, and user layouts.
+
+* ``box`` — identical crates with one texture, the training scene.
+* ``furniture`` — tables, chairs, shelves, sofas, lamps, cabinets and plants of different shapes, sizes,
+  colours and materials; tables, sofas and coffee tables are low enough to fly over.
+* ``barrier`` — irregular walls: straight runs, L- and U-shapes, walls with gaps. U-shapes open towards the
+  arena centre are local minima for potential fields.
+* ``tree`` — an outdoor forest: trunks of varied radius and bark, canopies (spheres or stacked cones), low
+  bushes, grass and sky.
+
+A scene is a list of :class:`~omcrl.envs.geometry.Primitive`; decor (floor, walls beyond the arena, ceiling,
+sky) is ``visual_only``. Generators place structures by rejection sampling with a spacing margin so that the
+drone can pass between most of them; reachability of start and goal is checked later on the occupancy grid.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from omcrl.envs.geometry import Primitive
+
+SCENES = ("box", "furniture", "barrier", "tree")
+DEFAULT_COUNTS = {"box": 20, "furniture": 18, "barrier": 9, "tree": 34}
+INDOOR = {"box": True, "furniture": True, "barrier": True, "tree": False}
+FLOOR_TEXTURE = {"box": "tiles:0", "furniture": "wood:floor", "barrier": "concrete:floor", "tree": "grass:0"}
+WALL_TEXTURE = {"box": "paint:0", "furniture": "paint:1", "barrier": "brick:room"}
+
+
+def _rgba(rng: np.random.Generator, lo: float = 0.25, hi: float = 0.95) -> tuple[float, float, float, float]:
+    r, g, b = rng.uniform(lo, hi, 3)
+    return (float(r), float(g), float(b), 1.0)
+
+
+class _Placer:
+    """Rejection sampler for structure footprints (discs) inside the arena with a spacing margin."""
+
+    def __init__(self, rng: np.random.Generator, arena_half: float, gap: float) -> None:
+        self.rng, self.a, self.gap = rng, arena_half, gap
+        self.discs: list[tuple[float, float, float]] = []
+
+    def place(self, radius: float, tries: int = 60) -> tuple[float, float] | None:
+        for _ in range(tries):
+            x, y = self.rng.uniform(-self.a + radius * 0.5, self.a - radius * 0.5, 2)
+            if all(math.hypot(x - u, y - v) > radius + r + self.gap for u, v, r in self.discs):
+                self.discs.append((x, y, radius))
+                return float(x), float(y)
+        return None
+
+
+def _rot(x: float, y: float, yaw: float) -> tuple[float, float]:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return c * x - s * y, s * x + c * y
+
+
+def _part(
+    cx: float,
+    cy: float,
+    yaw: float,
+    lx: float,
+    ly: float,
+    half: tuple[float, float],
+    z: tuple[float, float],
+    **kw: Any,
+) -> Primitive:
+    """Box part of a structure: local offset (lx, ly) m, half extents ``half`` (x, y), spanning heights ``z``."""
+    ox, oy = _rot(lx, ly, yaw)
+    return Primitive("box", (cx + ox, cy + oy, (z[0] + z[1]) / 2), (half[0], half[1], (z[1] - z[0]) / 2), yaw=yaw, **kw)
+
+
+# ------------------------------------------------------------------ generators
+def gen_box(rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
+    placer = _Placer(rng, arena_half, gap=0.9)
+    out = []
+    for _ in range(n):
+        pos = placer.place(0.71)
+        if pos is None:
+            break
+        # Identical crates: same size, colour and texture; only position and yaw vary.
+        out.append(
+            Primitive(
+                "box",
+                (pos[0], pos[1], 1.25),
+                (0.5, 0.5, 1.25),
+                yaw=float(rng.uniform(0, math.pi)),
+                rgba=(1, 1, 1, 1),
+                texture="crate:0",
+            )
+        )
+    return out
+
+
+def _furniture_piece(kind: str, rng: np.random.Generator, x: float, y: float, yaw: float) -> list[Primitive]:
+    wood = f"wood:{rng.integers(6)}"
+    col = _rgba(rng)
+    if kind == "table":  # low: the drone (altitude 1 m) flies over it
+        w, d = rng.uniform(0.5, 0.8), rng.uniform(0.35, 0.45)
+        top = _part(x, y, yaw, 0, 0, (w, d), (0.72, 0.76), rgba=(1, 1, 1, 1), texture=wood)
+        legs = [
+            _part(
+                x,
+                y,
+                yaw,
+                sx * (w - 0.05),
+                sy * (d - 0.05),
+                (0.03, 0.03),
+                (0.0, 0.72),
+                rgba=(1, 1, 1, 1),
+                texture=wood,
+            )
+            for sx in (-1, 1)
+            for sy in (-1, 1)
+        ]
+        return [top, *legs]
+    if kind == "round_table":
+        r = float(rng.uniform(0.35, 0.55))
+        return [
+            Primitive("cylinder", (x, y, 0.72), (r, r, 0.02), rgba=(1, 1, 1, 1), texture=f"marble:{rng.integers(4)}"),
+            Primitive("cylinder", (x, y, 0.35), (0.05, 0.05, 0.35), rgba=(0.2, 0.2, 0.2, 1), texture=None),
+        ]
+    if kind == "chair":
+        s = 0.23
+        fab = f"fabric:{rng.integers(8)}"
+        return [
+            _part(x, y, yaw, 0, 0, (s, s), (0.42, 0.48), rgba=(1, 1, 1, 1), texture=fab),
+            _part(x, y, yaw, -s + 0.03, 0, (0.03, s), (0.48, 1.1), rgba=(1, 1, 1, 1), texture=fab),
+            *[
+                _part(x, y, yaw, sx * (s - 0.03), sy * (s - 0.03), (0.02, 0.02), (0.0, 0.42), rgba=col)
+                for sx in (-1, 1)
+                for sy in (-1, 1)
+            ],
+        ]
+    if kind == "shelf":
+        w, d, h = rng.uniform(0.4, 0.8), rng.uniform(0.18, 0.25), rng.uniform(1.7, 2.2)
+        parts = [_part(x, y, yaw, 0, sy * w, (d, 0.02), (0, h), rgba=(1, 1, 1, 1), texture=wood) for sy in (-1, 1)]
+        parts.append(_part(x, y, yaw, -d + 0.01, 0, (0.01, w), (0, h), rgba=(1, 1, 1, 1), texture=wood))
+        parts += [
+            _part(x, y, yaw, 0, 0, (d, w), (z, z + 0.03), rgba=(1, 1, 1, 1), texture=wood)
+            for z in np.linspace(0.0, h - 0.03, 5)
+        ]
+        return parts
+    if kind == "sofa":  # low back: flyable over
+        w, d = rng.uniform(0.8, 1.1), 0.45
+        fab = f"fabric:{rng.integers(8)}"
+        return [
+            _part(x, y, yaw, 0, 0, (d, w), (0, 0.45), rgba=(1, 1, 1, 1), texture=fab),
+            _part(x, y, yaw, -d + 0.1, 0, (0.1, w), (0.45, 0.82), rgba=(1, 1, 1, 1), texture=fab),
+            *[
+                _part(x, y, yaw, 0, sy * (w - 0.08), (d, 0.08), (0.45, 0.62), rgba=(1, 1, 1, 1), texture=fab)
+                for sy in (-1, 1)
+            ],
+        ]
+    if kind == "lamp":
+        h = float(rng.uniform(1.4, 1.8))
+        return [
+            Primitive("cylinder", (x, y, 0.02), (0.18, 0.18, 0.02), rgba=(0.15, 0.15, 0.15, 1)),
+            Primitive(
+                "cylinder",
+                (x, y, h / 2),
+                (0.025, 0.025, h / 2),
+                rgba=(0.7, 0.7, 0.72, 1),
+                texture=f"metal:{rng.integers(4)}",
+            ),
+            Primitive("cylinder", (x, y, h), (0.22, 0.22, 0.15), rgba=(*_rgba(rng, 0.7, 1.0)[:3], 1.0)),
+        ]
+    if kind == "cabinet":
+        w, d, h = rng.uniform(0.4, 0.7), rng.uniform(0.25, 0.35), rng.uniform(1.2, 2.0)
+        return [
+            _part(
+                x,
+                y,
+                yaw,
+                0,
+                0,
+                (d, w),
+                (0, h),
+                rgba=col,
+                texture=f"metal:{rng.integers(4)}" if rng.random() < 0.4 else wood,
+            )
+        ]
+    if kind == "plant":
+        r = float(rng.uniform(0.3, 0.5))
+        return [
+            Primitive("cylinder", (x, y, 0.25), (0.2, 0.2, 0.25), rgba=(0.55, 0.3, 0.2, 1), texture="concrete:pot"),
+            Primitive(
+                "sphere",
+                (x, y, 0.5 + r * 0.9),
+                (r, r, r),
+                rgba=(1, 1, 1, 1),
+                texture=f"leaves:{rng.integers(6)}",
+            ),
+        ]
+    if kind == "coffee_table":
+        w, d = rng.uniform(0.4, 0.6), rng.uniform(0.3, 0.4)
+        return [_part(x, y, yaw, 0, 0, (w, d), (0.0, 0.42), rgba=col, texture=f"marble:{rng.integers(4)}")]
+    raise ValueError(kind)
+
+
+FURNITURE = ("table", "round_table", "chair", "shelf", "sofa", "lamp", "cabinet", "plant", "coffee_table")
+_FURN_RADIUS = {
+    "table": 0.95,
+    "round_table": 0.55,
+    "chair": 0.35,
+    "shelf": 0.8,
+    "sofa": 1.1,
+    "lamp": 0.25,
+    "cabinet": 0.75,
+    "plant": 0.5,
+    "coffee_table": 0.7,
+}
+
+
+def gen_furniture(rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
+    placer = _Placer(rng, arena_half, gap=0.7)
+    out: list[Primitive] = []
+    # Every kind appears at least once, then random kinds, so each layout shows the variety.
+    kinds = list(FURNITURE) + list(rng.choice(FURNITURE, size=max(0, n - len(FURNITURE))))
+    for kind in kinds[:n]:
+        pos = placer.place(_FURN_RADIUS[kind])
+        if pos is not None:
+            out += _furniture_piece(kind, rng, pos[0], pos[1], float(rng.uniform(0, 2 * math.pi)))
+    return out
+
+
+def gen_barrier(rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
+    placer = _Placer(rng, arena_half, gap=1.0)
+    out: list[Primitive] = []
+    h = 2.4
+    shapes = ["U", "L", "gap", "straight", "U", "zigzag"]
+    for i in range(n):
+        shape = shapes[i % len(shapes)] if i < len(shapes) else str(rng.choice(shapes))
+        size = float(rng.uniform(1.4, 2.4))
+        pos = placer.place(size * 1.1)
+        if pos is None:
+            continue
+        x, y = pos
+        yaw = float(rng.uniform(0, 2 * math.pi))
+        t = float(rng.uniform(0.1, 0.18))  # half thickness
+        tex = f"{rng.choice(['brick', 'concrete', 'paint'])}:{rng.integers(6)}"
+        kw = {"rgba": (1.0, 1.0, 1.0, 1.0), "texture": tex}
+        hh = h * float(rng.uniform(0.85, 1.1))
+        if shape == "straight":
+            out.append(_part(x, y, yaw, 0, 0, (size, t), (0, hh), **kw))
+        elif shape == "L":
+            out += [
+                _part(x, y, yaw, 0, -size + t, (size, t), (0, hh), **kw),
+                _part(x, y, yaw, -size + t, 0, (t, size), (0, hh), **kw),
+            ]
+        elif shape == "U":  # a pocket: potential-field local minimum when the goal lies behind it
+            depth = size * float(rng.uniform(0.7, 1.0))
+            out += [
+                _part(x, y, yaw, 0, 0, (t, size), (0, hh), **kw),
+                _part(x, y, yaw, depth, size - t, (depth, t), (0, hh), **kw),
+                _part(x, y, yaw, depth, -size + t, (depth, t), (0, hh), **kw),
+            ]
+        elif shape == "gap":
+            g = float(rng.uniform(0.45, 0.6))  # half gap: passable for a 0.15 m drone
+            seg = size
+            out += [
+                _part(x, y, yaw, 0, g + seg / 2, (t, seg / 2), (0, hh), **kw),
+                _part(x, y, yaw, 0, -g - seg / 2, (t, seg / 2), (0, hh), **kw),
+            ]
+        else:  # zigzag: irregular run of short segments at alternating angles
+            px, py = -size, 0.0
+            ang = yaw
+            for _ in range(3):
+                seg = size * 0.5
+                ang += float(rng.uniform(-1.0, 1.0))
+                cx, cy = px + math.cos(ang) * seg, py + math.sin(ang) * seg
+                ox, oy = _rot(cx, cy, 0.0)
+                out.append(_part(x + ox, y + oy, ang, 0, 0, (seg, t), (0, hh), **kw))
+                px, py = cx + math.cos(ang) * seg, cy + math.sin(ang) * seg
+    return out
+
+
+def gen_tree(rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
+    placer = _Placer(rng, arena_half, gap=1.0)
+    out: list[Primitive] = []
+    for i in range(n):
+        bush = i % 5 == 4
+        r_trunk = float(rng.uniform(0.1, 0.3))
+        pos = placer.place(0.55 if bush else r_trunk + 0.35)
+        if pos is None:
+            continue
+        x, y = pos
+        if bush:  # low bushes, some reaching flight altitude
+            r = float(rng.uniform(0.35, 0.6))
+            out.append(
+                Primitive(
+                    "sphere",
+                    (x, y, r * 0.8),
+                    (r, r, r),
+                    rgba=(1, 1, 1, 1),
+                    texture=f"leaves:{rng.integers(8)}",
+                )
+            )
+            continue
+        h = float(rng.uniform(3.0, 6.5))
+        out.append(
+            Primitive(
+                "cylinder",
+                (x, y, h / 2),
+                (r_trunk, r_trunk, h / 2),
+                rgba=(1, 1, 1, 1),
+                texture=f"bark:{rng.integers(6)}",
+            )
+        )
+        leaves = f"leaves:{rng.integers(8)}"
+        if rng.random() < 0.5:  # broadleaf: one to three canopy spheres above the flight level
+            for _ in range(int(rng.integers(1, 4))):
+                r = float(rng.uniform(0.8, 1.6))
+                cz = max(h - r * 0.3, 1.5 + r) + float(rng.uniform(-0.2, 0.4))
+                dx, dy = rng.uniform(-0.4, 0.4, 2)
+                out.append(Primitive("sphere", (x + dx, y + dy, cz), (r, r, r), rgba=(1, 1, 1, 1), texture=leaves))
+        else:  # conifer: stacked discs shrinking upwards
+            base = float(rng.uniform(1.6, 2.2))
+            levels = 3
+            for k in range(levels):
+                r = float(rng.uniform(0.9, 1.3)) * (1 - k / (levels + 1))
+                z0 = base + k * (h - base) / levels
+                out.append(
+                    Primitive("cylinder", (x, y, z0 + 0.3), (r, r, 0.3), rgba=(0.8, 0.9, 0.8, 1), texture=leaves)
+                )
+    return out
+
+
+GENERATORS: dict[str, Callable[[np.random.Generator, float, int], list[Primitive]]] = {
+    "box": gen_box,
+    "furniture": gen_furniture,
+    "barrier": gen_barrier,
+    "tree": gen_tree,
+}
+
+
+def generate_scene(scene: str, seed: int, arena_half: float, n_obstacles: int = 0) -> list[Primitive]:
+    """Obstacles of ``scene`` for ``seed`` (deterministic). ``n_obstacles`` 0 means the scene's default count."""
+    if scene not in SCENES:
+        raise ValueError(f"scene: got {scene!r}, expected one of {SCENES}")
+    rng = np.random.default_rng([seed, SCENES.index(scene)])
+    return GENERATORS[scene](rng, arena_half, n_obstacles or DEFAULT_COUNTS[scene])
+
+
+def decor(
+    scene: str, arena_half: float, wall_texture: str | None = None, floor_texture: str | None = None
+) -> list[Primitive]:
+    """Visual-only surroundings: floor tiles, and room walls + ceiling (indoor) or sky (tree).
+
+    Room walls stand 1 m beyond the arena edge, so leaving the arena ends an episode before the drone could
+    touch them; they are scenery, not obstacles.
+    """
+    out = []
+    ext = arena_half + (1.0 if INDOOR[scene] else 6.0)
+    tile = 4.0 if INDOOR[scene] else 7.0  # fewer, larger tiles outdoors: each body costs ~0.3 ms per reset
+    k = math.ceil(ext / tile)
+    ftex = floor_texture or FLOOR_TEXTURE[scene]
+    for i in range(-k, k):
+        for j in range(-k, k):
+            out.append(
+                Primitive(
+                    "box",
+                    ((i + 0.5) * tile, (j + 0.5) * tile, -0.05),
+                    (tile / 2, tile / 2, 0.05),
+                    rgba=(1, 1, 1, 1),
+                    texture=ftex,
+                    visual_only=True,
+                )
+            )
+    if INDOOR[scene]:
+        wt = wall_texture or WALL_TEXTURE[scene]
+        hgt = 3.0
+        e = arena_half + 1.0
+        for sx, sy, hx, hy in ((e, 0, 0.1, e), (-e, 0, 0.1, e), (0, e, e, 0.1), (0, -e, e, 0.1)):
+            out.append(
+                Primitive(
+                    "box",
+                    (sx, sy, hgt / 2),
+                    (hx, hy, hgt / 2),
+                    rgba=(1, 1, 1, 1),
+                    texture=wt,
+                    visual_only=True,
+                )
+            )
+        out.append(
+            Primitive(
+                "box",
+                (0, 0, hgt + 0.05),
+                (e, e, 0.05),
+                rgba=(0.92, 0.92, 0.9, 1),
+                texture="paint:ceiling",
+                visual_only=True,
+            )
+        )
+    else:
+        e = arena_half + 6.0
+        hgt = 14.0
+        for sx, sy, hx, hy in ((e, 0, 0.1, e), (-e, 0, 0.1, e), (0, e, e, 0.1), (0, -e, e, 0.1)):
+            out.append(
+                Primitive(
+                    "box",
+                    (sx, sy, hgt / 2 - 1),
+                    (hx, hy, hgt / 2),
+                    rgba=(1, 1, 1, 1),
+                    texture="sky:0",
+                    visual_only=True,
+                )
+            )
+    return out
+
+
+def layout_to_primitives(layout: Sequence[dict]) -> list[Primitive]:
+    """Convert a user layout into primitives.
+
+    Each entry is a dict with ``kind`` (``box``/``cylinder``/``sphere``), ``position`` (x, y) — standing on
+    the floor — or (x, y, z) — centre —, ``size`` (box: full extents (sx, sy, sz); cylinder: (radius,
+    height); sphere: (radius,)), optional ``yaw`` (rad), ``color`` (rgb or rgba in [0, 1]), ``texture``.
+    """
+    out = []
+    for i, item in enumerate(layout):
+        try:
+            kind = item["kind"]
+            pos = [float(v) for v in item["position"]]
+            size = [float(v) for v in item["size"]]
+        except (KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"layout[{i}]: needs 'kind', 'position' and 'size' ({e})") from None
+        if kind == "box":
+            if len(size) != 3:
+                raise ValueError(f"layout[{i}] box: size needs (sx, sy, sz), got {size}")
+            half = (size[0] / 2, size[1] / 2, size[2] / 2)
+            height = size[2]
+        elif kind == "cylinder":
+            if len(size) != 2:
+                raise ValueError(f"layout[{i}] cylinder: size needs (radius, height), got {size}")
+            half = (size[0], size[0], size[1] / 2)
+            height = size[1]
+        elif kind == "sphere":
+            half = (size[0],) * 3
+            height = 2 * size[0]
+        else:
+            raise ValueError(f"layout[{i}]: kind must be box, cylinder or sphere, got {kind!r}")
+        if len(pos) == 2:
+            pos.append(height / 2)
+        if len(pos) != 3:
+            raise ValueError(f"layout[{i}]: position needs (x, y) or (x, y, z), got {pos}")
+        if min(half) <= 0:
+            raise ValueError(f"layout[{i}]: sizes must be positive, got {size}")
+        color = tuple(float(c) for c in item.get("color", (0.7, 0.7, 0.7)))
+        rgba = (*color[:3], color[3] if len(color) > 3 else 1.0)
+        out.append(
+            Primitive(
+                kind,
+                tuple(pos),
+                half,
+                yaw=float(item.get("yaw", 0.0)),
+                rgba=rgba,
+                texture=item.get("texture"),
+            )
+        )
+    return out

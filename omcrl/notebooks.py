@@ -1,0 +1,413 @@
+"""Run the numbered notebooks headless with papermill, one preset at a time.
+
+The notebooks in ``notebooks/NN_*.ipynb`` are committed without outputs. Each has exactly one cell tagged
+``parameters`` that assigns at least ``preset``; it may also assign ``results_dir`` (a config field) and
+``overrides`` (a list of ``"section.field=value"`` strings for :func:`omcrl.config.load_config`). The runner
+injects ``preset`` and, when the notebook declares them, ``results_dir`` and ``overrides``; any further
+``parameters`` are injected as given.
+
+The executed copy, with outputs, goes to ``<results_dir>/<preset>/executed/<name>.ipynb``. The kernel is the
+interpreter running this code (see :func:`resolve_kernel`), so the notebooks see the same installed ``omcrl``.
+
+Example
+-------
+>>> from omcrl.notebooks import NOTEBOOKS, run_chain
+>>> run_chain("smoke")                      # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import ast
+import atexit
+import contextlib
+import json
+import logging
+import os
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Iterator, Sequence
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+NOTEBOOK_DIR = REPO_ROOT / "notebooks"
+NATIVE_KERNEL = "python3"
+PRIVATE_KERNEL = "omcrl-python"
+# Parameters the runner fills in only when the notebook's parameters cell declares them.
+OPTIONAL_PARAMETERS = ("results_dir", "overrides")
+
+log = logging.getLogger(__name__)
+
+
+class NotebookError(RuntimeError):
+    """A notebook could not be found, is malformed, or failed while executing."""
+
+
+class NotebookNotFoundError(NotebookError, FileNotFoundError):
+    """The named notebook does not exist."""
+
+
+class NotebookExecutionError(NotebookError):
+    """A cell raised while the notebook ran; the message names the notebook, the cell and the error."""
+
+    def __init__(self, message: str, *, notebook: str, cell: int | None, executed: Path) -> None:
+        super().__init__(message)
+        self.notebook = notebook
+        self.cell = cell
+        self.executed = executed
+
+
+# ---------------------------------------------------------------- discovery
+def discover_notebooks(directory: str | Path | None = None) -> list[str]:
+    """Names (file stems) of ``NN_*.ipynb`` in ``directory`` (default ``notebooks/``), in numeric order."""
+    d = Path(directory) if directory is not None else NOTEBOOK_DIR
+    if not d.is_dir():
+        return []
+    names = [p.stem for p in d.glob("[0-9][0-9]_*.ipynb") if p.is_file()]
+    return sorted(names)
+
+
+NOTEBOOKS: list[str] = discover_notebooks()
+
+
+def notebook_path(name_or_path: str | Path) -> Path:
+    """Resolve a notebook name (``"03_train_oracle"``), its number prefix (``"03"``) or a path to a file."""
+    text = str(name_or_path)
+    p = Path(text)
+    if p.suffix == ".ipynb" or p.parent != Path("."):
+        if not p.is_file():
+            raise NotebookNotFoundError(f"notebook {text!r} does not exist")
+        return p
+    names = discover_notebooks()
+    matches = [n for n in names if n == text] or [n for n in names if n.split("_", 1)[0] == text]
+    if len(matches) != 1:
+        listed = ", ".join(names) if names else "none"
+        why = "is ambiguous" if matches else "was not found"
+        raise NotebookNotFoundError(f"notebook {text!r} {why} in {NOTEBOOK_DIR}; available: {listed}")
+    return NOTEBOOK_DIR / f"{matches[0]}.ipynb"
+
+
+# ---------------------------------------------------------------- notebook hygiene
+def parameters_cells(nb: Any) -> list[int]:
+    """Indices of the cells tagged ``parameters``."""
+    return [i for i, c in enumerate(nb.cells) if "parameters" in c.get("metadata", {}).get("tags", [])]
+
+
+def declared_parameters(nb: Any) -> list[str]:
+    """Names assigned in the notebook's ``parameters`` cell(s), in order."""
+    names: list[str] = []
+    for i in parameters_cells(nb):
+        try:
+            tree = ast.parse(nb.cells[i].source)
+        except SyntaxError as e:
+            raise NotebookError(f"parameters cell {i} does not parse: {e}") from None
+        for node in tree.body:
+            targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+            for t in targets:
+                if isinstance(t, ast.Name) and t.id not in names:
+                    names.append(t.id)
+    return names
+
+
+def check_notebook(path: str | Path) -> list[str]:
+    """Problems that keep a notebook from being committed as is; an empty list means it is clean.
+
+    Rules: no outputs and no execution counts in any code cell, and exactly one cell tagged ``parameters``
+    that assigns ``preset``.
+    """
+    import nbformat
+
+    nb = nbformat.read(str(path), as_version=4)
+    problems = []
+    for i, c in enumerate(nb.cells):
+        if c.cell_type == "code" and (c.get("outputs") or c.get("execution_count") is not None):
+            problems.append(f"cell {i} has outputs or an execution count (run strip_outputs)")
+    cells = parameters_cells(nb)
+    if len(cells) != 1:
+        problems.append(f"expected exactly one cell tagged 'parameters', found {len(cells)}")
+    elif "preset" not in declared_parameters(nb):
+        problems.append(f"the parameters cell (cell {cells[0]}) does not assign 'preset'")
+    return problems
+
+
+def strip_outputs(path: str | Path) -> bool:
+    """Clear outputs, execution counts and run metadata of a notebook in place; True if it changed."""
+    import nbformat
+
+    p = Path(path)
+    before = p.read_text(encoding="utf-8")
+    nb = nbformat.reads(before, as_version=4)
+    for c in nb.cells:
+        if c.cell_type == "code":
+            c.outputs = []
+            c.execution_count = None
+        for key in ("execution", "papermill", "collapsed", "scrolled"):
+            c.metadata.pop(key, None)
+    for key in ("papermill", "widgets"):
+        nb.metadata.pop(key, None)
+    after = nbformat.writes(nb)
+    if not after.endswith("\n"):
+        after += "\n"  # as nbformat.write does
+    if after == before:
+        return False
+    from omcrl.utils.io import atomic_write_text
+
+    atomic_write_text(p, after)
+    return True
+
+
+# ---------------------------------------------------------------- kernel
+def _is_current_python(argv0: str) -> bool:
+    """Would jupyter_client start ``argv0`` as this very interpreter?"""
+    major, minor = sys.version_info[:2]
+    if argv0 in ("python", f"python{major}", f"python{major}.{minor}"):
+        return True  # jupyter_client replaces these bare names by sys.executable
+    found = shutil.which(argv0) or argv0
+    # Compare folders, not resolved symlinks: every venv's python links to the same base interpreter.
+    here = Path(os.path.abspath(sys.executable))
+    there = Path(os.path.abspath(found))
+    return there.parent == here.parent and there.name.startswith("python")
+
+
+@lru_cache(maxsize=1)
+def resolve_kernel() -> tuple[str, str | None]:
+    """Return ``(kernel_name, extra_jupyter_path)`` for a kernel that runs ``sys.executable``.
+
+    The venv's ipykernel installs a ``python3`` kernelspec whose command is the bare word ``python``, which
+    jupyter_client replaces by ``sys.executable``; that spec is used when it is the one found. If another
+    ``python3`` spec shadows it (for example a user-level one pointing at a different interpreter) or there
+    is none, a private spec ``omcrl-python`` naming ``sys.executable`` is written to a temporary folder that
+    is put first on ``JUPYTER_PATH`` while notebooks run; nothing is installed in the user's Jupyter.
+    """
+    from jupyter_client.kernelspec import KernelSpecManager, NoSuchKernel
+
+    try:
+        spec = KernelSpecManager().get_kernel_spec(NATIVE_KERNEL)
+        if spec.argv and _is_current_python(spec.argv[0]):
+            return NATIVE_KERNEL, None
+        log.info(
+            "kernelspec %s runs %s, not %s; using a private kernelspec",
+            NATIVE_KERNEL,
+            spec.argv[0],
+            sys.executable,
+        )
+    except NoSuchKernel:
+        log.info("no %s kernelspec; using a private kernelspec", NATIVE_KERNEL)
+    root = Path(tempfile.mkdtemp(prefix="omcrl-jupyter-"))
+    atexit.register(shutil.rmtree, root, ignore_errors=True)
+    kdir = root / "kernels" / PRIVATE_KERNEL
+    kdir.mkdir(parents=True)
+    spec = {
+        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
+        "display_name": f"Python {sys.version_info[0]}.{sys.version_info[1]} (omcrl)",
+        "language": "python",
+        "metadata": {"debugger": False},
+    }
+    (kdir / "kernel.json").write_text(json.dumps(spec, indent=1))
+    return PRIVATE_KERNEL, str(root)
+
+
+@contextlib.contextmanager
+def _kernel_environment(extra_jupyter_path: str | None) -> Iterator[None]:
+    """Environment the kernel inherits: private kernelspec path, inline plots, bounded threads."""
+    saved = dict(os.environ)
+    try:
+        if extra_jupyter_path:
+            old = os.environ.get("JUPYTER_PATH")
+            os.environ["JUPYTER_PATH"] = os.pathsep.join(p for p in (extra_jupyter_path, old) if p)
+        # reproduce.sh exports MPLBACKEND=Agg for scripts; inside a kernel the inline backend (also headless)
+        # keeps figures in the executed notebook, and ipykernel only picks it when MPLBACKEND is unset.
+        if os.environ.get("MPLBACKEND", "").lower() == "agg":
+            del os.environ["MPLBACKEND"]
+        os.environ.setdefault("OMP_NUM_THREADS", str(min(2, os.cpu_count() or 1)))
+        os.environ.setdefault("PYDEVD_DISABLE_FILE_VALIDATION", "1")
+        yield
+    finally:
+        os.environ.clear()
+        os.environ.update(saved)
+
+
+# ---------------------------------------------------------------- running
+def _error_message(name: str, nb_source: Any, err: Any, executed: Path) -> tuple[str, int | None]:
+    """Name the notebook, the failing cell (1-based, as in the committed notebook) and the error."""
+    cell_no = None
+    for i, c in enumerate(nb_source.cells):
+        if c.cell_type == "code" and c.source == err.source:
+            cell_no = i + 1
+            break
+    where = f"cell {cell_no} of {len(nb_source.cells)}" if cell_no else f"cell index {err.cell_index}"
+    first = next((ln for ln in str(err.source).splitlines() if ln.strip()), "")
+    msg = (
+        f"notebook {name} failed in {where} (In [{err.exec_count}]: {first.strip()[:80]!r}): "
+        f"{err.ename}: {err.evalue}\nexecuted copy with the traceback: {executed}"
+    )
+    return msg, cell_no
+
+
+def run_notebook(
+    name_or_path: str | Path,
+    preset: str,
+    parameters: dict | None = None,
+    results_dir: str | Path = "results",
+    *,
+    overrides: Sequence[str] = (),
+    cwd: str | Path | None = None,
+    timeout: float | None = None,
+) -> Path:
+    """Execute one notebook with papermill and return the path of its executed copy.
+
+    Parameters
+    ----------
+    name_or_path : ``"03_train_oracle"``, ``"03"`` or a path to an ``.ipynb``.
+    preset : ``smoke``, ``quick`` or ``paper``; injected as ``preset``.
+    parameters : more values to inject (names must be assigned in the notebook's parameters cell).
+    results_dir : root of the outputs; the executed copy goes to ``<results_dir>/<preset>/executed/``. A
+        relative path is taken from ``cwd``. Injected as ``results_dir`` when the notebook declares it.
+    overrides : ``"section.field=value"`` strings, injected as ``overrides`` when the notebook declares it.
+    cwd : working directory of the kernel (default: the repository root).
+    timeout : per-cell limit in seconds (default: none).
+    """
+    import nbformat
+    import papermill as pm
+    from papermill.exceptions import PapermillExecutionError
+
+    from omcrl.config import PRESETS, ConfigError
+
+    if preset not in PRESETS:
+        raise ConfigError(f"preset: got {preset!r}, allowed values are {list(PRESETS)}")
+    src = notebook_path(name_or_path)
+    name = src.stem
+    workdir = Path(cwd) if cwd is not None else REPO_ROOT
+    root = Path(results_dir)
+    if not root.is_absolute():
+        root = workdir / root
+    out = root / preset / "executed" / f"{name}.ipynb"
+    out.parent.mkdir(parents=True, exist_ok=True)
+
+    nb = nbformat.read(str(src), as_version=4)
+    if len(parameters_cells(nb)) != 1:
+        raise NotebookError(f"notebook {name} must have exactly one cell tagged 'parameters'")
+    declared = declared_parameters(nb)
+    params: dict[str, Any] = {"preset": preset}
+    optional = {"results_dir": str(root), "overrides": list(overrides)}
+    for key in OPTIONAL_PARAMETERS:
+        if key in declared:
+            params[key] = optional[key]
+    if "results_dir" not in declared and Path(results_dir) != Path("results"):
+        log.warning("notebook %s does not declare 'results_dir'; it writes to its default", name)
+    if overrides and "overrides" not in declared:
+        raise NotebookError(
+            f"notebook {name} does not declare 'overrides' in its parameters cell, so the "
+            f"overrides {list(overrides)} cannot reach it"
+        )
+    params.update(parameters or {})
+
+    kernel, extra_path = resolve_kernel()
+    with _kernel_environment(extra_path):
+        try:
+            pm.execute_notebook(
+                str(src),
+                str(out),
+                parameters=params,
+                kernel_name=kernel,
+                language="python",
+                cwd=str(workdir),
+                progress_bar=False,
+                execution_timeout=timeout,
+            )
+        except PapermillExecutionError as err:
+            msg, cell = _error_message(name, nb, err, out)
+            raise NotebookExecutionError(msg, notebook=name, cell=cell, executed=out) from None
+        except Exception as err:  # kernel died, timeout, bad parameters ...
+            raise NotebookExecutionError(
+                f"notebook {name} could not run: {type(err).__name__}: {err}\n"
+                f"executed copy (may be partial): {out}",
+                notebook=name,
+                cell=None,
+                executed=out,
+            ) from err
+    return out
+
+
+def run_chain(
+    preset: str,
+    names: Sequence[str] | None = None,
+    parameters: dict | None = None,
+    results_dir: str | Path = "results",
+    *,
+    overrides: Sequence[str] = (),
+    cwd: str | Path | None = None,
+    verbose: bool = True,
+) -> list[Path]:
+    """Run ``names`` (default: all of :data:`NOTEBOOKS`) in the given order; stop at the first failure.
+
+    Later notebooks read artifacts written by earlier ones, so the default order is the numeric one.
+    """
+    chain = list(names) if names is not None else discover_notebooks()
+    if not chain:
+        raise NotebookNotFoundError(f"no notebooks NN_*.ipynb in {NOTEBOOK_DIR}")
+    done = []
+    for n in chain:
+        t0 = time.perf_counter()
+        if verbose:
+            print(f"[notebooks] {n} (preset {preset}) ...", flush=True)
+        out = run_notebook(
+            n, preset, parameters=parameters, results_dir=results_dir, overrides=overrides, cwd=cwd
+        )
+        if verbose:
+            print(f"[notebooks] {n} done in {time.perf_counter() - t0:.0f} s -> {out}", flush=True)
+        done.append(out)
+    return done
+
+
+def overrides_from_config(cfg: Any) -> list[str]:
+    """``"section.field=value"`` for every field of ``cfg`` that differs from its preset's defaults."""
+    from omcrl.config import load_config
+
+    base = load_config(cfg.preset).to_dict()
+
+    def diff(a: dict, b: dict, prefix: str) -> Iterator[str]:
+        for k, v in a.items():
+            if isinstance(v, dict) and isinstance(b.get(k), dict) and k not in ("mix",):
+                yield from diff(v, b[k], f"{prefix}{k}.")
+            elif v != b.get(k):
+                val = list(v) if isinstance(v, tuple) else v
+                yield f"{prefix}{k}={json.dumps(val)}"
+
+    return list(diff(cfg.to_dict(), base, ""))
+
+
+def run(cfg: Any) -> list[Path]:
+    """CLI stage ``notebooks``: run the whole chain for ``cfg.preset``, passing on every non-default field."""
+    overrides = [o for o in overrides_from_config(cfg) if not o.startswith("results_dir=")]
+    return run_chain(cfg.preset, results_dir=cfg.results_dir, overrides=overrides)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m omcrl.notebooks --strip|--check [FILES]``: clean or check committed notebooks."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m omcrl.notebooks", description=main.__doc__)
+    ap.add_argument("action", choices=("strip", "check", "list"))
+    ap.add_argument("files", nargs="*", help="default: every notebooks/NN_*.ipynb")
+    a = ap.parse_args(argv)
+    files = [Path(f) for f in a.files] or [NOTEBOOK_DIR / f"{n}.ipynb" for n in discover_notebooks()]
+    status = 0
+    for f in files:
+        if a.action == "list":
+            print(f.stem)
+        elif a.action == "strip":
+            print(f"{f}: {'stripped' if strip_outputs(f) else 'clean'}")
+        else:
+            problems = check_notebook(f)
+            for p in problems:
+                print(f"{f}: {p}")
+            status |= bool(problems)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,40 @@
+"""Upstream representation learning: masking, InfoNCE, OMC and the CURL family, probes.
+
+``run(cfg) -> PretrainResult`` trains and writes the frozen-encoder artifact
+(load it with :func:`omcrl.models.load_encoder`).
+"""
+
+from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
+from omcrl.pretrain.losses import bilinear_info_nce, masked_info_nce
+from omcrl.pretrain.masking import (
+    OP_KEEP,
+    OP_NONE,
+    OP_REPLACE,
+    OP_ZERO,
+    apply_mask_ops,
+    mask_sequence,
+    sample_mask_ops,
+)
+from omcrl.pretrain.probe import probe, probe_targets
+from omcrl.pretrain.train import PretrainResult, default_dataset_path, method_name, run, run_dir
+
+__all__ = [
+    "OP_KEEP",
+    "OP_NONE",
+    "OP_REPLACE",
+    "OP_ZERO",
+    "ContrastiveLearner",
+    "PretrainResult",
+    "apply_mask_ops",
+    "bilinear_info_nce",
+    "default_dataset_path",
+    "mask_sequence",
+    "masked_info_nce",
+    "method_name",
+    "probe",
+    "probe_targets",
+    "run",
+    "run_dir",
+    "sample_mask_ops",
+    "transformer_lr_factor",
+]

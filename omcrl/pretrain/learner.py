@@ -1,0 +1,119 @@
+"""One contrastive learner for OMC and the CURL family; variants are flags of :class:`PretrainConfig`.
+
+OMC (paper IV-B):  q_i = ξ(φ(f(h̄_i)))  over a masked sequence,  k_i = φ_k(f_k(h_i))  (``dual_transformer``:
+                   k = ξ_k(φ_k(f_k(h)))) over the unmasked one; masked InfoNCE, cosine similarity / τ.
+CURL:              q = φ(f(crop₁(h_t))),  k = φ_k(f_k(crop₂(h_t))),  logits q^T W k.
+CURL-cons:         as CURL with the key from h_{t+cons_stride} of the same episode.
+``use_projection=False`` makes φ (and φ_k) the identity. Key networks follow
+θ_k ← m·θ + (1−m)·θ_k after every optimiser step and never receive gradients.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import torch
+from torch import nn
+
+from omcrl.models.encoder import PixelEncoder, Projection
+from omcrl.models.transformer import TemporalTransformer
+from omcrl.pretrain.losses import bilinear_info_nce, masked_info_nce
+from omcrl.pretrain.masking import mask_sequence
+
+
+def transformer_lr_factor(step: int, warmup: int) -> float:
+    """Multiplier of lr_transformer at 1-based ``step``: linear warm-up to 1 at ``warmup``,
+    then √(warmup/step).
+
+    ``warmup=0`` gives pure inverse-square-root decay from step 1.
+    """
+    step = max(int(step), 1)
+    w = max(int(warmup), 1)
+    return min(step / w, math.sqrt(w / step)) if warmup > 0 else 1.0 / math.sqrt(step)
+
+
+class ContrastiveLearner(nn.Module):
+    """Online networks f, φ (+ ξ for OMC, W for CURL) and their momentum copies.
+
+    Parameters
+    ----------
+    cfg : :class:`omcrl.config.PretrainConfig`.
+    frame_stack : L; inputs are (…, 3L, crop_to, crop_to) on the 0–255 scale.
+    """
+
+    def __init__(self, cfg, frame_stack: int) -> None:
+        super().__init__()
+        self.cfg = cfg
+        d = cfg.feature_dim
+        self.f = PixelEncoder(frame_stack, cfg.crop_to, d)
+        self.phi = Projection(d, cfg.proj_hidden, d) if cfg.use_projection else nn.Identity()
+        self.f_k, self.phi_k = copy.deepcopy(self.f), copy.deepcopy(self.phi)
+        self.xi = self.xi_k = self.W = None
+        if cfg.method == "omc":
+            self.xi = TemporalTransformer(
+                d, cfg.transformer_blocks, cfg.transformer_ffn, max_len=max(cfg.seq_len, 64)
+            )
+            if cfg.dual_transformer:
+                self.xi_k = copy.deepcopy(self.xi)
+        else:
+            self.W = nn.Parameter(torch.rand(d, d))  # CURL's initialisation
+        for m in self._key_modules():
+            m.requires_grad_(False)
+
+    def _pairs(self) -> list[tuple[nn.Module, nn.Module]]:
+        pairs = [(self.f, self.f_k), (self.phi, self.phi_k)]
+        if self.xi_k is not None:
+            pairs.append((self.xi, self.xi_k))
+        return pairs
+
+    def _key_modules(self) -> list[nn.Module]:
+        return [k for _, k in self._pairs()]
+
+    def param_groups(self) -> list[dict]:
+        """Adam groups: ``encoder`` (f, φ, W) at lr_encoder and ``transformer`` (ξ) at lr_transformer."""
+        enc = [*self.f.parameters(), *self.phi.parameters()] + ([self.W] if self.W is not None else [])
+        groups = [{"params": enc, "lr": self.cfg.lr_encoder, "name": "encoder"}]
+        if self.xi is not None:
+            groups.append(
+                {"params": list(self.xi.parameters()), "lr": self.cfg.lr_transformer, "name": "transformer"}
+            )
+        return groups
+
+    @torch.no_grad()
+    def momentum_update(self) -> None:
+        """θ_k ← m·θ + (1−m)·θ_k for f_k, φ_k (and ξ_k), m = cfg.momentum."""
+        m = self.cfg.momentum
+        for online, key in self._pairs():
+            for p, pk in zip(online.parameters(), key.parameters()):
+                pk.mul_(1.0 - m).add_(p.detach(), alpha=m)
+
+    def embed(self, x: torch.Tensor, key: bool = False) -> torch.Tensor:
+        """φ(f(x)) (or φ_k(f_k(x))) for stacks (N, 3L, H, W) → (N, d)."""
+        return self.phi_k(self.f_k(x)) if key else self.phi(self.f(x))
+
+    def omc_loss(
+        self, seq: torch.Tensor, generator: torch.Generator | None = None, pool: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict]:
+        """Masked contrastive loss for sequences (B, T, 3L, H, W); ``pool`` (N, 3L, H, W) feeds swaps."""
+        B, T = seq.shape[:2]
+        masked, mask, _ = mask_sequence(seq, self.cfg.mask_prob, generator, pool)
+        q = self.xi(self.embed(masked.flatten(0, 1)).view(B, T, -1))
+        with torch.no_grad():
+            k = self.embed(seq.flatten(0, 1), key=True).view(B, T, -1)
+            if self.xi_k is not None:
+                k = self.xi_k(k)
+        loss, acc = masked_info_nce(q, k, mask, self.cfg.temperature, self.cfg.batch_negatives)
+        return loss, {
+            "loss": float(loss.detach()),
+            "accuracy": float(acc),
+            "mask_fraction": float(mask.float().mean()),
+        }
+
+    def curl_loss(self, anchor: torch.Tensor, positive: torch.Tensor) -> tuple[torch.Tensor, dict]:
+        """CURL / CURL-cons loss for stacks (N, 3L, H, W): anchor online, positive via the keys."""
+        q = self.embed(anchor)
+        with torch.no_grad():
+            k = self.embed(positive, key=True)
+        loss, acc = bilinear_info_nce(q, k, self.W)
+        return loss, {"loss": float(loss.detach()), "accuracy": float(acc)}

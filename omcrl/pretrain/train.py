@@ -1,0 +1,254 @@
+"""Upstream pretraining stage: ``run(cfg) -> PretrainResult`` (paper IV-B, V-D).
+
+Writes under ``results/<preset>/runs/pretrain/<name>/seed<k>/``:
+
+* ``config.yaml``   the resolved configuration
+* ``metrics.csv``   tidy rows ``step,metric,value`` (loss, accuracy, lr_encoder, lr_transformer, ...)
+* ``checkpoint.pt`` learner, optimiser and RNG states (atomic, every ``checkpoint_every`` iterations)
+* ``encoder.pt``    the frozen f + φ artifact (:func:`omcrl.models.load_encoder`)
+* ``done.json``     written last; a finished run with the same resolved config is skipped
+
+An interrupted run resumes from ``checkpoint.pt`` and ends at the same iteration count with the same weights
+as an uninterrupted one (all random generators are checkpointed).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from tqdm.auto import tqdm
+
+from omcrl.config import Config, PretrainConfig, config_hash, save_config
+from omcrl.data.dataset import open_dataset
+from omcrl.data.sampler import SequenceSampler
+from omcrl.models.artifact import save_encoder
+from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
+from omcrl.utils.io import atomic_save_torch, atomic_write_text
+from omcrl.utils.runtime import set_threads
+
+log = logging.getLogger(__name__)
+
+# Fields that do not change what is learned up to a given step (a run may be extended or resumed across them).
+_RESUMABLE = ("iterations", "checkpoint_every", "num_threads")
+_CACHE_BYTES = 256 * 2**20  # cache all frames in RAM below this size
+
+
+@dataclass
+class PretrainResult:
+    """What a pretraining run produced."""
+
+    name: str
+    run_dir: Path
+    encoder_path: Path
+    metrics_path: Path
+    iterations: int
+    final_loss: float
+    dataset_fingerprint: str
+    skipped: bool = False
+
+
+def method_name(p: PretrainConfig) -> str:
+    """Run folder name: the method plus every ablation flag that differs from the paper's OMC setting.
+
+    ``omc``, ``omc-rho0.3``, ``omc-nophi``, ``omc-dualT``, ``omc-seqneg``, ``curl`` (no φ, as in CURL),
+    ``curl-phi``, ``curl_cons``, ``curl_cons-stride3``.
+    """
+    name = p.method
+    if p.method == "omc":
+        if p.mask_prob != 0.5:
+            name += f"-rho{p.mask_prob:g}"
+        if not p.use_projection:
+            name += "-nophi"
+        if p.dual_transformer:
+            name += "-dualT"
+        if not p.batch_negatives:
+            name += "-seqneg"
+    else:
+        if p.use_projection:
+            name += "-phi"
+        if p.method == "curl_cons" and p.cons_stride != 1:
+            name += f"-stride{p.cons_stride}"
+    return name
+
+
+def run_dir(cfg: Config) -> Path:
+    """``<run_root>/runs/pretrain/<method_name>/seed<k>``."""
+    return cfg.run_root / "runs" / "pretrain" / method_name(cfg.pretrain) / f"seed{cfg.seed}"
+
+
+def default_dataset_path(cfg: Config) -> Path:
+    """``cfg.data.file`` with ``{preset}`` substituted."""
+    return Path(cfg.data.file.format(preset=cfg.preset))
+
+
+def _hashes(cfg: Config, fingerprint: str) -> tuple[str, str]:
+    p = dataclasses.asdict(cfg.pretrain)
+    p.pop("num_threads")
+    base = {"pretrain": p, "frame_stack": cfg.env.frame_stack, "seed": cfg.seed, "dataset": fingerprint}
+    compat = {**base, "pretrain": {k: v for k, v in p.items() if k not in _RESUMABLE}}
+    return config_hash(base), config_hash(compat)
+
+
+def _write_metrics(path: Path, rows: list[tuple[int, str, float]]) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(("step", "metric", "value"))
+    w.writerows((s, m, repr(float(v))) for s, m, v in rows)
+    atomic_write_text(path, buf.getvalue())
+
+
+def _read_metrics(path: Path, upto: int) -> list[tuple[int, str, float]]:
+    if not path.exists():
+        return []
+    with path.open() as fh:
+        return [
+            (int(r["step"]), r["metric"], float(r["value"]))
+            for r in csv.DictReader(fh)
+            if int(r["step"]) <= upto
+        ]
+
+
+def run(
+    cfg: Config,
+    dataset_path: str | Path | None = None,
+    *,
+    progress: bool = True,
+    stop_after: int | None = None,
+) -> PretrainResult:
+    """Train the encoder as configured by ``cfg.pretrain`` on the trajectory file and save the artifact.
+
+    Parameters
+    ----------
+    cfg : resolved configuration (``cfg.env.frame_stack`` is L; ``cfg.pretrain.crop_from`` must equal the
+        dataset's image size).
+    dataset_path : HDF5 trajectory file; default ``cfg.data.file`` with ``{preset}`` substituted.
+    progress : show a tqdm bar.
+    stop_after : stop after this iteration without finishing (simulates an interruption; for tests).
+    """
+    p = cfg.pretrain
+    set_threads(p.num_threads)
+    path = Path(dataset_path) if dataset_path is not None else default_dataset_path(cfg)
+    ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
+    fp = ds.fingerprint
+    name = method_name(p)
+    out = run_dir(cfg)
+    enc_path, metrics_path, ck_path, done_path = (
+        out / n for n in ("encoder.pt", "metrics.csv", "checkpoint.pt", "done.json")
+    )
+    full_hash, compat_hash = _hashes(cfg, fp)
+    if done_path.exists() and enc_path.exists():
+        done = json.loads(done_path.read_text())
+        if done.get("hash") == full_hash:
+            log.info("pretrain %s: finished run with the same config found in %s, skipping", name, out)
+            ds.close()
+            return PretrainResult(
+                name, out, enc_path, metrics_path, done["iterations"], done["final_loss"], fp, skipped=True
+            )
+    out.mkdir(parents=True, exist_ok=True)
+    save_config(cfg, out)
+
+    torch.manual_seed(cfg.seed)
+    L = cfg.env.frame_stack
+    learner = ContrastiveLearner(p, L)
+    opt = torch.optim.Adam(learner.param_groups())
+    # Keep all episodes in memory when the frames are small (quick/smoke presets); else stream from disk.
+    rgb_bytes = ds.n_steps * 3 * ds.image_size**2
+    cache = len(ds) if rgb_bytes <= _CACHE_BYTES else 0
+    sampler = SequenceSampler(
+        ds, p.batch_size, p.seq_len, L, crop=(p.crop_from, p.crop_to), seed=cfg.seed, cache_episodes=cache
+    )
+    gen = torch.Generator().manual_seed(cfg.seed + 1)
+    start, rows = 0, []
+    if ck_path.exists():
+        state = torch.load(ck_path, map_location="cpu", weights_only=True)
+        if state.get("compat") == compat_hash and state["step"] <= p.iterations:
+            learner.load_state_dict(state["learner"])
+            opt.load_state_dict(state["optim"])
+            sampler.rng.bit_generator.state = json.loads(state["sampler_rng"])
+            gen.set_state(state["mask_rng"])
+            torch.set_rng_state(state["torch_rng"])
+            start = int(state["step"])
+            rows = _read_metrics(metrics_path, start)
+            log.info("pretrain %s: resuming from iteration %d", name, start)
+        else:
+            log.warning("pretrain %s: checkpoint in %s is from a different config; starting over", name, out)
+    # CURL sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
+    n_pairs = p.batch_size * p.seq_len
+    stride = p.cons_stride if p.method == "curl_cons" else 0
+
+    def checkpoint(step: int) -> None:
+        atomic_save_torch(
+            {
+                "step": step,
+                "compat": compat_hash,
+                "learner": learner.state_dict(),
+                "optim": opt.state_dict(),
+                "sampler_rng": json.dumps(sampler.rng.bit_generator.state),
+                "mask_rng": gen.get_state(),
+                "torch_rng": torch.get_rng_state(),
+            },
+            ck_path,
+        )
+        _write_metrics(metrics_path, rows)
+
+    learner.train()
+    bar = tqdm(
+        range(start + 1, p.iterations + 1),
+        initial=start,
+        total=p.iterations,
+        disable=not progress,
+        desc=f"pretrain {name}",
+    )
+    loss_val = float("nan")
+    for it in bar:
+        lrs = {"lr_encoder": p.lr_encoder}
+        for g in opt.param_groups:
+            if g["name"] == "transformer":
+                g["lr"] = lrs["lr_transformer"] = p.lr_transformer * transformer_lr_factor(it, p.warmup_steps)
+        if p.method == "omc":
+            seq = sampler.sample_sequences()
+            pool = sampler.sample_stacks(p.batch_size)
+            loss, metrics = learner.omc_loss(seq, gen, pool)
+        else:
+            anchor, positive = sampler.sample_pairs(n_pairs, stride=stride)
+            loss, metrics = learner.curl_loss(anchor, positive)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        learner.momentum_update()
+        loss_val = metrics["loss"]
+        rows.extend((it, k, v) for k, v in {**metrics, **lrs}.items())
+        bar.set_postfix(loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
+        if it % p.checkpoint_every == 0 or it == p.iterations:
+            checkpoint(it)
+        if stop_after is not None and it >= stop_after and it < p.iterations:
+            bar.close()
+            ds.close()
+            return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp)
+    bar.close()
+    if start >= p.iterations:  # resumed from a final checkpoint whose artifact was not written
+        loss_val = next((v for s, m, v in reversed(rows) if m == "loss"), float("nan"))
+    save_encoder(enc_path, learner.f, learner.phi, cfg, fp)
+    _write_metrics(metrics_path, rows)
+    atomic_write_text(
+        done_path,
+        json.dumps(
+            {
+                "hash": full_hash,
+                "iterations": p.iterations,
+                "final_loss": loss_val,
+                "dataset": str(path),
+                "dataset_fingerprint": fp,
+            },
+            indent=1,
+        ),
+    )
+    ds.close()
+    return PretrainResult(name, out, enc_path, metrics_path, p.iterations, loss_val, fp)

@@ -1,0 +1,121 @@
+#!/usr/bin/env bash
+# Reproduce OMC-RL (Oracle-Guided Masked Contrastive RL) with the omcrl kit.
+#
+#   ./reproduce.sh --test    run the test suite (pytest; slow tests excluded, notebook smoke runs included)
+#   ./reproduce.sh --smoke   run the notebook chain with the tiny CI preset (minutes)
+#   ./reproduce.sh --quick   run the notebook chain with the laptop preset (about an hour on 2 CPU cores)
+#   ./reproduce.sh --paper   run the notebook chain at the paper's scale (needs a GPU; hours to days)
+#
+# Each mode first creates .venv (Python 3.11) and installs the kit when .venv is missing, when
+# pyproject.toml changed since the last install, or when `import omcrl, torch, pybullet` fails.
+# Extra arguments go to pytest (--test) or to `python -m omcrl notebooks` (other modes), e.g.
+#   ./reproduce.sh --test -k config         ./reproduce.sh --quick --set rl.total_steps=50000
+# Environment: PYTHON=/path/to/python3.11 to choose the interpreter for a new .venv.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+VENV="$ROOT/.venv"
+STAMP="$VENV/.omcrl-install-stamp"
+
+say() { printf '[reproduce] %s\n' "$*"; }
+die() { printf '[reproduce] error: %s\n' "$*" >&2; exit "${2:-1}"; }
+
+usage() {
+  awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "${BASH_SOURCE[0]}"
+}
+
+mode="${1:-}"
+case "$mode" in
+  --test | --smoke | --quick | --paper) shift ;;
+  -h | --help) usage; exit 0 ;;
+  "") usage >&2; exit 2 ;;
+  *) printf '[reproduce] error: unknown mode %s\n\n' "$mode" >&2; usage >&2; exit 2 ;;
+esac
+
+cd "$ROOT"
+
+pick_python() {
+  if [[ -n "${PYTHON:-}" ]]; then
+    echo "$PYTHON"
+  elif command -v python3.11 >/dev/null 2>&1; then
+    echo python3.11
+  elif command -v python3 >/dev/null 2>&1 &&
+       python3 -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then
+    echo python3
+  else
+    die "Python 3.11 not found (install it, or set PYTHON=/path/to/python3.11)"
+  fi
+}
+
+file_hash() {
+  if command -v sha256sum >/dev/null 2>&1; then
+    sha256sum "$1" | cut -d' ' -f1
+  else
+    shasum -a 256 "$1" | cut -d' ' -f1
+  fi
+}
+
+# Run from / so that the repository folder on sys.path cannot hide a missing install of omcrl.
+import_check() { (cd / && "$VENV/bin/python" -c 'import omcrl, torch, pybullet') >/dev/null 2>&1; }
+
+ensure_venv() {
+  local py want reason=""
+  if [[ ! -x "$VENV/bin/python" ]]; then
+    py="$(pick_python)"
+    say "creating .venv with $py ($("$py" --version 2>&1))"
+    "$py" -m venv "$VENV"
+    reason="new .venv"
+  fi
+  want="$(file_hash "$ROOT/pyproject.toml")"
+  if [[ -z "$reason" ]]; then
+    if [[ ! -f "$STAMP" ]]; then
+      reason="no record of an install by this script"
+    elif [[ "$(cat "$STAMP")" != "$want" ]]; then
+      reason="pyproject.toml changed since the last install"
+    elif ! import_check; then
+      reason="import check failed"
+    fi
+  fi
+  if [[ -z "$reason" ]]; then
+    say ".venv is up to date"
+    return
+  fi
+  say "installing the kit into .venv ($reason)"
+  rm -f "$STAMP"
+  # torch first, pinned, so that nothing later pulls a CUDA build of several GB.
+  say "pip install torch==2.13.0"
+  "$VENV/bin/python" -m pip install --quiet torch==2.13.0
+  say "pip install -e '.[dev]'"
+  "$VENV/bin/python" -m pip install --quiet -e "$ROOT[dev]"
+  import_check || die "the install finished but 'import omcrl, torch, pybullet' fails in .venv"
+  echo "$want" >"$STAMP"
+  say "install done"
+}
+
+ensure_venv
+
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-2}"
+export MPLBACKEND=Agg
+export PATH="$VENV/bin:$PATH"
+PY="$VENV/bin/python"
+
+case "$mode" in
+  --test)
+    say "running tests: python -m pytest $*"
+    set +e
+    "$PY" -m pytest "$@"
+    rc=$?
+    set -e
+    say "pytest exit code $rc"
+    exit "$rc"
+    ;;
+  --smoke | --quick | --paper)
+    preset="${mode#--}"
+    if [[ "$preset" == paper ]] && ! "$PY" -c 'import sys, torch; sys.exit(not torch.cuda.is_available())' 2>/dev/null; then
+      say "warning: no CUDA device visible to torch; the paper preset on a CPU takes days"
+    fi
+    say "running the notebook chain with preset $preset (executed copies in results/$preset/executed/)"
+    "$PY" -m omcrl notebooks --preset "$preset" "$@"
+    say "done: results in results/$preset/"
+    ;;
+esac

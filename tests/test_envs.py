@@ -1,0 +1,298 @@
+"""NavEnv contract: spaces, sensors, termination, determinism, memory, bad input; planners."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from omcrl.config import ConfigError
+from omcrl.envs import SCENES, make_env, make_vec_env
+from omcrl.envs.geometry import Geometry, Primitive
+from omcrl.planners import HybridAPF, build_grid, shortest_path
+
+WALL = {"kind": "box", "position": (3.0, 0.0), "size": (0.2, 6.0, 3.0), "color": (0.8, 0.2, 0.2)}
+
+
+def _run(env, action, n):
+    out = None
+    for _ in range(n):
+        out = env.step(np.asarray(action, np.float32))
+        if out[2] or out[3]:
+            break
+    return out
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_check_env_passes(scene):
+    env = make_env(scene, seed=3, image_size=32)
+    check_env(env, skip_render_check=True)
+    obs, info = env.reset(seed=4)
+    assert obs["rgb"].shape == (3, 3, 32, 32) and obs["rgb"].dtype == np.uint8
+    assert obs["depth"].shape == (3, 32, 32) and obs["depth"].dtype == np.float32
+    assert obs["state"].shape == (12,) and obs["privileged"].shape == (6,)
+    # Reset places start and goal free, reachable, at the configured distance.
+    d = np.linalg.norm(info["goal"] - info["pose"][:2])
+    lo, hi = env.cfg.goal_distance
+    assert lo - 0.2 <= d <= hi + 0.2
+    assert math.isfinite(info["optimal_path_length"]) and info["optimal_path_length"] >= d - 1e-6
+    env.close()
+
+
+@pytest.mark.parametrize("d", [1.0, 2.5, 4.0])
+def test_depth_matches_wall_distance(d):
+    wall = dict(WALL, position=(d + 0.1, 0.0))  # wall face (half thickness 0.1 m) at x = d
+    env = make_env("box", seed=0, image_size=64, layout=[wall], goal_distance=(0.5, 10.0))
+    obs, _ = env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (-2.0, 0.0)})
+    centre = obs["depth"][-1, 31:33, 31:33].mean()
+    assert abs(centre - d) / d < 0.02, (centre, d)
+    # The privileged nearest-obstacle vector points straight ahead at the same distance.
+    assert np.allclose(obs["privileged"][:3], [d, 0.0, 0.0], atol=1e-4)
+    env.close()
+
+
+def test_collision_ends_episode():
+    env = make_env("box", seed=0, image_size=32, layout=[WALL], goal_distance=(0.5, 10.0))
+    env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (-3.0, 0.0)})
+    _obs, r, term, trunc, info = _run(env, [1, 0, 0], 200)
+    m = info["metrics"]
+    assert term and not trunc and m["collision"] and not m["success"] and not m["out_of_arena"]
+    assert r < -0.9  # -1 collision + small progress and step terms
+    assert m["final_distance"] > 2.5 and m["steps"] > 10
+    # Contact is detected on the first (sub)step whose sphere touches the wall face at x = 2.9.
+    contact = 2.9 - env.cfg.drone_radius
+    assert contact - 1e-9 <= info["pose"][0] < contact + env.cfg.max_speed / env.cfg.control_hz
+    env.close()
+
+
+def test_success_ends_episode_with_goal_reward():
+    env = make_env("box", seed=0, image_size=32, layout=[], goal_distance=(0.5, 10.0))
+    _, info = env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (2.0, 0.0)})
+    assert info["optimal_path_length"] == pytest.approx(2.0)  # empty arena: the straight line
+    _obs, r, term, trunc, info = _run(env, [0.5, 0, 0], 200)
+    m = info["metrics"]
+    assert term and not trunc and m["success"] and not m["collision"]
+    assert m["final_distance"] <= env.cfg.goal_radius
+    assert r > 9.9
+    assert m["path_length"] == pytest.approx(2.0 - m["final_distance"], abs=0.05)
+    assert m["optimal_path_length"] == pytest.approx(2.0)
+    env.close()
+
+
+def test_leaving_arena_ends_episode():
+    env = make_env("box", seed=0, image_size=32, layout=[], goal_distance=(0.5, 15.0))
+    a = env.cfg.arena_half
+    env.reset(options={"start": (a - 1.0, 0.0, 0.0), "goal": (0.0, 0.0)})
+    _obs, r, term, _trunc, info = _run(env, [1, 0, 0], 100)
+    m = info["metrics"]
+    assert term and m["out_of_arena"] and not m["collision"] and not m["success"]
+    assert r < -0.9
+    env.close()
+
+
+def test_truncation_at_max_steps():
+    env = make_env("box", seed=0, image_size=32, layout=[], max_steps=7, goal_distance=(0.5, 10.0))
+    env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (3.0, 0.0)})
+    for i in range(7):
+        _obs, r, term, trunc, info = env.step(np.zeros(3, np.float32))
+        assert not term
+        assert trunc == (i == 6)
+        assert r == pytest.approx(-1.0 / 7)  # no progress, step penalty -1/H_max
+    assert info["metrics"]["steps"] == 7 and not info["metrics"]["success"]
+    env.close()
+
+
+def test_literal_progress_option():
+    env = make_env("box", seed=0, image_size=32, layout=[], progress="literal", goal_distance=(0.5, 10.0))
+    env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (3.0, 0.0)})
+    rs = [env.step(np.array([1, 0, 0], np.float32))[1] for _ in range(3)]
+    # 0.1 (d_init - d_t) grows as the drone closes in; the difference form would stay near-constant.
+    assert rs[0] < rs[1] < rs[2]
+    env.close()
+
+
+def _rollout(seed, n=200):
+    env = make_env("furniture", seed=seed, image_size=32)
+    obs, info = env.reset(seed=seed)
+    rng = np.random.default_rng(0)
+    frames, rewards = [obs["rgb"].copy()], []
+    for _ in range(n):
+        obs, r, term, trunc, info = env.step(rng.uniform(-0.3, 0.6, 3).astype(np.float32))
+        frames.append(obs["rgb"].copy())
+        rewards.append(r)
+        if term or trunc:
+            obs, _info = env.reset()
+    prims = [(p.kind, p.center, p.size) for p in env.primitives]
+    env.close()
+    return np.stack(frames), np.array(rewards), prims
+
+
+def test_same_seed_same_episode_different_seed_differs():
+    f1, r1, p1 = _rollout(11)
+    f2, r2, p2 = _rollout(11)
+    f3, _r3, p3 = _rollout(12)
+    assert p1 == p2 and np.array_equal(f1, f2) and np.array_equal(r1, r2)
+    assert p1 != p3 and not np.array_equal(f1, f3)
+
+
+def test_layout_is_deterministic_per_seed_for_every_scene():
+    for scene in SCENES:
+        a = make_env(scene, seed=5, image_size=16)
+        b = make_env(scene, seed=5, image_size=16)
+        oa, ia = a.reset(seed=5)
+        ob, ib = b.reset(seed=5)
+        assert np.array_equal(oa["rgb"], ob["rgb"]) and np.array_equal(ia["pose"], ib["pose"])
+        a.close()
+        b.close()
+
+
+def test_resets_do_not_leak_memory():
+    psutil = pytest.importorskip("psutil")
+    env = make_env("box", seed=0, image_size=32)
+    for _ in range(30):  # warm-up: allocator pools, texture cache
+        env.reset()
+    rss0 = psutil.Process().memory_info().rss
+    for _ in range(300):
+        env.reset()
+    grown = (psutil.Process().memory_info().rss - rss0) / 2**20
+    env.close()
+    # 1000 resets must stay under 50 MB (the slow test below); 300 here must stay well under a third.
+    assert grown < 15, f"RSS grew {grown:.1f} MB over 300 resets"
+
+
+@pytest.mark.slow
+def test_thousand_resets_memory():
+    psutil = pytest.importorskip("psutil")
+    env = make_env("tree", seed=0, image_size=64)
+    for _ in range(20):
+        env.reset()
+    rss0 = psutil.Process().memory_info().rss
+    for _ in range(1000):
+        env.reset()
+    grown = (psutil.Process().memory_info().rss - rss0) / 2**20
+    env.close()
+    print(f"RSS growth over 1000 tree resets: {grown:.1f} MB")
+    assert grown < 50
+
+
+def test_bad_input_gets_clear_errors():
+    with pytest.raises(ConfigError, match="scene"):
+        make_env("moon")
+    with pytest.raises(ConfigError, match="image_size.*8"):
+        make_env("box", image_size=8)
+    with pytest.raises(ConfigError, match="frame_stack.*0"):
+        make_env("box", frame_stack=0)
+    env = make_env("box", seed=0, image_size=32, layout=[WALL], goal_distance=(0.5, 10.0))
+    with pytest.raises(ValueError, match="start.*obstacle"):
+        env.reset(options={"start": (3.0, 0.0, 0.0), "goal": (-3.0, 0.0)})
+    with pytest.raises(ValueError, match="outside the arena"):
+        env.reset(options={"start": (30.0, 0.0), "goal": (-3.0, 0.0)})
+    env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (-3.0, 0.0)})
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.array([np.nan, 0, 0], np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(2, np.float32))
+    with pytest.raises(ValueError, match="layout\\[0\\]"):
+        make_env("box", layout=[{"kind": "cone", "position": (0, 0), "size": (1,)}])
+    env.close()
+
+
+def test_out_of_range_actions_are_clipped():
+    poses = []
+    for a in ([1.0, -1.0, 1.0], [7.0, -3.0, 42.0]):
+        env = make_env("box", seed=0, image_size=16, layout=[], goal_distance=(0.5, 10.0))
+        env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (-3.0, 0.0)})
+        for _ in range(5):
+            _, _, _, _, info = env.step(np.array(a, np.float32))
+        poses.append(info["pose"])
+        env.close()
+    assert np.allclose(poses[0], poses[1])
+
+
+def test_velocity_response_is_first_order_and_limited():
+    env = make_env("box", seed=0, image_size=16, layout=[], goal_distance=(0.5, 10.0))
+    env.reset(options={"start": (0.0, 0.0, 0.0), "goal": (-3.0, 0.0)})
+    speeds = []
+    for _ in range(15):
+        obs, *_ = env.step(np.array([1, 0, 0], np.float32))
+        speeds.append(obs["state"][0])
+    c = env.cfg
+    assert np.all(np.diff(speeds) >= -1e-9) and speeds[-1] == pytest.approx(c.max_speed, rel=0.02)
+    assert speeds[0] <= c.max_accel / c.control_hz + 1e-6  # acceleration limit in the first step
+    env.close()
+
+
+def test_disturbance_changes_images_not_geometry():
+    base = make_env("box", seed=1, image_size=32)
+    dist = make_env(
+        "box",
+        seed=1,
+        image_size=32,
+        disturbance={"obstacle_colors": "random", "hue": 60, "brightness": 0.6, "switch_step": 1},
+    )
+    ob, ib = base.reset(seed=2)
+    od, idd = dist.reset(seed=2)
+    assert np.array_equal(ib["pose"], idd["pose"])
+    assert not np.array_equal(ob["rgb"], od["rgb"])
+    assert ob["rgb"].mean() > od["rgb"].mean()
+    np.testing.assert_allclose(ob["depth"], od["depth"], atol=1e-4)
+    with pytest.raises(ConfigError, match="unknown"):
+        make_env("box", disturbance={"glitter": 1})
+    base.close()
+    dist.close()
+
+
+def test_vector_env_seeds_workers_differently():
+    venv = make_vec_env("box", 2, seed=3, image_size=16)
+    obs, info = venv.reset(seed=3)
+    assert obs["rgb"].shape == (2, 3, 3, 16, 16)
+    assert not np.array_equal(info["pose"][0], info["pose"][1])
+    for _ in range(3):
+        obs, r, _term, _trunc, info = venv.step(np.zeros((2, 3), np.float32))
+    assert r.shape == (2,)
+    venv.close()
+
+
+def test_geometry_distances():
+    g = Geometry.from_primitives(
+        [
+            Primitive("box", (0, 0, 1), (1, 0.5, 1), yaw=math.pi / 2),
+            Primitive("cylinder", (5, 0, 1), (0.5, 0.5, 1)),
+            Primitive("sphere", (0, 5, 1), (1, 1, 1)),
+        ]
+    )
+    pts = np.array([[0, 2, 1], [2, 0, 1], [5, 2, 1], [0, 7, 1], [5, 0, 3]], float)
+    _, d = g.closest(pts)
+    # Rotated box: half extents (1, 0.5) become (0.5, 1) in the world.
+    np.testing.assert_allclose(d, [1.0, 1.5, 1.5, 1.0, 1.0], atol=1e-9)
+
+
+def test_shortest_path_goes_around_a_wall():
+    wall = Primitive("box", (0, 0, 1), (0.1, 2.0, 1.5))
+    grid = build_grid(Geometry.from_primitives([wall]), 5.0, 1.0, 0.05, 0.15)
+    path, length = shortest_path(grid, np.array([-2.0, 0.0]), np.array([2.0, 0.0]))
+    # Around the wall end (y = 2 + 0.15 inflation): two straight legs of ~sqrt(2^2 + 2.15^2) m each.
+    ideal = 2 * math.hypot(1.9, 2.15) + 0.2
+    assert ideal - 0.05 < length < ideal + 0.25
+    assert all(grid.line_of_sight(a, b) for a, b in itertools.pairwise(path))
+    empty = build_grid(Geometry(), 5.0, 1.0, 0.1, 0.15)
+    assert shortest_path(empty, np.array([-3.0, -3.0]), np.array([3.0, 2.0]))[1] == pytest.approx(math.hypot(6, 5))
+
+
+def test_hybrid_apf_succeeds_in_box():
+    env = make_env("box", seed=0, image_size=16)
+    pol = HybridAPF(env.cfg)
+    successes = 0
+    n = 50
+    for ep in range(n):
+        obs, info = env.reset(seed=10_000 + ep)
+        while True:
+            obs, _r, term, trunc, info = env.step(pol.act(obs, info))
+            if term or trunc:
+                successes += info["metrics"]["success"]
+                break
+    env.close()
+    assert successes / n >= 0.85, f"HybridAPF success {successes}/{n}"

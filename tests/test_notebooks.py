@@ -1,0 +1,160 @@
+"""Notebooks: committed ones are clean, and the runner executes them with papermill (smoke preset).
+
+The chain test runs every notebook in order in one test, since later notebooks read what earlier ones wrote.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import nbformat
+import pytest
+from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+
+from omcrl import notebooks as nbr
+from omcrl.notebooks import (
+    NOTEBOOKS,
+    NotebookExecutionError,
+    NotebookNotFoundError,
+    check_notebook,
+    run_chain,
+    run_notebook,
+    strip_outputs,
+)
+
+pytestmark = pytest.mark.notebooks
+
+NO_NOTEBOOKS = "notebooks/ has no NN_*.ipynb yet"
+
+
+def _write(path: Path, cells: list, params: str = 'preset = "smoke"\nresults_dir = "results"\n') -> Path:
+    p = new_code_cell(params)
+    p.metadata["tags"] = ["parameters"]
+    nb = new_notebook(cells=[new_markdown_cell("# test"), p, *cells])
+    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+    nbformat.write(nb, str(path))
+    return path
+
+
+# ---------------------------------------------------------------- committed notebooks
+def test_notebook_list_is_ordered(repo_root):
+    found = sorted(p.stem for p in (repo_root / "notebooks").glob("[0-9][0-9]_*.ipynb"))
+    assert found == NOTEBOOKS
+
+
+@pytest.mark.parametrize(
+    "name", NOTEBOOKS or [pytest.param(None, marks=pytest.mark.skip(reason=NO_NOTEBOOKS))]
+)
+def test_committed_notebook_is_clean(repo_root, name):
+    problems = check_notebook(repo_root / "notebooks" / f"{name}.ipynb")
+    assert problems == [], f"{name}: {problems} (fix with: python -m omcrl.notebooks strip)"
+
+
+# ---------------------------------------------------------------- helpers
+def test_strip_outputs(tmp_path):
+    path = _write(tmp_path / "00_x.ipynb", [new_code_cell("print(1)")])
+    nb = nbformat.read(str(path), as_version=4)
+    nb.cells[2].outputs = [nbformat.v4.new_output("stream", name="stdout", text="1\n")]
+    nb.cells[2].execution_count = 3
+    nb.cells[2].metadata["papermill"] = {"duration": 1.0}
+    nb.metadata["papermill"] = {"parameters": {}}
+    nbformat.write(nb, str(path))
+    assert check_notebook(path)
+    assert strip_outputs(path) is True
+    assert check_notebook(path) == []
+    assert strip_outputs(path) is False  # idempotent: nothing left to change
+
+
+def test_check_notebook_wants_one_parameters_cell_with_preset(tmp_path):
+    path = _write(tmp_path / "00_x.ipynb", [], params="seed = 1\n")
+    assert any("preset" in p for p in check_notebook(path))
+    nb = nbformat.read(str(path), as_version=4)
+    nb.cells[1].metadata["tags"] = []
+    nbformat.write(nb, str(path))
+    assert any("exactly one" in p for p in check_notebook(path))
+
+
+def test_kernel_runs_this_interpreter():
+    from jupyter_client.kernelspec import KernelSpecManager
+
+    name, extra = nbr.resolve_kernel()
+    if extra is None:
+        spec = KernelSpecManager().get_kernel_spec(name)
+        assert nbr._is_current_python(spec.argv[0])
+    else:
+        spec = json.loads((Path(extra) / "kernels" / name / "kernel.json").read_text())
+        assert spec["argv"][0] == sys.executable
+
+
+def test_missing_notebook_is_named(tmp_path):
+    with pytest.raises(NotebookNotFoundError, match="99_nothing"):
+        run_notebook("99_nothing", "smoke", results_dir=tmp_path)
+
+
+# ---------------------------------------------------------------- running (starts real kernels)
+def test_run_notebook_injects_parameters(tmp_path):
+    src = _write(
+        tmp_path / "00_probe.ipynb",
+        [
+            new_code_cell(
+                "import json, os, sys\n"
+                "probe = {'preset': preset, 'results_dir': results_dir, 'extra': extra,\n"
+                "         'exe': sys.executable, 'cwd': os.getcwd()}\n"
+                "json.dump(probe, open(os.path.join(results_dir, 'probe.json'), 'w'))"
+            )
+        ],
+        params='preset = "quick"\nresults_dir = "results"\nextra = 0\n',
+    )
+    out = run_notebook(src, "smoke", parameters={"extra": 5}, results_dir=tmp_path / "res", cwd=tmp_path)
+    assert out == tmp_path / "res" / "smoke" / "executed" / "00_probe.ipynb"
+    probe = json.loads((tmp_path / "res" / "probe.json").read_text())
+    assert probe["preset"] == "smoke" and probe["extra"] == 5
+    assert probe["results_dir"] == str(tmp_path / "res")
+    assert Path(probe["exe"]).parent == Path(sys.executable).parent
+    assert Path(probe["cwd"]).resolve() == tmp_path.resolve()
+    # the committed source stays clean; the executed copy has the injected cell
+    assert check_notebook(src) == []
+    executed = nbformat.read(str(out), as_version=4)
+    assert any("injected-parameters" in c.metadata.get("tags", []) for c in executed.cells)
+
+
+def test_failing_cell_is_named(tmp_path):
+    src = _write(
+        tmp_path / "00_broken.ipynb", [new_code_cell("x = 1"), new_code_cell("raise ValueError('boom 42')")]
+    )
+    with pytest.raises(NotebookExecutionError) as e:
+        run_notebook(src, "smoke", results_dir=tmp_path, cwd=tmp_path)
+    msg = str(e.value)
+    assert "00_broken" in msg and "cell 4" in msg and "ValueError" in msg and "boom 42" in msg
+    assert e.value.cell == 4 and e.value.executed.is_file()
+
+
+@pytest.mark.timeout(3600)
+@pytest.mark.skipif(not NOTEBOOKS, reason=NO_NOTEBOOKS)
+def test_chain_smoke(tmp_path):
+    """Every notebook, in order, with the smoke preset, into a temporary results folder."""
+    outs = run_chain("smoke", results_dir=tmp_path, verbose=True)
+    assert [p.stem for p in outs] == NOTEBOOKS
+    for p in outs:
+        assert p.is_file() and p.parent == tmp_path / "smoke" / "executed"
+
+
+def test_overrides_from_config_round_trip():
+    from omcrl.config import load_config
+
+    cfg = load_config(
+        "smoke",
+        overrides=["env.scene=tree", "env.goal_distance=[3, 6]", "data.mix={pilot: 1, random: 0, policy: 0}"],
+    )
+    over = nbr.overrides_from_config(cfg)
+    assert len(over) == 3 and over[0] == 'env.scene="tree"'
+    assert load_config("smoke", overrides=over) == cfg
+    assert nbr.overrides_from_config(load_config("smoke")) == []
+
+
+def test_undeclared_overrides_are_an_error(tmp_path):
+    src = _write(tmp_path / "00_x.ipynb", [])
+    with pytest.raises(nbr.NotebookError, match="overrides"):
+        run_notebook(src, "smoke", results_dir=tmp_path, cwd=tmp_path, overrides=["rl.epochs=1"])

@@ -1,0 +1,270 @@
+"""Masking, contrastive losses, momentum keys, the training stage and the probe."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from omcrl.config import load_config
+from omcrl.data import open_dataset
+from omcrl.data.dataset import make_synthetic_dataset
+from omcrl.models import load_encoder, random_encoder
+from omcrl.pretrain import (
+    OP_KEEP,
+    OP_NONE,
+    OP_REPLACE,
+    OP_ZERO,
+    ContrastiveLearner,
+    apply_mask_ops,
+    bilinear_info_nce,
+    masked_info_nce,
+    method_name,
+    probe,
+    run,
+    sample_mask_ops,
+    transformer_lr_factor,
+)
+
+torch.set_num_threads(1)
+
+
+def _cfg(tmp_path, **pre):
+    base = {
+        "crop_from": 20,
+        "crop_to": 16,
+        "batch_size": 4,
+        "seq_len": 6,
+        "feature_dim": 16,
+        "proj_hidden": 16,
+        "transformer_blocks": 1,
+        "transformer_ffn": 32,
+        "iterations": 6,
+        "checkpoint_every": 3,
+        "warmup_steps": 5,
+        "num_threads": 1,
+    }
+    over = {
+        "results_dir": str(tmp_path / "res"),
+        "env": {"image_size": 20, "frame_stack": 3},
+        "pretrain": {**base, **pre},
+    }
+    return load_config("smoke", overrides=over)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return make_synthetic_dataset(
+        tmp_path_factory.mktemp("d") / "d.h5", n_episodes=6, length=24, image_size=20
+    )
+
+
+# ---------------------------------------------------------------- masking
+@pytest.mark.parametrize("rho", [0.1, 0.5, 0.9])
+def test_mask_rate_and_split(rho):
+    g = torch.Generator().manual_seed(0)
+    mask, ops = sample_mask_ops((100, 100), rho, g)
+    assert abs(mask.float().mean().item() - rho) < 0.02
+    assert ((ops != OP_NONE) == mask).all()
+    sel = ops[mask]
+    for op, share in ((OP_ZERO, 0.8), (OP_REPLACE, 0.1), (OP_KEEP, 0.1)):
+        assert abs((sel == op).float().mean().item() - share) < 0.03
+
+
+def test_apply_mask_ops():
+    B, T = 3, 5
+    seq = (torch.arange(B * T, dtype=torch.uint8) + 1).view(B, T, 1, 1, 1).expand(B, T, 2, 4, 4).contiguous()
+    ops = torch.tensor([OP_NONE, OP_ZERO, OP_REPLACE, OP_KEEP, OP_REPLACE]).repeat(B, 1)
+    g = torch.Generator().manual_seed(0)
+    out = apply_mask_ops(seq, ops, None, g)
+    assert torch.equal(out[ops == OP_NONE], seq[ops == OP_NONE])
+    assert torch.equal(out[ops == OP_KEEP], seq[ops == OP_KEEP])
+    assert (out[ops == OP_ZERO] == 0).all()
+    rep = out[ops == OP_REPLACE][:, 0, 0, 0]
+    assert (rep != seq[ops == OP_REPLACE][:, 0, 0, 0]).all()  # j != i
+    for _ in range(50):  # j != i also over many draws
+        o = apply_mask_ops(seq, ops, None, g)
+        assert (o[ops == OP_REPLACE] != seq[ops == OP_REPLACE]).all()
+    pool = torch.full((4, 2, 4, 4), 200, dtype=torch.uint8)
+    assert (apply_mask_ops(seq, ops, pool, g)[ops == OP_REPLACE] == 200).all()
+
+
+# ---------------------------------------------------------------- losses
+def _ref_info_nce(q, k, mask, tau, batch_negatives):
+    q, k, mask = q.double().numpy(), k.double().numpy(), mask.numpy()
+    B, T, _ = q.shape
+    cos = lambda a, b: a @ b / (np.linalg.norm(a) * np.linalg.norm(b))  # noqa: E731
+    losses, hits = [], []
+    for b in range(B):
+        for i in range(T):
+            if not mask[b, i]:
+                continue
+            cands = [(bb, j) for bb in (range(B) if batch_negatives else [b]) for j in range(T)]
+            s = np.array([cos(q[b, i], k[bb, j]) / tau for bb, j in cands])
+            pos = cands.index((b, i))
+            losses.append(-(s[pos] - math.log(np.exp(s).sum())))
+            hits.append(int(np.argmax(s) == pos))
+    return np.mean(losses), np.mean(hits)
+
+
+@pytest.mark.parametrize("batch_negatives", [False, True])
+def test_masked_info_nce_matches_reference(batch_negatives):
+    g = torch.Generator().manual_seed(1)
+    q, k = torch.randn(3, 5, 7, generator=g), torch.randn(3, 5, 7, generator=g)
+    mask = torch.rand(3, 5, generator=g) < 0.5
+    loss, acc = masked_info_nce(q, k, mask, 0.1, batch_negatives)
+    ref_loss, ref_acc = _ref_info_nce(q, k, mask, 0.1, batch_negatives)
+    assert loss.item() == pytest.approx(ref_loss, rel=1e-5) and acc.item() == pytest.approx(ref_acc)
+    z, a = masked_info_nce(q.requires_grad_(), k, torch.zeros(3, 5, dtype=torch.bool), 0.1, batch_negatives)
+    assert z.item() == 0 and math.isnan(a.item())
+    z.backward()  # an all-unmasked batch still gives a usable graph
+
+
+def test_bilinear_info_nce_matches_reference():
+    g = torch.Generator().manual_seed(2)
+    q, k, W = torch.randn(4, 3, generator=g), torch.randn(4, 3, generator=g), torch.randn(3, 3, generator=g)
+    loss, _ = bilinear_info_nce(q, k, W)
+    Q, K, M = q.double().numpy(), k.double().numpy(), W.double().numpy()
+    ref = np.mean(
+        [-(Q[i] @ M @ K[i] - math.log(sum(math.exp(Q[i] @ M @ K[j]) for j in range(4)))) for i in range(4)]
+    )
+    assert loss.item() == pytest.approx(ref, rel=1e-5)
+
+
+def test_lr_schedule():
+    assert transformer_lr_factor(1, 100) == pytest.approx(0.01)
+    assert transformer_lr_factor(50, 100) == pytest.approx(0.5)
+    assert transformer_lr_factor(100, 100) == pytest.approx(1.0)
+    assert transformer_lr_factor(400, 100) == pytest.approx(0.5)
+    assert transformer_lr_factor(4, 0) == pytest.approx(0.5)
+
+
+# ---------------------------------------------------------------- learner
+@pytest.mark.parametrize("dual", [False, True])
+def test_momentum_update_exact_and_keys_get_no_gradient(tmp_path, dual):
+    cfg = _cfg(tmp_path, dual_transformer=dual, momentum=0.05)
+    torch.manual_seed(0)
+    lr = ContrastiveLearner(cfg.pretrain, 3)
+    key_params = [*lr.f_k.parameters(), *lr.phi_k.parameters()] + ([*lr.xi_k.parameters()] if dual else [])
+    assert all(not p.requires_grad for p in key_params)
+    seq = torch.randint(0, 256, (2, 6, 9, 16, 16), dtype=torch.uint8)
+    loss, _ = lr.omc_loss(seq, torch.Generator().manual_seed(0))
+    loss.backward()
+    assert all(p.grad is None for p in key_params)
+    assert lr.f.fc.weight.grad is not None and lr.xi.blocks[0].q.weight.grad is not None
+    with torch.no_grad():  # move the online nets away from the keys
+        for p in [*lr.f.parameters(), *lr.phi.parameters(), *lr.xi.parameters()]:
+            p.add_(torch.randn_like(p))
+    pairs = [(lr.f, lr.f_k), (lr.phi, lr.phi_k)] + ([(lr.xi, lr.xi_k)] if dual else [])
+    before = [(p.clone(), pk.clone()) for o, k in pairs for p, pk in zip(o.parameters(), k.parameters())]
+    lr.momentum_update()
+    after = [pk for _, k in pairs for pk in k.parameters()]
+    for (p, pk), new in zip(before, after):
+        torch.testing.assert_close(new, 0.05 * p + 0.95 * pk, rtol=0, atol=1e-6)
+
+
+def test_omc_loss_decreases(data, tmp_path):
+    """A few dozen iterations of the real training loop lower the loss on synthetic moving-square data."""
+    cfg = _cfg(
+        tmp_path,
+        crop_to=20,
+        batch_size=8,
+        feature_dim=32,
+        proj_hidden=32,
+        transformer_ffn=64,
+        iterations=80,
+        checkpoint_every=80,
+    )
+    r = run(cfg, data, progress=False)
+    loss = pd.read_csv(r.metrics_path).query("metric == 'loss'")["value"].to_numpy()
+    assert len(loss) == 80
+    assert loss[-20:].mean() < loss[:10].mean() - 0.15
+
+
+# ---------------------------------------------------------------- the stage
+def test_run_outputs_cache_and_artifact(data, tmp_path):
+    cfg = _cfg(tmp_path)
+    r = run(cfg, data, progress=False)
+    assert r.run_dir == tmp_path / "res" / "smoke" / "runs" / "pretrain" / "omc" / "seed0" and not r.skipped
+    assert {p.name for p in r.run_dir.iterdir()} >= {
+        "config.yaml",
+        "metrics.csv",
+        "checkpoint.pt",
+        "encoder.pt",
+        "done.json",
+    }
+    df = pd.read_csv(r.metrics_path)
+    assert list(df.columns) == ["step", "metric", "value"]
+    assert set(df.metric) >= {"loss", "accuracy", "lr_encoder", "lr_transformer"}
+    assert sorted(df.query("metric == 'loss'").step) == list(range(1, 7))
+    enc = load_encoder(r.encoder_path, image_size=20, frame_stack=3)
+    assert enc.meta["dataset_fingerprint"] == open_dataset(data).fingerprint
+    assert enc(torch.zeros(2, 9, 20, 20, dtype=torch.uint8)).shape == (2, 16)
+    mtime = r.encoder_path.stat().st_mtime_ns
+    again = run(cfg, data, progress=False)
+    assert again.skipped and r.encoder_path.stat().st_mtime_ns == mtime
+
+
+def test_interrupted_run_resumes_to_identical_result(data, tmp_path):
+    cfg_a = _cfg(tmp_path / "a")
+    straight = run(cfg_a, data, progress=False)
+    cfg_b = _cfg(tmp_path / "b")
+    part = run(cfg_b, data, progress=False, stop_after=4)  # checkpoint at 3, iteration 4 is lost
+    assert part.iterations == 4 and not (part.run_dir / "encoder.pt").exists()
+    resumed = run(cfg_b, data, progress=False)
+    assert resumed.iterations == 6 and not resumed.skipped
+    sa = torch.load(straight.encoder_path, weights_only=True)
+    sb = torch.load(resumed.encoder_path, weights_only=True)
+    for key in ("f", "phi"):
+        for name in sa[key]:
+            assert torch.equal(sa[key][name], sb[key][name]), name
+    da, db = pd.read_csv(straight.metrics_path), pd.read_csv(resumed.metrics_path)
+    pd.testing.assert_frame_equal(da, db)
+
+
+@pytest.mark.parametrize(
+    "pre, name",
+    [
+        ({"method": "curl", "use_projection": False}, "curl"),
+        ({"method": "curl"}, "curl-phi"),
+        ({"method": "curl_cons", "cons_stride": 2, "use_projection": False}, "curl_cons-stride2"),
+        (
+            {"use_projection": False, "dual_transformer": True, "batch_negatives": False, "mask_prob": 0.3},
+            "omc-rho0.3-nophi-dualT-seqneg",
+        ),
+    ],
+)
+def test_variants_run(data, tmp_path, pre, name):
+    cfg = _cfg(tmp_path, iterations=3, **pre)
+    assert method_name(cfg.pretrain) == name
+    r = run(cfg, data, progress=False)
+    assert r.name == name and math.isfinite(r.final_loss)
+    enc = load_encoder(r.encoder_path)
+    assert enc.meta["use_projection"] == cfg.pretrain.use_projection and enc.feature_dim == 16
+
+
+# ---------------------------------------------------------------- probe
+class _OracleFeatures(torch.nn.Module):
+    """Reads the synthetic square's centre from the newest frame: a probe on it must score R² ≈ 1."""
+
+    frame_stack, crop_from, crop_to = 3, 20, 20
+
+    def forward(self, x):
+        on = (x[:, -3] == 255).float()  # (N, H, W) square of the newest frame
+        ys, xs = torch.meshgrid(torch.arange(20.0), torch.arange(20.0), indexing="ij")
+        cy, cx = [(on * g).sum((1, 2)) / on.sum((1, 2)) / 20 - 0.5 for g in (ys, xs)]
+        ang = torch.atan2(cx, cy)
+        return torch.stack([cy, cx, torch.hypot(cy, cx), torch.sin(ang), torch.cos(ang)], 1)
+
+
+def test_probe_pipeline_and_random_encoder(data, tmp_path):
+    ds = open_dataset(data)
+    out = probe(_OracleFeatures(), ds, n_samples=200, seed=0)
+    assert set(out) == {"distance", "bearing_sin", "bearing_cos", "n_train", "n_test"}
+    assert out["n_train"] + out["n_test"] == 200
+    assert min(out["distance"], out["bearing_sin"], out["bearing_cos"]) > 0.9  # targets align with frames
+    rand = probe(random_encoder(_cfg(tmp_path), seed=0), ds, n_samples=120, seed=0)
+    assert all(np.isfinite(rand[k]) for k in ("distance", "bearing_sin", "bearing_cos"))
