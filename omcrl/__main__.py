@@ -80,14 +80,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m omcrl",
         description="Run one stage of the OMC-RL reproduction kit.",
-        epilog=f"stages:\n{stages}\n\nexample: python -m omcrl pretrain --preset quick "
-        "--set pretrain.mask_prob=0.3",
+        epilog=f"stages:\n{stages}\n\nexample: python -m omcrl pretrain --preset quick --set pretrain.mask_prob=0.3",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("stage", help="stage to run (see below)")
-    ap.add_argument(
-        "--preset", default="quick", choices=PRESETS, help="configuration preset (default: quick)"
-    )
+    ap.add_argument("--preset", default="quick", choices=PRESETS, help="configuration preset (default: quick)")
     ap.add_argument(
         "--set",
         dest="overrides",

@@ -323,8 +323,7 @@ def run_notebook(
             raise NotebookExecutionError(msg, notebook=name, cell=cell, executed=out) from None
         except Exception as err:  # kernel died, timeout, bad parameters ...
             raise NotebookExecutionError(
-                f"notebook {name} could not run: {type(err).__name__}: {err}\n"
-                f"executed copy (may be partial): {out}",
+                f"notebook {name} could not run: {type(err).__name__}: {err}\nexecuted copy (may be partial): {out}",
                 notebook=name,
                 cell=None,
                 executed=out,
@@ -354,9 +353,7 @@ def run_chain(
         t0 = time.perf_counter()
         if verbose:
             print(f"[notebooks] {n} (preset {preset}) ...", flush=True)
-        out = run_notebook(
-            n, preset, parameters=parameters, results_dir=results_dir, overrides=overrides, cwd=cwd
-        )
+        out = run_notebook(n, preset, parameters=parameters, results_dir=results_dir, overrides=overrides, cwd=cwd)
         if verbose:
             print(f"[notebooks] {n} done in {time.perf_counter() - t0:.0f} s -> {out}", flush=True)
         done.append(out)

@@ -94,9 +94,7 @@ def test_save_and_load_round_trip(tmp_path):
 
 
 def _cli(*args, cwd=None):
-    return subprocess.run(
-        [sys.executable, "-m", "omcrl", *args], capture_output=True, text=True, timeout=120, cwd=cwd
-    )
+    return subprocess.run([sys.executable, "-m", "omcrl", *args], capture_output=True, text=True, timeout=120, cwd=cwd)
 
 
 def test_cli_bad_set_exits_2_with_message(repo_root):

@@ -26,9 +26,7 @@ def _episode(T: int, S: int, value: int = 0) -> dict:
 
 
 def test_roundtrip_and_metadata(tmp_path):
-    p = make_synthetic_dataset(
-        tmp_path / "d.h5", n_episodes=3, length=[5, 7, 9], image_size=16, pattern="ids"
-    )
+    p = make_synthetic_dataset(tmp_path / "d.h5", n_episodes=3, length=[5, 7, 9], image_size=16, pattern="ids")
     with open_dataset(p, image_size=16, frame_stack=3) as ds:
         assert len(ds) == 3 and ds.episode_lengths.tolist() == [5, 7, 9] and ds.n_steps == 21
         assert ds.read(1, "rgb").shape == (7, 3, 16, 16) and ds.read(1, "rgb").dtype == np.uint8
@@ -108,9 +106,7 @@ def test_truncated_file_clear_error_and_untouched(tmp_path):
 
 
 def test_sampler_never_crosses_episodes_and_pads_start(tmp_path):
-    p = make_synthetic_dataset(
-        tmp_path / "d.h5", n_episodes=5, length=[4, 9, 6, 12, 7], image_size=12, pattern="ids"
-    )
+    p = make_synthetic_dataset(tmp_path / "d.h5", n_episodes=5, length=[4, 9, 6, 12, 7], image_size=12, pattern="ids")
     L, T = 3, 4
     s = SequenceSampler(open_dataset(p), batch_size=8, seq_len=T, frame_stack=L, crop=(12, 10), seed=1)
     seen_start = False

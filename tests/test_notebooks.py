@@ -44,9 +44,7 @@ def test_notebook_list_is_ordered(repo_root):
     assert found == NOTEBOOKS
 
 
-@pytest.mark.parametrize(
-    "name", NOTEBOOKS or [pytest.param(None, marks=pytest.mark.skip(reason=NO_NOTEBOOKS))]
-)
+@pytest.mark.parametrize("name", NOTEBOOKS or [pytest.param(None, marks=pytest.mark.skip(reason=NO_NOTEBOOKS))])
 def test_committed_notebook_is_clean(repo_root, name):
     problems = check_notebook(repo_root / "notebooks" / f"{name}.ipynb")
     assert problems == [], f"{name}: {problems} (fix with: python -m omcrl.notebooks strip)"
@@ -121,9 +119,7 @@ def test_run_notebook_injects_parameters(tmp_path):
 
 
 def test_failing_cell_is_named(tmp_path):
-    src = _write(
-        tmp_path / "00_broken.ipynb", [new_code_cell("x = 1"), new_code_cell("raise ValueError('boom 42')")]
-    )
+    src = _write(tmp_path / "00_broken.ipynb", [new_code_cell("x = 1"), new_code_cell("raise ValueError('boom 42')")])
     with pytest.raises(NotebookExecutionError) as e:
         run_notebook(src, "smoke", results_dir=tmp_path, cwd=tmp_path)
     msg = str(e.value)

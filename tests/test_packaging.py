@@ -40,9 +40,7 @@ def environment_pins(root: Path) -> tuple[dict[str, str], dict]:
     pip = [d for d in env["dependencies"] if isinstance(d, dict) and "pip" in d]
     assert len(pip) == 1, "environment.yml: expected one 'pip:' section"
     specs = [s for s in pip[0]["pip"] if s.strip() not in ("-e .", "-e ./", "--editable .")]
-    assert len(specs) == len(pip[0]["pip"]) - 1, (
-        "environment.yml: the pip section must install the kit with '-e .'"
-    )
+    assert len(specs) == len(pip[0]["pip"]) - 1, "environment.yml: the pip section must install the kit with '-e .'"
     return parse_pins(specs, "environment.yml"), env
 
 
@@ -50,11 +48,7 @@ def pin_differences(a: dict[str, str], b: dict[str, str]) -> list[str]:
     """Human-readable differences between two pin sets (empty when they agree exactly)."""
     out = [f"{n}: only in pyproject.toml ({a[n]})" for n in sorted(set(a) - set(b))]
     out += [f"{n}: only in environment.yml ({b[n]})" for n in sorted(set(b) - set(a))]
-    out += [
-        f"{n}: pyproject.toml {a[n]} != environment.yml {b[n]}"
-        for n in sorted(set(a) & set(b))
-        if a[n] != b[n]
-    ]
+    out += [f"{n}: pyproject.toml {a[n]} != environment.yml {b[n]}" for n in sorted(set(a) & set(b)) if a[n] != b[n]]
     return out
 
 

@@ -57,9 +57,7 @@ def _cfg(tmp_path, **pre):
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
-    return make_synthetic_dataset(
-        tmp_path_factory.mktemp("d") / "d.h5", n_episodes=6, length=24, image_size=20
-    )
+    return make_synthetic_dataset(tmp_path_factory.mktemp("d") / "d.h5", n_episodes=6, length=24, image_size=20)
 
 
 # ---------------------------------------------------------------- masking
@@ -128,9 +126,7 @@ def test_bilinear_info_nce_matches_reference():
     q, k, W = torch.randn(4, 3, generator=g), torch.randn(4, 3, generator=g), torch.randn(3, 3, generator=g)
     loss, _ = bilinear_info_nce(q, k, W)
     Q, K, M = q.double().numpy(), k.double().numpy(), W.double().numpy()
-    ref = np.mean(
-        [-(Q[i] @ M @ K[i] - math.log(sum(math.exp(Q[i] @ M @ K[j]) for j in range(4)))) for i in range(4)]
-    )
+    ref = np.mean([-(Q[i] @ M @ K[i] - math.log(sum(math.exp(Q[i] @ M @ K[j]) for j in range(4)))) for i in range(4)])
     assert loss.item() == pytest.approx(ref, rel=1e-5)
 
 

@@ -98,14 +98,11 @@ def format_table(rows: Sequence[dict]) -> str:
     cells = [[_fmt(r.get(c, "")) for c in cols] for r in rows]
     widths = [max([len(c)] + [len(row[i]) for row in cells]) for i, c in enumerate(cols)]
     numeric = [
-        all(isinstance(r.get(c), (int, float)) and not isinstance(r.get(c), bool) for r in rows if c in r)
-        for c in cols
+        all(isinstance(r.get(c), (int, float)) and not isinstance(r.get(c), bool) for r in rows if c in r) for c in cols
     ]
 
     def line(vals: Sequence[str]) -> str:
-        return "  ".join(
-            v.rjust(w) if num else v.ljust(w) for v, w, num in zip(vals, widths, numeric)
-        ).rstrip()
+        return "  ".join(v.rjust(w) if num else v.ljust(w) for v, w, num in zip(vals, widths, numeric)).rstrip()
 
     out = [line(cols), line(["-" * w for w in widths])]
     out += [line(row) for row in cells]

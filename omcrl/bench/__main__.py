@@ -15,9 +15,7 @@ KNOWN = ("env", "pretrain", "rl")
 
 def available() -> list[str]:
     """Benchmark modules present in this package (``env``, ``pretrain``, ``rl`` when written)."""
-    return sorted(
-        m.name for m in pkgutil.iter_modules([str(Path(_pkg.__file__).parent)]) if not m.name.startswith("_")
-    )
+    return sorted(m.name for m in pkgutil.iter_modules([str(Path(_pkg.__file__).parent)]) if not m.name.startswith("_"))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -255,9 +255,7 @@ class TrajectoryDataset:
     image_size, frame_stack, env_config, kit_version, created
     """
 
-    def __init__(
-        self, path: str | Path, image_size: int | None = None, frame_stack: int | None = None
-    ) -> None:
+    def __init__(self, path: str | Path, image_size: int | None = None, frame_stack: int | None = None) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise DatasetError(f"dataset {self.path}: file does not exist")
@@ -300,17 +298,14 @@ class TrajectoryDataset:
                     if name not in g or g[name].shape != want_shape:
                         got_shape = g[name].shape if name in g else "missing"
                         raise DatasetError(
-                            f"dataset {self.path}: field '{key}/{name}' expected shape "
-                            f"{want_shape}, got {got_shape}"
+                            f"dataset {self.path}: field '{key}/{name}' expected shape {want_shape}, got {got_shape}"
                         )
                 lengths.append(steps)
                 sources.append(str(g.attrs["source"]))
                 scenes.append(str(g.attrs["scene"]))
         except OSError as e:  # h5py reports truncated/corrupt files as OSError
             self.close()
-            raise DatasetError(
-                f"dataset {self.path}: cannot read HDF5 file, truncated or corrupt ({e})"
-            ) from None
+            raise DatasetError(f"dataset {self.path}: cannot read HDF5 file, truncated or corrupt ({e})") from None
         except (KeyError, ValueError) as e:
             self.close()
             raise DatasetError(f"dataset {self.path}: malformed ({e})") from None
@@ -353,9 +348,7 @@ class TrajectoryDataset:
     def fingerprint(self) -> str:
         """Short sha256 of the file attributes and episode lengths: names the data a model was trained on."""
         h5 = self._file()
-        attrs = {
-            k: (v.item() if hasattr(v, "item") else str(v)) for k, v in h5.attrs.items() if k != "created"
-        }
+        attrs = {k: (v.item() if hasattr(v, "item") else str(v)) for k, v in h5.attrs.items() if k != "created"}
         blob = json.dumps(
             {"attrs": attrs, "lengths": self.episode_lengths.tolist(), "sources": self.sources},
             sort_keys=True,
@@ -425,9 +418,7 @@ class TrajectoryDataset:
         return out.reshape(len(ts), 3 * L, *out.shape[-2:])
 
 
-def open_dataset(
-    path: str | Path, image_size: int | None = None, frame_stack: int | None = None
-) -> TrajectoryDataset:
+def open_dataset(path: str | Path, image_size: int | None = None, frame_stack: int | None = None) -> TrajectoryDataset:
     """Open and validate a trajectory file (read-only); raises :class:`DatasetError` naming the problem."""
     return TrajectoryDataset(path, image_size=image_size, frame_stack=frame_stack)
 

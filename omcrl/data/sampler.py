@@ -65,8 +65,7 @@ class SequenceSampler:
         self._seq_w = np.clip(lengths - self.T + 1, 0, None).astype(np.float64)
         if self._seq_w.sum() == 0:
             raise DatasetError(
-                f"dataset {dataset.path}: no episode has >= seq_len={self.T} steps "
-                f"(longest has {int(lengths.max())})"
+                f"dataset {dataset.path}: no episode has >= seq_len={self.T} steps (longest has {int(lengths.max())})"
             )
         self._step_w = lengths.astype(np.float64)
 

@@ -121,9 +121,7 @@ def save_encoder(
     return Path(path)
 
 
-def load_encoder(
-    path: str | Path, image_size: int | None = None, frame_stack: int | None = None
-) -> FrozenEncoder:
+def load_encoder(path: str | Path, image_size: int | None = None, frame_stack: int | None = None) -> FrozenEncoder:
     """Load a frozen encoder; ``image_size`` (env image side) and ``frame_stack`` are checked when given.
 
     Returns an eval-mode module with ``requires_grad=False`` mapping (B, 3L, H, W) → (B, d).
@@ -135,9 +133,7 @@ def load_encoder(
     try:
         obj = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as e:
-        raise EncoderError(
-            f"encoder {p}: not a readable encoder artifact ({type(e).__name__}: {e})"
-        ) from None
+        raise EncoderError(f"encoder {p}: not a readable encoder artifact ({type(e).__name__}: {e})") from None
     if not isinstance(obj, dict) or obj.get("kind") != ARTIFACT_KIND:
         raise EncoderError(f"encoder {p}: not an omcrl encoder artifact (missing kind={ARTIFACT_KIND!r})")
     if obj.get("format") != ARTIFACT_FORMAT:
@@ -149,8 +145,7 @@ def load_encoder(
     ):
         if want is not None and int(want) != int(got):
             raise EncoderError(
-                f"encoder {p}: field '{name}' expected {int(want)} by the caller, "
-                f"the encoder was trained with {got}"
+                f"encoder {p}: field '{name}' expected {int(want)} by the caller, the encoder was trained with {got}"
             )
     enc = build_encoder(meta)
     try:

@@ -51,9 +51,7 @@ class ContrastiveLearner(nn.Module):
         self.f_k, self.phi_k = copy.deepcopy(self.f), copy.deepcopy(self.phi)
         self.xi = self.xi_k = self.W = None
         if cfg.method == "omc":
-            self.xi = TemporalTransformer(
-                d, cfg.transformer_blocks, cfg.transformer_ffn, max_len=max(cfg.seq_len, 64)
-            )
+            self.xi = TemporalTransformer(d, cfg.transformer_blocks, cfg.transformer_ffn, max_len=max(cfg.seq_len, 64))
             if cfg.dual_transformer:
                 self.xi_k = copy.deepcopy(self.xi)
         else:
@@ -75,9 +73,7 @@ class ContrastiveLearner(nn.Module):
         enc = [*self.f.parameters(), *self.phi.parameters()] + ([self.W] if self.W is not None else [])
         groups = [{"params": enc, "lr": self.cfg.lr_encoder, "name": "encoder"}]
         if self.xi is not None:
-            groups.append(
-                {"params": list(self.xi.parameters()), "lr": self.cfg.lr_transformer, "name": "transformer"}
-            )
+            groups.append({"params": list(self.xi.parameters()), "lr": self.cfg.lr_transformer, "name": "transformer"})
         return groups
 
     @torch.no_grad()

@@ -108,11 +108,7 @@ def _read_metrics(path: Path, upto: int) -> list[tuple[int, str, float]]:
     if not path.exists():
         return []
     with path.open() as fh:
-        return [
-            (int(r["step"]), r["metric"], float(r["value"]))
-            for r in csv.DictReader(fh)
-            if int(r["step"]) <= upto
-        ]
+        return [(int(r["step"]), r["metric"], float(r["value"])) for r in csv.DictReader(fh) if int(r["step"]) <= upto]
 
 
 def run(

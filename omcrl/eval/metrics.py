@@ -1,0 +1,86 @@
+"""Episode metrics NE, OS, SR, SPL, CR, TTS (paper V-B) and the method × scene table (paper Table I).
+
+Input is a tidy DataFrame with one row per episode and at least the columns ``final_distance`` (m),
+``min_distance`` (m), ``success`` (bool), ``collision`` (bool), ``path_length`` (m, executed),
+``optimal_path_length`` (m, shortest feasible path) and ``steps``; :func:`omcrl.eval.evaluate` produces it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+METRICS = ("NE", "OS", "SR", "SPL", "CR", "TTS")
+REQUIRED = (
+    "final_distance",
+    "min_distance",
+    "success",
+    "collision",
+    "path_length",
+    "optimal_path_length",
+    "steps",
+)
+
+
+def summarize(df: pd.DataFrame, os_threshold: float = 0.5) -> pd.Series:
+    """Aggregate episodes into the paper's metrics.
+
+    Parameters
+    ----------
+    df : one row per episode (columns in ``REQUIRED``).
+    os_threshold : ε for the oracle success rate (m); the paper uses 0.5 m.
+
+    Returns
+    -------
+    Series with NE (mean final distance to the goal, m), OS (% episodes whose trajectory came within
+    ``os_threshold`` of the goal, i.e. ``min_distance <= ε``), SR (% successful episodes), SPL (mean of
+    I_i · ℓ_i / max(d_i, ℓ_i), as a fraction in [0, 1]), CR (% episodes with a collision), TTS (mean steps
+    over successful episodes only; NaN when none succeeded) and ``episodes`` (count).
+    """
+    missing = [c for c in REQUIRED if c not in df.columns]
+    if missing:
+        raise KeyError(f"summarize: missing columns {missing}; got {list(df.columns)}")
+    n = len(df)
+    if n == 0:
+        return pd.Series({**{m: math.nan for m in METRICS}, "episodes": 0})
+    success = df["success"].astype(bool).to_numpy()
+    ell = df["optimal_path_length"].to_numpy(float)
+    d = df["path_length"].to_numpy(float)
+    # max(d, ℓ) > 0 unless both are 0; a zero-length optimal path contributes 0 rather than NaN.
+    denom = np.maximum(d, ell)
+    spl_terms = np.where(success & (denom > 0), ell / np.where(denom > 0, denom, 1.0), 0.0)
+    return pd.Series(
+        {
+            "NE": float(df["final_distance"].astype(float).mean()),
+            "OS": 100.0 * float((df["min_distance"].astype(float) <= os_threshold).mean()),
+            "SR": 100.0 * float(success.mean()),
+            "SPL": float(spl_terms.mean()),
+            "CR": 100.0 * float(df["collision"].astype(bool).mean()),
+            "TTS": float(df.loc[success, "steps"].astype(float).mean()) if success.any() else math.nan,
+            "episodes": int(n),
+        }
+    )
+
+
+def summary_table(df: pd.DataFrame, by: Sequence[str] = ("method", "scene"), os_threshold: float = 0.5) -> pd.DataFrame:
+    """Metrics per group, e.g. rows = (method, scene) as in the paper's Table I.
+
+    Returns a DataFrame indexed by ``by`` with columns NE, OS, SR, SPL, CR, TTS, episodes. Use
+    ``table.unstack("scene")`` for the paper's wide layout (scenes side by side).
+    """
+    by = list(by)
+    rows = {key: summarize(g, os_threshold) for key, g in df.groupby(by, sort=False)}
+    out = pd.DataFrame.from_dict(rows, orient="index")
+    out.index = pd.MultiIndex.from_tuples([k if isinstance(k, tuple) else (k,) for k in out.index], names=by)
+    return out[[*METRICS, "episodes"]]
+
+
+def format_table(table: pd.DataFrame, decimals: int = 2) -> pd.DataFrame:
+    """Wide, rounded view: rows = method, columns = (scene, metric); TTS NaN shown as '-'."""
+    wide = table.drop(columns="episodes").unstack("scene") if "scene" in table.index.names else table
+    if isinstance(wide.columns, pd.MultiIndex):
+        wide = wide.swaplevel(0, 1, axis=1).sort_index(axis=1, level=0, sort_remaining=False)
+    return wide.round(decimals).astype(object).where(wide.notna(), "-")

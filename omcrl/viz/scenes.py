@@ -1,0 +1,77 @@
+"""Scene gallery: top-down maps with start, goal and shortest path, and first-person RGB and depth frames."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from omcrl.config import EnvConfig
+from omcrl.envs import SCENES, make_env
+
+
+def scene_snapshot(scene: str, seed: int, env_config: EnvConfig | None = None, image_size: int = 128) -> dict[str, Any]:
+    """Reset one env of ``scene`` with ``seed`` and return what a map and FPV figure need.
+
+    Returns
+    -------
+    dict with ``grid`` (OccupancyGrid), ``pose`` (3,) x, y m and yaw rad, ``goal`` (2,) m, ``path`` (K, 2) m,
+    ``optimal_path_length`` m, ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) m, ``n_primitives``, ``arena_half`` m.
+    """
+    env = make_env(scene, seed=seed, image_size=image_size, config=env_config)
+    obs, info = env.reset(seed=seed)
+    out = {
+        "scene": scene,
+        "grid": env.grid,
+        "pose": info["pose"],
+        "goal": info["goal"],
+        "path": np.asarray(info["path"]),
+        "optimal_path_length": info["optimal_path_length"],
+        "rgb": obs["rgb"][-1].transpose(1, 2, 0),
+        "depth": obs["depth"][-1],
+        "n_primitives": len(env.primitives),
+        "arena_half": env.cfg.arena_half,
+    }
+    env.close()
+    return out
+
+
+def draw_map(ax: plt.Axes, snap: dict[str, Any]) -> None:
+    """Top-down map: obstacle clearance (dark = blocked for the drone centre), start, heading, goal, path."""
+    grid, a = snap["grid"], snap["arena_half"]
+    shade = np.where(grid.occ, 0.0, 0.55 + 0.45 * np.clip(grid.dist / grid.dist.max(), 0, 1))
+    ax.imshow(shade.T, origin="lower", cmap="gray", vmin=0, vmax=1, extent=(-a, a, -a, a))
+    p = snap["path"]
+    if len(p):
+        ax.plot(p[:, 0], p[:, 1], "-", color="tab:orange", lw=2, label=f"shortest {snap['optimal_path_length']:.1f} m")
+    x, y, yaw = snap["pose"]
+    ax.plot(x, y, "o", color="tab:blue", ms=7, label="start")
+    ax.arrow(x, y, 0.9 * np.cos(yaw), 0.9 * np.sin(yaw), color="tab:blue", width=0.08, length_includes_head=True)
+    ax.plot(*snap["goal"], "*", color="tab:red", ms=14, label="goal")
+    ax.set_xlim(-a, a)
+    ax.set_ylim(-a, a)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.legend(loc="lower left", fontsize=7, framealpha=0.8)
+
+
+def scene_gallery(
+    scenes: tuple[str, ...] = SCENES, seed: int = 0, env_config: EnvConfig | None = None, image_size: int = 128
+) -> tuple[plt.Figure, list[dict[str, Any]]]:
+    """One column per scene: map (row 1), FPV RGB (row 2) and depth in metres (row 3) at the start pose."""
+    snaps = [scene_snapshot(s, seed, env_config, image_size) for s in scenes]
+    fig, axes = plt.subplots(3, len(scenes), figsize=(4.2 * len(scenes), 12), squeeze=False)
+    for j, snap in enumerate(snaps):
+        draw_map(axes[0, j], snap)
+        axes[0, j].set_title(f"{snap['scene']} ({snap['n_primitives']} solids)")
+        axes[1, j].imshow(snap["rgb"])
+        axes[1, j].set_title("first-person RGB")
+        im = axes[2, j].imshow(snap["depth"], cmap="viridis_r", vmin=0, vmax=min(10.0, float(snap["depth"].max())))
+        axes[2, j].set_title("depth (m)")
+        fig.colorbar(im, ax=axes[2, j], fraction=0.046)
+        for ax in axes[1:, j]:
+            ax.axis("off")
+    fig.tight_layout()
+    return fig, snaps

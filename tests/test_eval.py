@@ -1,0 +1,133 @@
+"""Episode metrics, tables and the evaluation runner (omcrl.eval)."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from omcrl.eval import eval_seeds, evaluate, format_table, summarize, summary_table
+
+torch.set_num_threads(1)
+
+
+def episodes() -> pd.DataFrame:
+    # Four hand-made episodes: two successes (one on the optimal path, one with a 2x detour),
+    # one near miss (within OS radius, then collided), one far timeout.
+    return pd.DataFrame(
+        {
+            "final_distance": [0.2, 0.3, 0.6, 5.0],
+            "min_distance": [0.2, 0.3, 0.4, 3.0],
+            "success": [True, True, False, False],
+            "collision": [False, False, True, False],
+            "path_length": [10.0, 16.0, 7.0, 20.0],
+            "optimal_path_length": [10.0, 8.0, 9.0, 12.0],
+            "steps": [100, 150, 70, 400],
+        }
+    )
+
+
+def test_summarize_matches_hand_computation():
+    s = summarize(episodes())
+    assert s["NE"] == pytest.approx((0.2 + 0.3 + 0.6 + 5.0) / 4)
+    assert s["OS"] == pytest.approx(75.0)  # 0.2, 0.3, 0.4 <= 0.5
+    assert s["SR"] == pytest.approx(50.0)
+    assert s["SPL"] == pytest.approx((10 / 10 + 8 / 16 + 0 + 0) / 4)
+    assert s["CR"] == pytest.approx(25.0)
+    assert s["TTS"] == pytest.approx(125.0)  # successful episodes only
+    assert s["episodes"] == 4
+    # SPL uses max(d, ℓ): a path shorter than the "optimal" one cannot score above 1.
+    short = episodes().assign(path_length=[5.0, 8.0, 7.0, 20.0])
+    assert summarize(short)["SPL"] == pytest.approx((1.0 + 1.0) / 4)
+
+
+def test_summarize_without_successes_gives_nan_tts():
+    df = episodes().assign(success=False)
+    s = summarize(df)
+    assert math.isnan(s["TTS"])
+    assert s["SR"] == 0.0 and s["SPL"] == 0.0
+    with pytest.raises(KeyError, match="steps"):
+        summarize(df.drop(columns="steps"))
+
+
+def test_summary_table_groups_by_method_and_scene():
+    a = episodes().assign(method="omc", scene="box")
+    b = episodes().assign(method="omc", scene="tree", success=False)
+    c = episodes().assign(method="ppo", scene="box")
+    table = summary_table(pd.concat([a, b, c]))
+    assert list(table.columns) == ["NE", "OS", "SR", "SPL", "CR", "TTS", "episodes"]
+    assert table.loc[("omc", "box"), "SR"] == pytest.approx(50.0)
+    assert math.isnan(table.loc[("omc", "tree"), "TTS"])
+    wide = format_table(table)
+    assert wide.loc["omc", ("tree", "TTS")] == "-"
+    assert wide.loc["ppo", ("box", "SR")] == pytest.approx(50.0)
+
+
+class LineEnv(gym.Env):
+    """1-D corridor with the metrics contract: goal at x = 3 m, success within 0.3 m, 50-step limit."""
+
+    observation_space = gym.spaces.Box(-10, 10, (1,), np.float32)
+    action_space = gym.spaces.Box(-1, 1, (3,), np.float32)
+
+    def __init__(self, scene: str, seed: int = 0) -> None:
+        self.scene = scene
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.seed_, self.x, self.t, self.path, self.min_d = seed, 0.0, 0, 0.0, 3.0
+        return np.array([3.0 - self.x], np.float32), {"pose": np.array([self.x, 0.0, 0.0])}
+
+    def step(self, action):
+        dx = 0.5 * float(np.clip(action[0], -1, 1))
+        self.x += dx
+        self.path += abs(dx)
+        self.t += 1
+        d = abs(3.0 - self.x)
+        self.min_d = min(self.min_d, d)
+        success, trunc = d <= 0.3, self.t >= 50
+        info = {"pose": np.array([self.x, 0.0, 0.0])}
+        if success or trunc:
+            info["metrics"] = {
+                "final_distance": d,
+                "min_distance": self.min_d,
+                "success": success,
+                "collision": False,
+                "path_length": self.path,
+                "optimal_path_length": 3.0,
+                "steps": self.t,
+                "scene": self.scene,
+                "seed": self.seed_,
+            }
+        return np.array([3.0 - self.x], np.float32), 0.0, success, trunc and not success, info
+
+
+class GoRight:
+    name, checkpoint = "go_right", "none"
+
+    def __init__(self, speed: float) -> None:
+        self.speed, self.resets = speed, 0
+
+    def reset(self) -> None:
+        self.resets += 1
+
+    def act(self, obs, info):
+        return np.array([self.speed, 0.0, 0.0], np.float32)
+
+
+def test_evaluate_rows_seeds_and_trajectories():
+    pol = GoRight(1.0)
+    df = evaluate(pol, "box", episodes=3, seed=2, seed_offset=1_000_000, make_env=LineEnv)
+    assert len(df) == 3 and pol.resets == 3
+    assert list(df.eval_seed) == eval_seeds(3, 2, 1_000_000) == [1_000_006, 1_000_007, 1_000_008]
+    assert (df.seed == df.eval_seed).all()
+    assert (df.method == "go_right").all() and df.success.all()
+    assert df.steps.iloc[0] == 6 and len(df.trajectory.iloc[0]) == 7
+    assert df.trajectory.iloc[0][-1] == pytest.approx((3.0, 0.0))
+    s = summarize(df)
+    assert s["SR"] == 100.0 and s["SPL"] == pytest.approx(1.0) and s["TTS"] == 6.0
+    stuck = summarize(evaluate(GoRight(0.0), "box", episodes=2, make_env=LineEnv))
+    assert stuck["SR"] == 0.0 and math.isnan(stuck["TTS"]) and stuck["NE"] == pytest.approx(3.0)
