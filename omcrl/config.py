@@ -94,7 +94,7 @@ class DataConfig:
         doc="proportions of sources: scripted pilot, random exploration, a given policy",
     )
     pilot_noise: float = _f(0.3, lo=0.0, hi=2.0, doc="std of Gaussian action noise on the scripted pilot")
-    detour_prob: float = _f(0.1, lo=0.0, hi=1.0, doc="chance per episode of a detour waypoint")
+    detour_prob: float = _f(0.1, lo=0.0, hi=1.0, doc="chance per pilot episode of a detour (a turn in place)")
     random_corr: float = _f(0.9, lo=0.0, hi=0.9999, doc="AR(1) correlation of random exploration actions")
     max_steps: int = _f(200, lo=1, hi=100000, doc="cap on steps per collected episode")
     file: str = _f("data/{preset}/box.h5", doc="HDF5 path; {preset} is substituted")
@@ -154,6 +154,8 @@ class RLConfig:
     alpha_exp_every: int = _f(1000, lo=1, hi=10**9)
     beta: float = _f(1.0, lo=0.0, hi=1000.0, doc="KL scale")
     guide_std: float = _f(0.2, lo=1e-4, hi=10.0, doc="std given to a deterministic guide (NPE)")
+    oracle_guide: str = _f("apf", choices=("apf", "none"),
+                           doc="oracle PPO guided early by HybridAPF through the KL term ('none': pure PPO)")
     checkpoint_every: int = _f(20480, lo=1, hi=10**10, doc="env steps between checkpoints")
     num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads in the learner")
 

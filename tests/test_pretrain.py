@@ -28,6 +28,7 @@ from omcrl.pretrain import (
     sample_mask_ops,
     transformer_lr_factor,
 )
+from omcrl.pretrain.probe import TARGETS
 
 torch.set_num_threads(1)
 
@@ -259,7 +260,7 @@ class _OracleFeatures(torch.nn.Module):
 def test_probe_pipeline_and_random_encoder(data, tmp_path):
     ds = open_dataset(data)
     out = probe(_OracleFeatures(), ds, n_samples=200, seed=0)
-    assert set(out) == {"distance", "bearing_sin", "bearing_cos", "n_train", "n_test"}
+    assert set(out) == {*TARGETS, "n_train", "n_test"}
     assert out["n_train"] + out["n_test"] == 200
     assert min(out["distance"], out["bearing_sin"], out["bearing_cos"]) > 0.9  # targets align with frames
     rand = probe(random_encoder(_cfg(tmp_path), seed=0), ds, n_samples=120, seed=0)

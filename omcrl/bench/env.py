@@ -19,7 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 import pybullet as pb
 
-from omcrl.bench import parser, timeit, write_results
+from omcrl.bench import parser, write_results
 from omcrl.envs import make_env, make_vec_env
 
 
@@ -32,64 +32,88 @@ def _walk(rng: np.random.Generator, n: int) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def measure(scene: str, size: int, seconds: float, n_vec: int = 2) -> dict:
+def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float = 0.25) -> dict:
+    """Throughputs for one scene and image size.
+
+    Raw renders, single-env steps and vector-env steps run in alternating short blocks (``block`` s each) for
+    ``seconds`` s in all, and each rate is the median over its blocks: whatever else the machine is doing
+    then weighs on all three alike, so the ratios stay meaningful on a busy machine.
+    """
     env = make_env(scene, seed=0, image_size=size)
     env.reset(seed=0)
-    cid, proj, pos, yaw = env._client, env._proj, env._pos, env._yaw
-    view = pb.computeViewMatrix(pos.tolist(), [pos[0] + np.cos(yaw), pos[1] + np.sin(yaw), pos[2]], [0, 0, 1])
-
-    def raw() -> None:
-        pb.getCameraImage(
-            size,
-            size,
-            view,
-            proj,
-            renderer=pb.ER_TINY_RENDERER,
-            shadow=0,
-            flags=pb.ER_NO_SEGMENTATION_MASK,
-            physicsClientId=cid,
-        )
-
-    raw_fps = timeit(raw, seconds)["per_s"]
-    acts = _walk(np.random.default_rng(0), 100_000)
-    step_time = 0.0
-    reset_time = 0.0
-    steps = 0
-    t_end = time.perf_counter() + seconds * 2
-    while time.perf_counter() < t_end:
-        t0 = time.perf_counter()
-        _, _, term, trunc, _ = env.step(acts[steps % len(acts)])
-        step_time += time.perf_counter() - t0
-        steps += 1
-        if term or trunc:
-            t0 = time.perf_counter()
-            env.reset()
-            reset_time += time.perf_counter() - t0
-    env.close()
     vec = make_vec_env(scene, n_vec, seed=0, image_size=size)
     vec.reset(seed=0)
+    acts = _walk(np.random.default_rng(0), 100_000)
     va = np.stack([acts] * n_vec, 1)
-    for i in range(20):  # warm-up
-        vec.step(va[i])
-    t0 = time.perf_counter()
-    k = 0
-    while time.perf_counter() - t0 < seconds * 2:
-        vec.step(va[k % len(va)])
-        k += 1
-    vec_sps = k * n_vec / (time.perf_counter() - t0)
+    state = {"k": 0, "v": 0, "reset": 0.0, "step": 0.0}
+
+    def raw_rate() -> float:
+        cid, proj, pos, yaw = env._client, env._proj, env._pos, env._yaw
+        view = pb.computeViewMatrix(pos.tolist(), [pos[0] + np.cos(yaw), pos[1] + np.sin(yaw), pos[2]], [0, 0, 1])
+        n, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < block:
+            pb.getCameraImage(
+                size,
+                size,
+                view,
+                proj,
+                renderer=pb.ER_TINY_RENDERER,
+                shadow=0,
+                flags=pb.ER_NO_SEGMENTATION_MASK,
+                physicsClientId=cid,
+            )
+            n += 1
+        return n / (time.perf_counter() - t0)
+
+    def step_rates() -> tuple[float, float]:
+        """(steps/s excluding resets, steps/s including resets) over one block."""
+        n, t_step, t_reset, t0 = 0, 0.0, 0.0, time.perf_counter()
+        while time.perf_counter() - t0 < block:
+            t1 = time.perf_counter()
+            _, _, term, trunc, _ = env.step(acts[state["k"] % len(acts)])
+            t_step += time.perf_counter() - t1
+            state["k"] += 1
+            n += 1
+            if term or trunc:
+                t1 = time.perf_counter()
+                env.reset()
+                t_reset += time.perf_counter() - t1
+        state["reset"] += t_reset
+        state["step"] += t_step
+        return n / t_step, n / (t_step + t_reset)
+
+    def vec_rate() -> float:
+        n, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < block:
+            vec.step(va[state["v"] % len(va)])
+            state["v"] += 1
+            n += 1
+        return n * n_vec / (time.perf_counter() - t0)
+
+    for _ in range(3):  # warm-up: caches, first layouts, worker start
+        raw_rate(), step_rates(), vec_rate()
+    raws, steps, with_resets, vecs = [], [], [], []
+    t_end = time.perf_counter() + seconds
+    while time.perf_counter() < t_end:
+        raws.append(raw_rate())
+        s, w = step_rates()
+        steps.append(s)
+        with_resets.append(w)
+        vecs.append(vec_rate())
+    env.close()
     vec.close()
-    step_sps = steps / step_time
-    with_resets = steps / (step_time + reset_time)
+    raw_fps, step_sps, wr, vec_sps = (float(np.median(x)) for x in (raws, steps, with_resets, vecs))
     return {
         "scene": scene,
         "px": size,
         "raw_fps": raw_fps,
         "step_sps": step_sps,
-        "step_sps_with_resets": with_resets,
+        "step_sps_with_resets": wr,
         f"vec{n_vec}_sps": vec_sps,
         "step/raw": step_sps / raw_fps,
-        f"vec{n_vec}/single": vec_sps / with_resets,
-        "reset_ms": 1e3 * reset_time / max(1, steps),
+        f"vec{n_vec}/single": vec_sps / wr,
+        "reset_share": state["reset"] / (state["reset"] + state["step"]),
+        "blocks": len(raws),
     }
 
 
@@ -97,14 +121,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = parser("env", __doc__ or "")
     ap.add_argument("--scenes", default="box", help="comma-separated scenes (default: box)")
     ap.add_argument("--sizes", default="64,128", help="comma-separated image sizes (px)")
-    ap.add_argument("--seconds", type=float, default=5.0, help="timing window per measurement (s)")
+    ap.add_argument("--seconds", type=float, default=20.0, help="measuring time per scene and size (s)")
     args = ap.parse_args(argv)
-    seconds = 1.0 if args.quick else args.seconds
+    seconds = 3.0 if args.quick else args.seconds
     rows = []
     for scene in args.scenes.split(","):
         for size in (int(s) for s in args.sizes.split(",")):
             rows.append(measure(scene, size, seconds))
-    for r in rows:
-        r["reset_ms_per_step"] = r.pop("reset_ms")
     write_results("env", rows, args.out)
     return 0

@@ -95,6 +95,9 @@ class Geometry:
     def closest(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Nearest obstacle surface point and distance for each query point.
 
+        Distances to every primitive use cheap closed forms; the surface point is only constructed for the
+        winning primitive of each query, which keeps the per-step call (one point) at a few array operations.
+
         Parameters
         ----------
         pts : (P, 3) query points, m.
@@ -106,40 +109,56 @@ class Geometry:
         dist : (P,) distance to it, m (0 inside an obstacle, ``inf`` for an empty scene).
         """
         pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
-        cands, dists = [], []
-        if len(self.box_c):
+        nb, nc, ns = len(self.box_c), len(self.cyl_c), len(self.sph_c)
+        if nb + nc + ns == 0:
+            return pts.copy(), np.full(len(pts), np.inf)
+        parts = []
+        if nb:
             rel = pts[:, None, :] - self.box_c[None]  # (P, N, 3)
             c, s = self.box_cos[None], self.box_sin[None]
-            lx = c * rel[..., 0] + s * rel[..., 1]
-            ly = -s * rel[..., 0] + c * rel[..., 1]
-            local = np.stack([lx, ly, rel[..., 2]], -1)
-            q = np.clip(local, -self.box_h[None], self.box_h[None])
-            wx = c * q[..., 0] - s * q[..., 1]
-            wy = s * q[..., 0] + c * q[..., 1]
-            cands.append(np.stack([wx, wy, q[..., 2]], -1) + self.box_c[None])
-            dists.append(np.linalg.norm(local - q, axis=-1))
-        if len(self.cyl_c):
+            ex = np.abs(c * rel[..., 0] + s * rel[..., 1]) - self.box_h[None, :, 0]
+            ey = np.abs(c * rel[..., 1] - s * rel[..., 0]) - self.box_h[None, :, 1]
+            ez = np.abs(rel[..., 2]) - self.box_h[None, :, 2]
+            parts.append(np.sqrt(np.maximum(ex, 0) ** 2 + np.maximum(ey, 0) ** 2 + np.maximum(ez, 0) ** 2))
+        if nc:
             rel = pts[:, None, :] - self.cyl_c[None]
-            rad = np.hypot(rel[..., 0], rel[..., 1])
-            scale = np.minimum(1.0, self.cyl_r[None] / np.maximum(rad, 1e-12))
-            qz = np.clip(rel[..., 2], -self.cyl_hh[None], self.cyl_hh[None])
-            q = np.stack([rel[..., 0] * scale, rel[..., 1] * scale, qz], -1)
-            cands.append(q + self.cyl_c[None])
-            dists.append(np.linalg.norm(rel - q, axis=-1))
-        if len(self.sph_c):
+            dr = np.maximum(np.hypot(rel[..., 0], rel[..., 1]) - self.cyl_r[None], 0)
+            dz = np.maximum(np.abs(rel[..., 2]) - self.cyl_hh[None], 0)
+            parts.append(np.hypot(dr, dz))
+        if ns:
             rel = pts[:, None, :] - self.sph_c[None]
-            norm = np.linalg.norm(rel, axis=-1)
-            scale = np.minimum(1.0, self.sph_r[None] / np.maximum(norm, 1e-12))
-            q = rel * scale[..., None]
-            cands.append(q + self.sph_c[None])
-            dists.append(np.maximum(norm - self.sph_r[None], 0.0))
-        if not cands:
-            return pts.copy(), np.full(len(pts), np.inf)
-        allc = np.concatenate(cands, axis=1)
-        alld = np.concatenate(dists, axis=1)
+            parts.append(np.maximum(np.linalg.norm(rel, axis=-1) - self.sph_r[None], 0))
+        alld = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
         idx = np.argmin(alld, axis=1)
-        rows = np.arange(len(pts))
-        return allc[rows, idx], alld[rows, idx]
+        dist = alld[np.arange(len(pts)), idx]
+        out = np.empty_like(pts)
+        for lo, hi, fn in ((0, nb, self._box_point), (nb, nb + nc, self._cyl_point), (nb + nc, nb + nc + ns,
+                                                                                    self._sph_point)):
+            sel = (idx >= lo) & (idx < hi)
+            if sel.any():
+                out[sel] = fn(pts[sel], idx[sel] - lo)
+        return out, dist
+
+    def _box_point(self, p: np.ndarray, i: np.ndarray) -> np.ndarray:
+        c, s, h = self.box_cos[i], self.box_sin[i], self.box_h[i]
+        rel = p - self.box_c[i]
+        lx = np.clip(c * rel[:, 0] + s * rel[:, 1], -h[:, 0], h[:, 0])
+        ly = np.clip(-s * rel[:, 0] + c * rel[:, 1], -h[:, 1], h[:, 1])
+        lz = np.clip(rel[:, 2], -h[:, 2], h[:, 2])
+        return self.box_c[i] + np.stack([c * lx - s * ly, s * lx + c * ly, lz], 1)
+
+    def _cyl_point(self, p: np.ndarray, i: np.ndarray) -> np.ndarray:
+        rel = p - self.cyl_c[i]
+        rad = np.hypot(rel[:, 0], rel[:, 1])
+        scale = np.minimum(1.0, self.cyl_r[i] / np.maximum(rad, 1e-12))
+        qz = np.clip(rel[:, 2], -self.cyl_hh[i], self.cyl_hh[i])
+        return self.cyl_c[i] + np.stack([rel[:, 0] * scale, rel[:, 1] * scale, qz], 1)
+
+    def _sph_point(self, p: np.ndarray, i: np.ndarray) -> np.ndarray:
+        rel = p - self.sph_c[i]
+        norm = np.linalg.norm(rel, axis=1)
+        scale = np.minimum(1.0, self.sph_r[i] / np.maximum(norm, 1e-12))
+        return self.sph_c[i] + rel * scale[:, None]
 
     def distance(self, pts: np.ndarray, chunk: int = 4096) -> np.ndarray:
         """(P,) distance to the nearest obstacle for (P, 3) points, computed in chunks to bound memory."""

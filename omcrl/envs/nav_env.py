@@ -136,6 +136,8 @@ class NavEnv(gym.Env):
         self._scale = np.array([cfg.max_speed, cfg.max_speed, cfg.max_yaw_rate])
         # Substeps keep each move shorter than the drone radius, so thin walls cannot be tunnelled through.
         self._substeps = max(1, math.ceil(cfg.max_speed * self.dt / cfg.drone_radius - 1e-9))
+        sub_dt = self.dt / self._substeps
+        self._k_resp = 1.0 - math.exp(-sub_dt / cfg.velocity_tau) if cfg.velocity_tau > 0 else 1.0
         self._client = pb.connect(pb.DIRECT)
         self._proj = pb.computeProjectionMatrixFOV(cfg.fov_deg, 1.0, cfg.near, cfg.far)
         self._built_key: Any = None
@@ -234,9 +236,9 @@ class NavEnv(gym.Env):
         self._episode_seed = layout_seed if self.layout is None else -1
         self._pos = np.array([start[0], start[1], c.altitude])
         self._yaw = float(start[2])
-        self._vel = np.zeros(2)  # body frame
+        self._vel = (0.0, 0.0)  # body frame, m/s
         self._wz = 0.0
-        self._acc = np.zeros(2)
+        self._acc = (0.0, 0.0)  # body frame, m/s^2
         self._goal = np.array([goal[0], goal[1], c.altitude])
         self._steps = 0
         self._d_init = self._d_prev = float(np.linalg.norm(self._goal[:2] - self._pos[:2]))
@@ -347,38 +349,47 @@ class NavEnv(gym.Env):
         a = np.asarray(action, dtype=np.float64).reshape(-1)
         if a.shape != (3,):
             raise ValueError(f"action: expected shape (3,), got {np.shape(action)}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action contains NaN or inf: {a.tolist()}")
-        cmd = np.clip(a, -1.0, 1.0) * self._scale
+        ax, ay, az = a.tolist()
+        if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
+            raise ValueError(f"action contains NaN or inf: {[ax, ay, az]}")
         c = self.cfg
+        # Scalar math on purpose: on 2-vectors plain floats are several times cheaper than numpy calls, and
+        # this loop is the only per-step work besides the render.
+        cx = min(1.0, max(-1.0, ax)) * c.max_speed
+        cy_cmd = min(1.0, max(-1.0, ay)) * c.max_speed
+        cw = min(1.0, max(-1.0, az)) * c.max_yaw_rate
         dt = self.dt / self._substeps
         # First-order response toward the command, then the acceleration limit (Tello-like).
-        k = 1.0 - math.exp(-dt / c.velocity_tau) if c.velocity_tau > 0 else 1.0
+        k = self._k_resp
+        lim = c.max_accel * dt
         collided = out = False
         geo = self._geometry
+        vx, vy = self._vel
+        px, py = float(self._pos[0]), float(self._pos[1])
         for _ in range(self._substeps):
-            dv = (cmd[:2] - self._vel) * k
-            lim = c.max_accel * dt
-            n = float(np.hypot(dv[0], dv[1]))
+            dvx, dvy = (cx - vx) * k, (cy_cmd - vy) * k
+            n = math.hypot(dvx, dvy)
             if n > lim:
-                dv *= lim / n
-            self._vel = self._vel + dv
-            self._acc = dv / dt
-            self._wz += (cmd[2] - self._wz) * k
+                dvx, dvy = dvx * lim / n, dvy * lim / n
+            vx, vy = vx + dvx, vy + dvy
+            self._acc = (dvx / dt, dvy / dt)
+            self._wz += (cw - self._wz) * k
             self._yaw = _wrap(self._yaw + self._wz * dt)
-            cy, sy = math.cos(self._yaw), math.sin(self._yaw)
-            step_xy = np.array([cy * self._vel[0] - sy * self._vel[1], sy * self._vel[0] + cy * self._vel[1]]) * dt
-            self._pos[:2] += step_xy
-            self._path_len += float(np.hypot(step_xy[0], step_xy[1]))
+            cyaw, syaw = math.cos(self._yaw), math.sin(self._yaw)
+            mx, my = (cyaw * vx - syaw * vy) * dt, (syaw * vx + cyaw * vy) * dt
+            px, py = px + mx, py + my
+            self._path_len += math.hypot(mx, my)
+            self._pos[0], self._pos[1] = px, py
             closest, dist = geo.closest(self._pos)
             if dist[0] <= c.drone_radius:
                 collided = True
                 break
-            if abs(self._pos[0]) > c.arena_half or abs(self._pos[1]) > c.arena_half:
+            if abs(px) > c.arena_half or abs(py) > c.arena_half:
                 out = True
                 break
+        self._vel = (vx, vy)
         self._steps += 1
-        d = float(np.linalg.norm(self._goal[:2] - self._pos[:2]))
+        d = math.hypot(self._goal[0] - px, self._goal[1] - py)
         self._min_d = min(self._min_d, d)
         success = not (collided or out) and d <= c.goal_radius
         if c.progress == "difference":
@@ -421,22 +432,20 @@ class NavEnv(gym.Env):
         """(x, y, yaw) in the world frame, m and rad."""
         return np.array([self._pos[0], self._pos[1], self._yaw])
 
-    def _to_body(self, v: np.ndarray) -> np.ndarray:
-        c, s = math.cos(self._yaw), math.sin(self._yaw)
-        return np.array([c * v[0] + s * v[1], -s * v[0] + c * v[1], v[2]])
-
     def _obs(self, closest: np.ndarray) -> dict:
-        goal_b = self._to_body(self._goal - self._pos)
+        c, s = math.cos(self._yaw), math.sin(self._yaw)
+        gx, gy = self._goal[0] - self._pos[0], self._goal[1] - self._pos[1]
+        goal_b = (c * gx + s * gy, -s * gx + c * gy, 0.0)  # goal and drone share the flight altitude
         if self._geometry.n:
-            obst_b = self._to_body(closest - self._pos)
+            ox, oy, oz = (closest - self._pos).tolist()
+            obst_b = (c * ox + s * oy, -s * ox + c * oy, oz)
         else:  # nothing in range: report an obstacle at the far plane straight ahead
-            obst_b = np.array([self.cfg.far, 0.0, 0.0])
+            obst_b = (self.cfg.far, 0.0, 0.0)
         pitch = math.atan2(self._acc[0], GRAVITY)
         roll = -math.atan2(self._acc[1], GRAVITY)
-        state = np.array(
-            [self._vel[0], self._vel[1], 0.0, 0.0, 0.0, self._wz, roll, pitch, self._yaw, *goal_b], np.float32
-        )
-        priv = np.concatenate([obst_b, goal_b]).astype(np.float32)
+        vx, vy = self._vel
+        state = np.array([vx, vy, 0.0, 0.0, 0.0, self._wz, roll, pitch, self._yaw, *goal_b], np.float32)
+        priv = np.array([*obst_b, *goal_b], np.float32)
         return {"rgb": self._rgb.copy(), "depth": self._depth.copy(), "state": state, "privileged": priv}
 
     def _light(self) -> dict:

@@ -79,8 +79,20 @@ def summary_table(df: pd.DataFrame, by: Sequence[str] = ("method", "scene"), os_
 
 
 def format_table(table: pd.DataFrame, decimals: int = 2) -> pd.DataFrame:
-    """Wide, rounded view: rows = method, columns = (scene, metric); TTS NaN shown as '-'."""
-    wide = table.drop(columns="episodes").unstack("scene") if "scene" in table.index.names else table
-    if isinstance(wide.columns, pd.MultiIndex):
-        wide = wide.swaplevel(0, 1, axis=1).sort_index(axis=1, level=0, sort_remaining=False)
+    """Wide, rounded view: rows = method, columns = (scene, metric); TTS NaN shown as '-'.
+
+    Methods and scenes keep their order of first appearance in ``table`` (the paper lists scenes by rising
+    difficulty, box → furniture → barrier → tree), metrics the order of ``METRICS``.
+    """
+    if "scene" not in table.index.names:
+        wide = table
+    else:
+        metrics = [c for c in table.columns if c != "episodes"]
+        scenes = list(dict.fromkeys(table.index.get_level_values("scene")))
+        rest = [n for n in table.index.names if n != "scene"]
+        rows = list(dict.fromkeys(table.index.droplevel("scene"))) if rest else None
+        wide = table[metrics].unstack("scene")  # unstack sorts both axes; restore the given order below
+        wide = wide.swaplevel(0, 1, axis=1).reindex(columns=pd.MultiIndex.from_product([scenes, metrics]))
+        if rows is not None:
+            wide = wide.reindex(rows)
     return wide.round(decimals).astype(object).where(wide.notna(), "-")

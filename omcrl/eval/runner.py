@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from typing import Any
 
@@ -19,6 +20,28 @@ METRIC_FIELDS = (
     "scene",
     "seed",
 )
+
+
+def start_episode(agent: Any, info: dict) -> None:
+    """Tell a policy or planner that a new episode starts, handing over the reset ``info`` if it takes it.
+
+    ``agent.reset(info)`` when its ``reset`` accepts a positional argument (e.g. :class:`omcrl.planners.HybridAPF`,
+    which needs the episode's ``pose``, ``goal`` and ``path``), ``agent.reset()`` when it takes none (stateless
+    policies), nothing when there is no ``reset``. Shared by :func:`evaluate` and the planner guide of the RL
+    trainers, so a planner behaves the same in evaluation and as an NPE guide.
+    """
+    reset = getattr(agent, "reset", None)
+    if reset is None:
+        return
+    try:
+        params = inspect.signature(reset).parameters.values()
+    except (TypeError, ValueError):  # builtins without a signature: call without the info
+        params = []
+    P = inspect.Parameter
+    if any(p.kind in (P.POSITIONAL_ONLY, P.POSITIONAL_OR_KEYWORD, P.VAR_POSITIONAL) for p in params):
+        reset(info)
+    else:
+        reset()
 
 
 def eval_seeds(episodes: int, seed: int, seed_offset: int) -> list[int]:
@@ -45,7 +68,9 @@ def evaluate(
     Parameters
     ----------
     policy : anything with ``act(obs, info) -> action (3,)`` (a :class:`omcrl.rl.Policy`, a planner). If it
-        has ``reset()`` it is called before each episode.
+        has ``bind(env)`` it is bound to the evaluation env once (HybridAPF then replans on the true map with
+        its safety margin); if it has ``reset`` it is called before each episode with the reset info (see
+        :func:`start_episode`).
     scene : one of ``omcrl.envs.SCENES``.
     episodes : number of episodes; episode ``i`` resets with seed ``seed_offset + seed * episodes + i``
         (pass ``cfg.eval.seed_offset``), so evaluation never reuses training layouts.
@@ -63,6 +88,8 @@ def evaluate(
         from omcrl.envs import make_env
     seeds = eval_seeds(episodes, seed, seed_offset)
     env = make_env(scene, seed=seeds[0], **env_kwargs)
+    if hasattr(policy, "bind"):
+        policy.bind(env)
     method = method if method is not None else getattr(policy, "name", type(policy).__name__)
     checkpoint = checkpoint if checkpoint is not None else getattr(policy, "checkpoint", "")
     rows = []
@@ -74,8 +101,7 @@ def evaluate(
     try:
         for i in it:
             obs, info = env.reset(seed=seeds[i])
-            if hasattr(policy, "reset"):
-                policy.reset()
+            start_episode(policy, info)
             traj = [_xy(info)] if "pose" in info else []
             total, done = 0.0, False
             while not done:

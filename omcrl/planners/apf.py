@@ -57,8 +57,15 @@ class HybridAPF:
         self.cfg = self._env.cfg
         return self
 
-    def reset(self, info: dict) -> None:
-        """Start a new episode from the reset ``info`` (pose, goal and the env's shortest path)."""
+    def reset(self, info: dict | None = None) -> None:
+        """Start a new episode from the reset ``info`` (pose, goal and the env's shortest path).
+
+        Without ``info`` it only forgets the old path; the next ``act`` with a reset info (or any info, when
+        no path is held) plans anew.
+        """
+        if info is None:
+            self.path = np.zeros((0, 2))
+            return
         pose, goal = np.asarray(info["pose"], np.float64), np.asarray(info["goal"], np.float64)
         path = np.asarray(info.get("path", np.zeros((0, 2))), np.float64)
         grid: OccupancyGrid | None = getattr(self._env, "grid", None)

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from omcrl.envs.geometry import Geometry
+if TYPE_CHECKING:  # only for annotations: importing omcrl.envs here would be circular
+    from omcrl.envs.geometry import Geometry
 
 _SQ2 = math.sqrt(2.0)
 

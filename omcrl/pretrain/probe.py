@@ -1,8 +1,16 @@
 """Linear probe of a frozen encoder: how well do its features encode obstacle geometry?
 
 Ridge regression from features z = φ(f(h_t)) to goal-independent privileged quantities at step t:
-the distance to the nearest obstacle surface ‖Δp_obs‖ (m) and its bearing as sin / cos of atan2(dy, dx)
-(body frame). Train and held-out samples come from disjoint episodes, so a probe cannot memorise an episode.
+
+* ``distance``, ``bearing_sin``, ``bearing_cos`` — the nearest obstacle surface ‖Δp_obs‖ (m) and its bearing
+  atan2(dy, dx) in the body frame. The nearest obstacle is often beside or behind the drone, outside the
+  camera's 82.6° field of view, so these are partly unobservable from the images by construction.
+* ``depth_ahead`` — median depth (m) of the central patch of the newest depth frame: free space ahead.
+* ``depth_balance`` — mean depth (m) of the left third minus the right third of the middle rows: which side
+  is more open. Both come from the privileged depth camera and are visible in the RGB frames.
+
+Train and held-out samples come from disjoint episodes, so a probe cannot memorise an episode, and the ridge
+penalty is chosen by cross-validation grouped by episode on the training episodes only.
 """
 
 from __future__ import annotations
@@ -11,19 +19,25 @@ import numpy as np
 import torch
 from sklearn.linear_model import Ridge
 from sklearn.metrics import r2_score
+from sklearn.model_selection import GridSearchCV, GroupKFold
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 
 from omcrl.data.dataset import DatasetError, TrajectoryDataset
 
-TARGETS = ("distance", "bearing_sin", "bearing_cos")
+TARGETS = ("distance", "bearing_sin", "bearing_cos", "depth_ahead", "depth_balance")
+ALPHAS = tuple(float(a) for a in np.logspace(-1, 5, 13))
 
 
-def probe_targets(privileged: np.ndarray) -> np.ndarray:
-    """(N, 6) privileged → (N, 3): obstacle distance (m), sin and cos of its bearing."""
+def probe_targets(privileged: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Probe targets, (N, 5), from privileged (N, 6) and the newest depth frames (N, H, W) in metres."""
     d = privileged[:, :3].astype(np.float64)
     ang = np.arctan2(d[:, 1], d[:, 0])
-    return np.stack([np.linalg.norm(d, axis=1), np.sin(ang), np.cos(ang)], axis=1)
+    h, w = depth.shape[1:]
+    centre = depth[:, 3 * h // 8 : 5 * h // 8, 3 * w // 8 : 5 * w // 8].reshape(len(depth), -1)
+    rows = depth[:, h // 4 : 3 * h // 4].astype(np.float64)
+    balance = rows[:, :, : w // 3].mean((1, 2)) - rows[:, :, -(w // 3) :].mean((1, 2))
+    return np.stack([np.linalg.norm(d, axis=1), np.sin(ang), np.cos(ang), np.median(centre, 1), balance], 1)
 
 
 def _collect(
@@ -33,20 +47,22 @@ def _collect(
     n: int,
     rng: np.random.Generator,
     batch_size: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Features (n, d) and targets (n, 3) at steps drawn uniformly from ``episodes``."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Features (n, d), targets (n, 5) and episode ids (n,) at steps drawn uniformly from ``episodes``."""
     w = ds.episode_lengths[episodes].astype(np.float64)
     eps = rng.choice(episodes, size=n, p=w / w.sum())
-    feats, targets = [], []
+    feats, targets, groups = [], [], []
     for ep in np.unique(eps):
         ts = np.sort(rng.integers(0, ds.episode_lengths[ep], size=int((eps == ep).sum())))
         priv = ds.read(int(ep), "privileged")[ts]
+        depth = np.asarray(ds.read(int(ep), "depth")[ts], np.float32)
+        groups.append(np.full(len(ts), ep))
         stacks = ds.read_stacks(int(ep), ts, encoder.frame_stack)
         with torch.no_grad():
             for i in range(0, len(ts), batch_size):
                 feats.append(encoder(torch.from_numpy(stacks[i : i + batch_size])).numpy())
-        targets.append(probe_targets(priv))
-    return np.concatenate(feats).astype(np.float64), np.concatenate(targets)
+        targets.append(probe_targets(priv, depth))
+    return np.concatenate(feats).astype(np.float64), np.concatenate(targets), np.concatenate(groups)
 
 
 def probe(
@@ -54,7 +70,7 @@ def probe(
     dataset: TrajectoryDataset,
     n_samples: int = 2000,
     test_fraction: float = 0.3,
-    alpha: float = 1.0,
+    alpha: float | None = None,
     seed: int = 0,
     batch_size: int = 128,
 ) -> dict:
@@ -67,11 +83,12 @@ def probe(
         ``crop_from`` (center-cropped inside the encoder) or ``crop_to``.
     n_samples : total (train + held-out) steps sampled.
     test_fraction : share of *episodes* held out.
-    alpha : ridge regularisation (features are standardised first).
+    alpha : ridge regularisation (features are standardised first); None chooses it per target from
+        ``ALPHAS`` by 5-fold cross-validation grouped by episode on the training episodes.
 
     Returns
     -------
-    ``{"distance": R², "bearing_sin": R², "bearing_cos": R², "n_train": int, "n_test": int}``.
+    ``{target: held-out R² for each of TARGETS, "n_train": int, "n_test": int}``.
     """
     if len(dataset) < 2:
         raise DatasetError(
@@ -88,9 +105,18 @@ def probe(
     test_eps, train_eps = perm[:n_test_eps], perm[n_test_eps:]
     n_test = max(1, round(test_fraction * n_samples))
     encoder.eval()
-    x_tr, y_tr = _collect(encoder, dataset, train_eps, n_samples - n_test, rng, batch_size)
-    x_te, y_te = _collect(encoder, dataset, test_eps, n_test, rng, batch_size)
-    model = make_pipeline(StandardScaler(), Ridge(alpha=alpha)).fit(x_tr, y_tr)
-    pred = model.predict(x_te)
-    out = {t: float(r2_score(y_te[:, i], pred[:, i])) for i, t in enumerate(TARGETS)}
+    x_tr, y_tr, g_tr = _collect(encoder, dataset, train_eps, n_samples - n_test, rng, batch_size)
+    x_te, y_te, _ = _collect(encoder, dataset, test_eps, n_test, rng, batch_size)
+    out = {}
+    for i, t in enumerate(TARGETS):
+        model = make_pipeline(StandardScaler(), Ridge(alpha=alpha if alpha is not None else 1.0))
+        if alpha is None and len(np.unique(g_tr)) >= 3:
+            # Consecutive frames are near-duplicates: folds must split by episode, or the CV picks a penalty
+            # that memorises trajectories and the held-out R² collapses.
+            cv = GroupKFold(n_splits=min(5, len(np.unique(g_tr))))
+            search = GridSearchCV(model, {"ridge__alpha": ALPHAS}, cv=cv, scoring="r2")
+            model = search.fit(x_tr, y_tr[:, i], groups=g_tr).best_estimator_
+        else:
+            model.fit(x_tr, y_tr[:, i])
+        out[t] = float(r2_score(y_te[:, i], model.predict(x_te)))
     return {**out, "n_train": len(x_tr), "n_test": len(x_te)}

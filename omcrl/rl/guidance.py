@@ -5,6 +5,12 @@ action distribution for every env of a vector step: ``obs`` is the batched vecto
 the vector info dict (gymnasium 1.x layout, ``_key`` masks), ``starts`` (N,) bool marks envs whose
 observation is the first of a new episode; ``mean`` and ``std`` are float32 arrays (N, A). The rollout calls
 it once per vector step and stores the result, so the KL is computed on the rollout's own states.
+
+A *stateless* guide may also declare ``batched = True`` and provide ``prepare(obs) -> stored`` (a dict of
+tensors that owns its memory, one row per env) and ``distribution_stored(stored) -> (mean, std)``. The rollout
+then only prepares the guide's input each step and evaluates the guide once per chunk of steps: the oracle's
+depth encoder is memory-bound at a batch of ``n_envs`` (its first linear layer has millions of weights, read
+once per call), so one call on a few hundred states costs little more than one on two.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
+from omcrl.eval.runner import start_episode
 from omcrl.rl.ppo import ActorCritic
 
 
@@ -84,17 +91,29 @@ class PolicyGuide:
     """A trained policy (the oracle) as guide: its Gaussian mean and learned std on its own observation.
 
     The oracle reads the privileged part of the same vector observation (depth stack, state, privileged Δp).
+    It is stateless, so the rollout evaluates it in chunks (``batched``; see the module docstring).
     """
+
+    batched = True
 
     def __init__(self, agent: ActorCritic) -> None:
         self.agent = agent.eval()
         for p in self.agent.parameters():
             p.requires_grad_(False)
 
+    def prepare(self, obs: Any) -> dict[str, torch.Tensor]:
+        """The guide's input for one vector step, as tensors that do not alias the env's buffers."""
+        return self.agent.features.preprocess(obs)
+
     @torch.no_grad()
+    def distribution_stored(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and std (B, A) float32 for prepared inputs of B states."""
+        mean, std, _ = self.agent(stored)
+        return mean.float(), std.float()
+
     def distribution(self, obs: Any, infos: dict, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        mean, std, _ = self.agent(self.agent.features.preprocess(obs))
-        return mean.numpy().astype(np.float32), std.numpy().astype(np.float32)
+        mean, std = self.distribution_stored(self.prepare(obs))
+        return mean.numpy(), std.numpy()
 
 
 class PlannerGuide:
@@ -103,8 +122,10 @@ class PlannerGuide:
     Parameters
     ----------
     planners : one planner per env (each keeps its own per-episode state), or a zero-argument factory called
-        ``n_envs`` times. A planner has ``act(obs, info) -> action (A,)``; if it has ``reset()`` it is called
-        when its env starts a new episode.
+        ``n_envs`` times. A planner has ``act(obs, info) -> action (A,)``; when its env starts a new episode
+        its ``reset`` is called with that env's reset info (which carries ``pose``, ``goal`` and ``path``; see
+        :func:`omcrl.eval.runner.start_episode`). Planners are not bound to the envs here (vector-env workers
+        live in other processes), so HybridAPF follows the env's shortest path from the reset info.
     std : the fixed standard deviation (config ``rl.guide_std``), same for every action dim.
     n_envs : number of envs (needed with a factory).
     """
@@ -120,9 +141,10 @@ class PlannerGuide:
     def distribution(self, obs: Any, infos: dict, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         acts = []
         for i, planner in enumerate(self.planners):
-            if starts[i] and hasattr(planner, "reset"):
-                planner.reset()
-            a = np.asarray(planner.act(obs_at(obs, i), info_at(infos, i)), dtype=np.float32)
+            info = info_at(infos, i)
+            if starts[i]:
+                start_episode(planner, info)
+            a = np.asarray(planner.act(obs_at(obs, i), info), dtype=np.float32)
             acts.append(np.clip(a, -1.0, 1.0))
         mean = np.stack(acts)
         return mean, np.full_like(mean, self.std)

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from omcrl.config import Config, config_hash, save_config
-from omcrl.rl.guidance import Guide, PlannerGuide, alpha_from_config, info_at
+from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_from_config, info_at
 from omcrl.rl.policy import (
     CheckpointError,
     Policy,
@@ -51,7 +51,7 @@ from omcrl.rl.ppo import (
     compute_gae,
     ppo_update,
 )
-from omcrl.utils.io import atomic_save_torch, atomic_write_text
+from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest
 from omcrl.utils.runtime import seed_everything, set_threads
 
 METRIC_NAMES = (
@@ -69,6 +69,11 @@ METRIC_NAMES = (
     "approx_kl_old",
     "steps_per_s",
 )
+
+
+# States per call of a batched guide: large enough to amortise reading the oracle's weights, small enough that
+# the pending depth stacks stay small (256 · 3 · 224² float16 ≈ 77 MB at the paper's image size).
+GUIDE_CHUNK = 256
 
 
 class RunConfigMismatch(RuntimeError):
@@ -126,8 +131,15 @@ class Runner:
     list of finished episodes ``{"return", "length", **info["metrics"]}``.
     """
 
-    def __init__(self, env: Any, agent: ActorCritic, guide: Guide | None, seed: int) -> None:
+    def __init__(
+        self, env: Any, agent: ActorCritic, guide: Guide | None, seed: int, guide_chunk: int | None = None
+    ) -> None:
         self.env, self.agent, self.guide = env, agent, guide
+        self.guide_batched = bool(getattr(guide, "batched", False))
+        # Vector steps whose guide inputs are evaluated together (about ``guide_chunk`` states per call;
+        # default GUIDE_CHUNK, read at run time so a benchmark can compare against per-step evaluation).
+        chunk = GUIDE_CHUNK if guide_chunk is None else guide_chunk
+        self.guide_every = max(1, chunk // env.num_envs)
         self.mode = _autoreset_mode(env)
         self.n = env.num_envs
         self.obs, self.infos = env.reset(seed=seed)
@@ -144,9 +156,15 @@ class Runner:
             k: [] for k in ("obs", "act", "logp", "val", "rew", "term", "ends", "valid", "gm", "gs")
         }
         final_values: dict[tuple[int, int], float] = {}
+        guided = use_guide and self.guide is not None
+        pending: list[dict[str, torch.Tensor]] = []  # prepared guide inputs not evaluated yet (batched guides)
         for t in range(length):
             action, logp, value, _, _ = self.agent.step(self.stored)
-            if use_guide and self.guide is not None:
+            if guided and self.guide_batched:
+                pending.append(self.guide.prepare(self.obs))
+                if len(pending) == self.guide_every or t == length - 1:
+                    self._flush_guide(pending, buf)
+            elif guided:
                 gm, gs = self.guide.distribution(self.obs, self.infos, self.starts)
                 buf["gm"].append(torch.as_tensor(gm, dtype=torch.float32))
                 buf["gs"].append(torch.as_tensor(gs, dtype=torch.float32))
@@ -208,6 +226,14 @@ class Runner:
             guide_mean=torch.stack(buf["gm"]) if buf["gm"] else None,
             guide_std=torch.stack(buf["gs"]) if buf["gs"] else None,
         )
+
+    def _flush_guide(self, pending: list[dict[str, torch.Tensor]], buf: dict[str, list]) -> None:
+        """Evaluate a batched guide on the pending steps at once and append one (N, A) row per step."""
+        stored = {k: torch.cat([p[k] for p in pending]) for k in pending[0]}
+        mean, std = self.guide.distribution_stored(stored)
+        buf["gm"].extend(mean.split(self.n))
+        buf["gs"].extend(std.split(self.n))
+        pending.clear()
 
 
 # ---------------------------------------------------------------- metrics output
@@ -320,8 +346,6 @@ def train(
     ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False) if ckpt_path.exists() else None
     if ckpt is None:
         seed_everything(cfg.seed)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    save_config(cfg, run_dir)
 
     n_envs = rl.n_envs
     length = rl.buffer_size // n_envs if rl.buffer_size >= n_envs else rl.horizon
@@ -339,6 +363,10 @@ def train(
         params = [p for p in agent.parameters() if p.requires_grad]
         optimizer = torch.optim.Adam(params, lr=rl.lr, eps=1e-5)
         guide = make_guide(env) if (make_guide is not None and rl.alpha_schedule != "none") else None
+        # Only now, with encoder / oracle / env known to fit, does the run folder appear: a failed start
+        # (missing or mismatched checkpoint) leaves nothing behind that looks like a run.
+        run_dir.mkdir(parents=True, exist_ok=True)
+        save_config(cfg, run_dir)
         step, update = 0, 0
         if ckpt is not None:
             agent.load_state_dict(ckpt["model"])
@@ -503,14 +531,27 @@ def train_oracle(
     overwrite: bool = False,
     progress: bool = True,
 ) -> Result:
-    """Oracle teacher π^o: PPO on [DepthEncoder(depth stack), v, ω, θ, Δp ∈ R⁶], no guidance (paper IV-C)."""
+    """Oracle teacher π^o: PPO on [DepthEncoder(depth stack), v, ω, θ, Δp ∈ R⁶] (paper IV-C).
+
+    With ``rl.oracle_guide == 'apf'`` (default) the PPO loss gets the same decaying KL term as the student,
+    towards the privileged HybridAPF planner (fixed std ``rl.guide_std``), so the oracle becomes an expert in
+    a CPU budget; ``'none'`` is the paper's unguided PPO (see docs/DEVIATIONS.md for why and what it costs).
+    """
+
+    def make_guide(env: Any) -> Guide | None:
+        if cfg.rl.oracle_guide == "none":
+            return None
+        from omcrl.planners import HybridAPF
+
+        return PlannerGuide(lambda: HybridAPF(cfg.env), cfg.rl.guide_std, n_envs=env.num_envs)
+
     return train(
         cfg,
         stage="oracle",
         name=name,
         make_env=make_env or _default_make_env(cfg),
         build_features=lambda space: make_oracle_features(space, cfg.pretrain.feature_dim, cfg.env.far),
-        make_guide=None,
+        make_guide=make_guide,
         overwrite=overwrite,
         progress=progress,
     )
@@ -533,15 +574,20 @@ def train_student(
     ``planner_factory`` with fixed std ``rl.guide_std`` (NPE), else none. ``rl.alpha_schedule='none'`` gives
     the "w/o OT" variant. Encoder and oracle are checked against the env before any training step.
     """
+    # Resolved paths (the CLI passes relative ones, notebooks absolute ones: same run) and content digests (a
+    # retrained encoder or oracle at the same path must not reuse this run).
     extra = {
-        "encoder": Path(encoder_path),
-        "oracle": oracle_path or "",
+        "encoder": Path(encoder_path).resolve(),
+        "encoder_digest": file_digest(encoder_path),
+        "oracle": Path(oracle_path).resolve() if oracle_path is not None else "",
+        "oracle_digest": file_digest(oracle_path) if oracle_path is not None else "",
         "planner": getattr(planner_factory, "__name__", "") if planner_factory else "",
     }
 
     def make_guide(env: Any) -> Guide | None:
         if oracle_path is not None:
-            return load_policy(oracle_path, expect_kind="oracle", obs_space=env.single_observation_space)
+            oracle = load_policy(oracle_path, expect_kind="oracle", obs_space=env.single_observation_space)
+            return PolicyGuide(oracle.agent)
         if planner_factory is not None:
             return PlannerGuide(planner_factory, cfg.rl.guide_std, n_envs=env.num_envs)
         return None

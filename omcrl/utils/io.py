@@ -38,3 +38,17 @@ def atomic_save_torch(obj: Any, path: str | Path) -> None:
     buf = io.BytesIO()
     torch.save(obj, buf)
     atomic_write_bytes(path, buf.getvalue())
+
+
+def file_digest(path: str | Path, length: int = 16) -> str:
+    """Hex SHA-1 prefix of a file's content ("" when it does not exist): identifies checkpoints in cache keys."""
+    import hashlib
+
+    p = Path(path)
+    if not p.is_file():
+        return ""
+    h = hashlib.sha1()
+    with open(p, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()[:length]

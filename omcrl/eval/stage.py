@@ -1,0 +1,209 @@
+"""Evaluation stage: find trained policies, evaluate them (and Hybrid APF) in every scene, write Table I.
+
+``run(cfg)`` is the CLI stage ``python -m omcrl evaluate --preset P``. It evaluates every finished policy under
+``<run_root>/runs/{oracle,student}/<name>/seed<k>/final.pt`` plus the privileged :class:`HybridAPF` baseline
+in ``cfg.eval.scenes`` for ``cfg.eval.episodes`` episodes each (the same evaluation seeds for every method),
+and writes under ``<run_root>/``::
+
+    eval/<method>/<scene>.csv      one row per episode (cache, keyed by checkpoint, env config and seeds)
+    tables/<name>_episodes.csv     all episodes of this evaluation
+    tables/<name>.csv              method × scene metrics (long form: NE OS SR SPL CR TTS episodes)
+    tables/<name>.md               the paper's Table I layout (methods × (scene, metric))
+
+Evaluating one (method, scene) pair is cached: a CSV with the same key is read back instead of re-running
+the episodes, so the notebooks and the CLI share results.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from omcrl.config import Config, config_hash
+from omcrl.eval.metrics import format_table, summary_table
+from omcrl.eval.runner import evaluate
+from omcrl.utils.io import atomic_write_text, file_digest
+
+HYBRID_APF = "HybridAPF"
+# Stages searched for trained policies, in the order their rows appear in the tables.
+POLICY_STAGES = ("oracle", "student")
+
+
+@dataclass(repr=False)
+class EvalResult:
+    """What an evaluation produced: per-episode rows, the metrics table and where they were written."""
+
+    episodes: pd.DataFrame
+    table: pd.DataFrame
+    paths: dict[str, Path] = field(default_factory=dict)
+    wall_time_s: float = 0.0
+
+    def wide(self, decimals: int = 2) -> pd.DataFrame:
+        """The paper's Table I layout (:func:`omcrl.eval.format_table`)."""
+        return format_table(self.table, decimals)
+
+    def __repr__(self) -> str:  # what the CLI prints: the table by scene, then where it was written
+        lines = [f"{len(self.episodes)} episodes in {self.wall_time_s:.0f} s"]
+        with pd.option_context("display.width", 200, "display.max_columns", 50):
+            for scene in dict.fromkeys(self.table.index.get_level_values("scene")):
+                lines += [f"-- {scene}", self.table.xs(scene, level="scene").round(2).to_string()]
+        lines += [f"{k}: {v}" for k, v in self.paths.items()]
+        return "\n".join(lines)
+
+
+def find_policies(cfg: Config, stages: Sequence[str] = POLICY_STAGES) -> dict[str, Path]:
+    """``{method: final.pt}`` for every finished run ``<run_root>/runs/<stage>/<name>/seed<cfg.seed>``.
+
+    The method label is the run name (``oracle``, ``omc``, ``omc-noOT``, ...); a name used by two stages is
+    prefixed with its stage.
+    """
+    found: dict[str, Path] = {}
+    for stage in stages:
+        base = cfg.run_root / "runs" / stage
+        if not base.is_dir():
+            continue
+        for final in sorted(base.glob(f"*/seed{cfg.seed}/final.pt")):
+            name = final.parent.parent.name
+            found[f"{stage}/{name}" if name in found else name] = final
+    return found
+
+
+def _load(method: str, source: Any) -> tuple[Any, str]:
+    """A policy object and a cache key for ``source``: a checkpoint path, ``"HybridAPF"`` or a policy."""
+    from omcrl.planners import HybridAPF
+    from omcrl.rl import load_policy
+
+    if isinstance(source, (str, Path)) and str(source) == HYBRID_APF:
+        return HybridAPF(), HYBRID_APF
+    if isinstance(source, (str, Path)):
+        return load_policy(source, name=method), file_digest(Path(source))
+    # An object: only cached under its explicit checkpoint, if it names one.
+    ckpt = getattr(source, "checkpoint", "")
+    return source, (file_digest(Path(ckpt)) if ckpt and Path(ckpt).is_file() else "")
+
+
+def _read_cache(path: Path, key: str) -> pd.DataFrame | None:
+    meta = path.with_suffix(".json")
+    if not key or not path.exists() or not meta.exists():
+        return None
+    if json.loads(meta.read_text()).get("key") != key:
+        return None
+    df = pd.read_csv(path)
+    if "trajectory" in df:
+        df["trajectory"] = [[tuple(p) for p in json.loads(t)] for t in df["trajectory"]]
+    return df
+
+
+def _write_cache(path: Path, key: str, df: pd.DataFrame) -> None:
+    out = df.copy()
+    if "trajectory" in out:
+        out["trajectory"] = [json.dumps([[round(x, 3), round(y, 3)] for x, y in t]) for t in out["trajectory"]]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, out.to_csv(index=False))
+    atomic_write_text(path.with_suffix(".json"), json.dumps({"key": key}))
+
+
+def evaluate_methods(
+    cfg: Config,
+    methods: Mapping[str, Any],
+    scenes: Sequence[str] | None = None,
+    episodes: int | None = None,
+    *,
+    cache: bool = True,
+    progress: bool = False,
+) -> pd.DataFrame:
+    """Evaluate each method in each scene on the same evaluation seeds; one row per episode.
+
+    Parameters
+    ----------
+    cfg : env settings (``cfg.env``; the scene is set per evaluation), seeds (``cfg.seed``,
+        ``cfg.eval.seed_offset``) and the cache folder ``<run_root>/eval``.
+    methods : ``{label: source}``, source = a policy checkpoint path, ``"HybridAPF"`` or a policy object with
+        ``act(obs, info)``.
+    scenes, episodes : default ``cfg.eval.scenes`` and ``cfg.eval.episodes``.
+    cache : read/write ``<run_root>/eval/<label>/<scene>.csv`` keyed by checkpoint content, env config, seeds.
+
+    Returns
+    -------
+    DataFrame with the columns of :func:`omcrl.eval.evaluate` (``method`` = label, ``scene``), methods in the
+    given order, scenes in the given order.
+    """
+    scenes = list(scenes if scenes is not None else cfg.eval.scenes)
+    episodes = int(episodes if episodes is not None else cfg.eval.episodes)
+    env_key = asdict(cfg.env)
+    env_key.pop("scene")
+    frames = []
+    for label, source in methods.items():
+        policy, pkey = _load(label, source)
+        for scene in scenes:
+            ident = {"policy": pkey, "env": env_key, "scene": scene, "episodes": episodes}
+            key = config_hash({**ident, "seed": cfg.seed, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
+            path = cfg.run_root / "eval" / label.replace("/", "_") / f"{scene}.csv"
+            df = _read_cache(path, key) if cache else None
+            if df is None:
+                df = evaluate(
+                    policy,
+                    scene,
+                    episodes,
+                    cfg.seed,
+                    seed_offset=cfg.eval.seed_offset,
+                    method=label,
+                    progress=progress,
+                    config=cfg.env,
+                )
+                if cache and key:
+                    _write_cache(path, key, df)
+            frames.append(df.assign(method=label, scene=scene))
+    return pd.concat(frames, ignore_index=True)
+
+
+def to_markdown(wide: pd.DataFrame, index_name: str = "method") -> str:
+    """A GitHub-markdown table of a (possibly two-level-column) frame; no extra dependency."""
+    cols = [" ".join(str(c) for c in col) if isinstance(col, tuple) else str(col) for col in wide.columns]
+    lines = ["| " + " | ".join([index_name, *cols]) + " |", "|" + "---|" * (len(cols) + 1)]
+    for idx, row in wide.iterrows():
+        cells = [f"{v:g}" if isinstance(v, float) else str(v) for v in row.tolist()]
+        lines.append("| " + " | ".join([str(idx), *cells]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_tables(episodes_df: pd.DataFrame, directory: str | Path, name: str, os_threshold: float = 0.5) -> dict:
+    """Write ``<name>_episodes.csv``, ``<name>.csv`` (long metrics) and ``<name>.md`` (Table I layout).
+
+    Returns ``{"episodes": path, "csv": path, "md": path, "table": DataFrame}``.
+    """
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    table = summary_table(episodes_df, os_threshold=os_threshold)
+    paths = {"episodes": d / f"{name}_episodes.csv", "csv": d / f"{name}.csv", "md": d / f"{name}.md"}
+    atomic_write_text(paths["episodes"], episodes_df.drop(columns=["trajectory"], errors="ignore").to_csv(index=False))
+    atomic_write_text(paths["csv"], table.to_csv())
+    n = int(table["episodes"].min()) if len(table) else 0
+    head = f"NE (m), OS/SR/CR (%), SPL (0-1), TTS (steps, successful episodes); {n} episodes per cell.\n\n"
+    atomic_write_text(paths["md"], head + to_markdown(format_table(table)))
+    return {**paths, "table": table}
+
+
+def run(cfg: Config, *, name: str = "table1", progress: bool = True) -> EvalResult:
+    """CLI stage ``evaluate``: all finished oracle/student policies + Hybrid APF, all scenes; write Table I.
+
+    Raises FileNotFoundError when no trained policy exists under ``<run_root>/runs`` (train one first).
+    """
+    t0 = time.perf_counter()
+    policies = find_policies(cfg)
+    if not policies:
+        raise FileNotFoundError(
+            f"no trained policy under {cfg.run_root / 'runs'}/{{oracle,student}}/*/seed{cfg.seed}/final.pt; "
+            "run the oracle / student stages (or notebooks 03-04) first"
+        )
+    methods: dict[str, Any] = {**policies, HYBRID_APF: HYBRID_APF}
+    df = evaluate_methods(cfg, methods, progress=progress)
+    out = write_tables(df, cfg.run_root / "tables", name, cfg.eval.success_threshold_os)
+    table = out.pop("table")
+    return EvalResult(df, table, out, time.perf_counter() - t0)
