@@ -154,8 +154,11 @@ class RLConfig:
     alpha_exp_every: int = _f(1000, lo=1, hi=10**9)
     beta: float = _f(1.0, lo=0.0, hi=1000.0, doc="KL scale")
     guide_std: float = _f(0.2, lo=1e-4, hi=10.0, doc="std given to a deterministic guide (NPE)")
-    oracle_guide: str = _f("apf", choices=("apf", "none"),
-                           doc="oracle PPO guided early by HybridAPF through the KL term ('none': pure PPO)")
+    oracle_guide: str = _f(
+        "apf",
+        choices=("apf", "none"),
+        doc="oracle PPO guided early by HybridAPF through the KL term ('none': pure PPO)",
+    )
     checkpoint_every: int = _f(20480, lo=1, hi=10**10, doc="env steps between checkpoints")
     num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads in the learner")
 

@@ -296,3 +296,29 @@ def test_hybrid_apf_succeeds_in_box():
                 break
     env.close()
     assert successes / n >= 0.85, f"HybridAPF success {successes}/{n}"
+
+
+def test_split_vector_env_matches_sync_vector_env():
+    """Env 0 in-process + workers gives exactly SyncVectorEnv's observations, rewards, flags and infos."""
+    a = make_vec_env("box", 3, seed=5, image_size=16, max_steps=25)
+    b = make_vec_env("box", 3, seed=5, image_size=16, max_steps=25, asynchronous=False)
+    oa, _ = a.reset(seed=5)
+    ob, _ = b.reset(seed=5)
+    assert all(np.array_equal(oa[k], ob[k]) for k in oa)
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(80):
+        act = rng.uniform(-1, 1, (3, 3)).astype(np.float32)
+        ra, rb = a.step(act), b.step(act)
+        assert all(np.array_equal(ra[0][k], rb[0][k]) for k in rb[0])
+        assert all(np.array_equal(x, y) for x, y in zip(ra[1:4], rb[1:4]))
+        assert set(ra[4]) == set(rb[4])
+        if "metrics" in rb[4]:
+            m = rb[4]["_metrics"]
+            ends += int(m.sum())
+            assert np.array_equal(ra[4]["_metrics"], m)
+            for k in rb[4]["metrics"]:
+                assert np.array_equal(np.asarray(ra[4]["metrics"][k])[m], np.asarray(rb[4]["metrics"][k])[m])
+    assert ends >= 3  # truncation at 25 steps guarantees episode ends in every env
+    a.close()
+    b.close()

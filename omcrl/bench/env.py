@@ -32,7 +32,7 @@ def _walk(rng: np.random.Generator, n: int) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float = 0.25) -> dict:
+def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float = 1.0) -> dict:
     """Throughputs for one scene and image size.
 
     Raw renders, single-env steps and vector-env steps run in alternating short blocks (``block`` s each) for

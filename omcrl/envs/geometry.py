@@ -92,7 +92,7 @@ class Geometry:
     def n(self) -> int:
         return len(self.box_c) + len(self.cyl_c) + len(self.sph_c)
 
-    def closest(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def closest(self, pts: np.ndarray, points: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         """Nearest obstacle surface point and distance for each query point.
 
         Distances to every primitive use cheap closed forms; the surface point is only constructed for the
@@ -101,11 +101,12 @@ class Geometry:
         Parameters
         ----------
         pts : (P, 3) query points, m.
+        points : False skips constructing the surface points (returns None for them): distances only.
 
         Returns
         -------
         closest : (P, 3) nearest surface point over all primitives (the query point itself when inside one,
-            and the query point when the scene is empty).
+            and the query point when the scene is empty); None when ``points`` is False.
         dist : (P,) distance to it, m (0 inside an obstacle, ``inf`` for an empty scene).
         """
         pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
@@ -131,9 +132,14 @@ class Geometry:
         alld = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
         idx = np.argmin(alld, axis=1)
         dist = alld[np.arange(len(pts)), idx]
+        if not points:
+            return None, dist
         out = np.empty_like(pts)
-        for lo, hi, fn in ((0, nb, self._box_point), (nb, nb + nc, self._cyl_point), (nb + nc, nb + nc + ns,
-                                                                                    self._sph_point)):
+        for lo, hi, fn in (
+            (0, nb, self._box_point),
+            (nb, nb + nc, self._cyl_point),
+            (nb + nc, nb + nc + ns, self._sph_point),
+        ):
             sel = (idx >= lo) & (idx < hi)
             if sel.any():
                 out[sel] = fn(pts[sel], idx[sel] - lo)
@@ -165,5 +171,5 @@ class Geometry:
         pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
         out = np.empty(len(pts))
         for i in range(0, len(pts), chunk):
-            out[i : i + chunk] = self.closest(pts[i : i + chunk])[1]
+            out[i : i + chunk] = self.closest(pts[i : i + chunk], points=False)[1]
         return out

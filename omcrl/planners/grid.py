@@ -85,7 +85,7 @@ def build_grid(
             continue
         xx, yy = np.meshgrid(axis[lo[0] : hi[0]], axis[lo[1] : hi[1]], indexing="ij")
         pts = np.stack([xx.ravel(), yy.ravel(), np.full(xx.size, altitude)], 1)
-        d = part.closest(pts)[1].reshape(xx.shape)
+        d = part.closest(pts, points=False)[1].reshape(xx.shape)
         blk = dist[lo[0] : hi[0], lo[1] : hi[1]]
         np.minimum(blk, d, out=blk)
     dist = dist.astype(np.float32)
