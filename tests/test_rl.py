@@ -347,6 +347,7 @@ def test_oracle_and_student_train_and_check_checkpoints(tmp_path):
         alpha_decay_steps=256,
     )
     cfg.pretrain.feature_dim = 8
+    cfg.rl.oracle_guide = "none"  # the toy env has no map for the HybridAPF guide (tests/test_integration.py has)
     oracle = train_oracle(cfg, make_env=toy_vec(), progress=False)
     pol = oracle.policy()
     env = ToyNav()

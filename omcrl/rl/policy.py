@@ -154,7 +154,8 @@ def read_payload(path: str | Path, what: str = "policy") -> dict:
     if not p.exists():
         raise CheckpointError(f"{what} checkpoint {p} does not exist")
     try:
-        payload = torch.load(p, map_location="cpu", weights_only=False)
+        # Policy files hold only tensors and plain containers: never unpickle arbitrary objects from them.
+        payload = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as e:
         raise CheckpointError(f"{what} checkpoint {p} cannot be read: {e}") from e
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:

@@ -330,7 +330,8 @@ def train(
 
     for p in (final_path, ckpt_path):
         if p.exists():
-            found = torch.load(p, map_location="cpu", weights_only=False).get("config_hash")
+            # final.pt is a policy file (tensors and plain containers); only checkpoint.pt also holds RNG states.
+            found = torch.load(p, map_location="cpu", weights_only=p == final_path).get("config_hash")
             if found != key:
                 if not overwrite:
                     raise RunConfigMismatch(
@@ -340,7 +341,7 @@ def train(
                 shutil.rmtree(run_dir)
                 break
     if final_path.exists():
-        step = int(torch.load(final_path, map_location="cpu", weights_only=False)["step"])
+        step = int(torch.load(final_path, map_location="cpu", weights_only=True)["step"])
         return Result(run_dir, final_path, step, True, run_dir / "metrics.csv")
 
     ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False) if ckpt_path.exists() else None
