@@ -355,7 +355,10 @@ def ppo_loss(
     """
     mean, std, value = agent(mb["obs"])
     logp = gaussian_log_prob(mb["actions"], mean, std)
-    ratio = torch.exp(logp - mb["log_probs"])
+    # Bound the log-ratio before exp: an overflowing ratio leaves the loss finite (the clipped branch wins) but
+    # makes its gradient 0 * inf = NaN, which silently corrupted an oracle run at 84k steps. |20| is far
+    # outside the clip range, so this changes no gradient that PPO would use.
+    ratio = torch.exp(torch.clamp(logp - mb["log_probs"], -20.0, 20.0))
     adv = mb["advantages"]
     policy_loss = -torch.min(ratio * adv, torch.clamp(ratio, 1.0 - clip, 1.0 + clip) * adv).mean()
     value_loss = ((value - mb["returns"]) ** 2).mean()
@@ -423,8 +426,13 @@ def ppo_update(
                     )
             optimizer.zero_grad(set_to_none=True)
             parts.total.backward()
-            if max_grad_norm > 0:
-                nn.utils.clip_grad_norm_(agent.parameters(), max_grad_norm)
+            grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), max_grad_norm if max_grad_norm > 0 else math.inf)
+            if not torch.isfinite(grad_norm):
+                # A finite loss can still have a non-finite gradient; never let it reach the weights.
+                raise NonFiniteLossError(
+                    f"non-finite gradient (norm {grad_norm.item()}) at env step {step}; training stopped, the "
+                    "last good checkpoint is kept"
+                )
             optimizer.step()
             vals = {
                 "loss": parts.total.item(),
