@@ -66,7 +66,7 @@ class OccupancyGrid:
 
 
 def build_grid(
-    geometry: Geometry, arena_half: float, altitude: float, res: float, inflate: float, cap: float = 1.5
+    geometry: Geometry, arena_half: float, altitude: float, res: float, inflate: float, cap: float = 0.75
 ) -> OccupancyGrid:
     """Sample ``geometry`` at flight altitude on a grid of cell ``res`` m covering [-arena_half, arena_half]^2.
 
