@@ -104,8 +104,20 @@ def _fill(arr: np.ndarray, where: slice, values: Any) -> None:
         arr[where] = values
 
 
+class _OneEnvInfo:
+    """Batches one env's info exactly like a 1-env gymnasium vector env (``VectorEnv._add_info``)."""
+
+    num_envs = 1
+    _add_info = gym.vector.VectorEnv._add_info
+
+
 class SplitVectorEnv(gym.vector.VectorEnv):
-    """``n`` envs: env 0 in this process (a SyncVectorEnv), envs 1..n-1 in an AsyncVectorEnv.
+    """``n`` envs: env 0 stepped directly in this process, envs 1..n-1 in an AsyncVectorEnv.
+
+    Env 0 follows the same NEXT_STEP autoreset rule as gymnasium's vector envs (the step after an episode
+    ends resets it, with reward 0 and no flags) and its info is batched with gymnasium's own ``_add_info``,
+    so results equal ``SyncVectorEnv``'s exactly (``tests/test_envs.py``). Stepping it without a
+    SyncVectorEnv wrapper saves ~0.2 ms of bookkeeping per step, which is ~6% at 64 px.
 
     Parameters
     ----------
@@ -115,15 +127,17 @@ class SplitVectorEnv(gym.vector.VectorEnv):
     def __init__(self, env_fns: list) -> None:
         if len(env_fns) < 2:
             raise ValueError(f"SplitVectorEnv needs at least 2 envs, got {len(env_fns)}")
-        # copy=False on both: observations are concatenated into fresh arrays right away.
-        self.local = gym.vector.SyncVectorEnv(env_fns[:1], copy=False)
+        # copy=False: the workers' observations are concatenated into fresh arrays right away.
         self.remote = gym.vector.AsyncVectorEnv(
             env_fns[1:], shared_memory=True, copy=False, context="fork", worker=_spin_worker
         )
+        self.local = env_fns[0]()
+        self._autoreset = False
+        self._batch = _OneEnvInfo()
         self.num_envs = len(env_fns)
-        self.metadata = dict(self.local.metadata)
-        self.single_observation_space = self.local.single_observation_space
-        self.single_action_space = self.local.single_action_space
+        self.metadata = dict(self.remote.metadata)
+        self.single_observation_space = self.local.observation_space
+        self.single_action_space = self.local.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.render_mode = None
@@ -132,30 +146,43 @@ class SplitVectorEnv(gym.vector.VectorEnv):
     def reset(self, *, seed: int | list | None = None, options: dict | None = None) -> tuple[Any, dict]:
         if isinstance(seed, int):
             seed = [seed + i for i in range(self.num_envs)]
-        s_local, s_remote = (seed[:1], seed[1:]) if seed is not None else (None, None)
+        s_local, s_remote = (seed[0], seed[1:]) if seed is not None else (None, None)
         self.remote.reset_async(seed=s_remote, options=options)
         lo, li = self.local.reset(seed=s_local, options=options)
+        self._autoreset = False
         ro, ri = self.remote.reset_wait()
-        return _concat_obs(lo, ro), _merge_infos(li, 1, ri, self.num_envs - 1)
+        return _concat_obs(_one(lo), ro), _merge_infos(self._batch._add_info({}, li, 0), 1, ri, self.num_envs - 1)
 
     def step(self, actions: np.ndarray) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict]:
         actions = np.asarray(actions)
         self.remote.step_async(actions[1:])
-        lo, lr, lt, ltr, li = self.local.step(actions[:1])
+        if self._autoreset:
+            lo, li = self.local.reset()
+            lr, lt, ltr = 0.0, False, False
+        else:
+            lo, lr, lt, ltr, li = self.local.step(actions[0])
+        self._autoreset = bool(lt or ltr)
         for conn in self.remote.parent_pipes:
             _spin_until_ready(conn)
         ro, rr, rt, rtr, ri = self.remote.step_wait()
         return (
-            _concat_obs(lo, ro),
-            np.concatenate([lr, rr]),
-            np.concatenate([lt, rt]),
-            np.concatenate([ltr, rtr]),
-            _merge_infos(li, 1, ri, self.num_envs - 1),
+            _concat_obs(_one(lo), ro),
+            np.concatenate([np.array([lr], np.float64), rr]),
+            np.concatenate([np.array([lt], np.bool_), rt]),
+            np.concatenate([np.array([ltr], np.bool_), rtr]),
+            _merge_infos(self._batch._add_info({}, li, 0), 1, ri, self.num_envs - 1),
         )
 
     def close_extras(self, **kwargs: Any) -> None:
         self.local.close()
         self.remote.close(**kwargs)
+
+
+def _one(obs: Any) -> Any:
+    """A single env's observation with a leading batch axis of 1."""
+    if isinstance(obs, dict):
+        return {k: np.asarray(v)[None] for k, v in obs.items()}
+    return np.asarray(obs)[None]
 
 
 def make_vec_env(
