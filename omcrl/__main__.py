@@ -33,7 +33,7 @@ STAGES: dict[str, tuple[str, str]] = {
     "collect": ("omcrl.data.collect:run", "collect trajectory data for pretraining"),
     "pretrain": ("omcrl.pretrain:run", "pretrain the encoder (masked contrastive / CURL)"),
     "oracle": ("omcrl.rl:train_oracle", "train the privileged oracle with PPO"),
-    "student": ("omcrl.rl:train_student", "train the visuomotor student with oracle guidance"),
+    "student": ("omcrl.rl.train:run_student", "train the visuomotor student with oracle guidance"),
     "evaluate": ("omcrl.eval:run", "evaluate policies and write tables"),
 }
 

@@ -606,3 +606,21 @@ def train_student(
         overwrite=overwrite,
         progress=progress,
     )
+
+
+def run_student(cfg: Config, *, progress: bool = True) -> Result:
+    """CLI stage ``student``: the OMC student from this preset's pretraining and oracle runs.
+
+    The encoder is ``omcrl.pretrain.run_dir(cfg) / "encoder.pt"`` and the oracle
+    ``results/<preset>/runs/oracle/oracle/seed<k>/final.pt``; with ``rl.alpha_schedule=none`` it trains the
+    unguided "w/o OT" twin (run name ``omc-noOT``), which needs no oracle.
+    """
+    from omcrl import pretrain
+
+    encoder = pretrain.run_dir(cfg) / "encoder.pt"
+    if not encoder.exists():
+        raise CheckpointError(f"encoder {encoder} does not exist (run the pretrain stage first)")
+    if cfg.rl.alpha_schedule == "none":
+        return train_student(cfg, encoder, None, name="omc-noOT", progress=progress)
+    oracle = run_dir_for(cfg, "oracle", "oracle") / "final.pt"
+    return train_student(cfg, encoder, oracle, name="omc", progress=progress)
