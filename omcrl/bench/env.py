@@ -2,7 +2,8 @@
 
 For each image size (64 and 128 px) and scene it measures, on the same scene and camera:
 
-* ``raw_fps`` — bare ``getCameraImage`` calls (TinyRenderer, no shadows, no segmentation);
+* ``raw_fps`` — bare ``getCameraImage`` calls (TinyRenderer, no shadows, no segmentation) replaying the camera
+  poses the env visited, so raw and env renders see the same views;
 * ``step_sps`` — ``NavEnv.step`` with one process, episode resets excluded from the clock;
 * ``step_sps_with_resets`` — the same with resets (new layouts) included, what training sees;
 * ``vec2_sps`` — a 2-worker ``AsyncVectorEnv`` (resets included), total env steps per second;
@@ -32,6 +33,12 @@ def _walk(rng: np.random.Generator, n: int) -> np.ndarray:
     return a.astype(np.float32)
 
 
+def _view(env) -> list:
+    """View matrix of the env's camera at its current pose (what its last render used)."""
+    pos, yaw = env._pos, env._yaw
+    return pb.computeViewMatrix(pos.tolist(), [pos[0] + np.cos(yaw), pos[1] + np.sin(yaw), pos[2]], [0, 0, 1])
+
+
 def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float = 1.0) -> dict:
     """Throughputs for one scene and image size.
 
@@ -47,15 +54,18 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
     va = np.stack([acts] * n_vec, 1)
     state = {"k": 0, "v": 0, "reset": 0.0, "step": 0.0}
 
+    views: list = []  # camera poses the env visited, so raw renders replay the very same views
+
     def raw_rate() -> float:
-        cid, proj, pos, yaw = env._client, env._proj, env._pos, env._yaw
-        view = pb.computeViewMatrix(pos.tolist(), [pos[0] + np.cos(yaw), pos[1] + np.sin(yaw), pos[2]], [0, 0, 1])
+        cid, proj = env._client, env._proj
+        if not views:
+            views.append(_view(env))
         n, t0 = 0, time.perf_counter()
         while time.perf_counter() - t0 < block:
             pb.getCameraImage(
                 size,
                 size,
-                view,
+                views[n % len(views)],
                 proj,
                 renderer=pb.ER_TINY_RENDERER,
                 shadow=0,
@@ -72,6 +82,8 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
             t1 = time.perf_counter()
             _, _, term, trunc, _ = env.step(acts[state["k"] % len(acts)])
             t_step += time.perf_counter() - t1
+            if len(views) < 2000:
+                views.append(_view(env))
             state["k"] += 1
             n += 1
             if term or trunc:
