@@ -9,17 +9,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-METRIC_FIELDS = (
-    "final_distance",
-    "min_distance",
-    "success",
-    "collision",
-    "path_length",
-    "optimal_path_length",
-    "steps",
-    "scene",
-    "seed",
-)
+from omcrl.eval.metrics import REQUIRED
+
+# Per-episode fields kept from ``info["metrics"]``: what summarize() needs plus where the episode came from.
+METRIC_FIELDS = (*REQUIRED, "out_of_arena", "scene", "seed")
 
 
 def start_episode(agent: Any, info: dict) -> None:
