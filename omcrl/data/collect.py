@@ -165,7 +165,7 @@ class _Pilot(_Source):
 
     def act(self, obs: dict, info: dict) -> np.ndarray:
         # The planner runs every step (its carrot must keep advancing) even when its action is overridden.
-        a = self.planner.act(obs, {k: v for k, v in info.items() if k != "path"})
+        a = self.planner.act(obs, info)
         if self.detour[0] <= self.t < self.detour[1]:
             a = np.array([0.0, 0.0, self.turn], np.float32)
         self.t += 1
@@ -311,8 +311,11 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
     try:
         with DatasetWriter(path, cfg.env.image_size, cfg.env.frame_stack, dataclasses.asdict(env_cfg)) as w:
             obs, infos = vec.reset(seed=env_seed)
+            # One per-env info dict per vector step, shared by start() and act(): the planner recognises the
+            # reset info it started from and does not plan the episode twice.
+            env_infos = [_env_info(infos, j) for j in range(n_envs)]
             for j in range(n_envs):
-                start(j, _env_info(infos, j))
+                start(j, env_infos[j])
             actions = np.zeros((n_envs, 3), np.float32)
             while written < n_new:
                 snaps: list[dict | None] = [None] * n_envs
@@ -320,13 +323,14 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
                 for j in range(n_envs):
                     b = behaviours[j]
                     if b is not None and not pending_reset[j]:
-                        actions[j] = b.act({k: v[j] for k, v in obs.items()}, _env_info(infos, j))
+                        actions[j] = b.act({k: v[j] for k, v in obs.items()}, env_infos[j])
                         snaps[j] = _snapshot(obs, j)
                 obs, rewards, term, trunc, infos = vec.step(actions)
+                env_infos = [_env_info(infos, j) for j in range(n_envs)]
                 for j in range(n_envs):
                     if pending_reset[j]:  # NEXT_STEP autoreset: this is the reset obs/info of a new episode
                         pending_reset[j] = False
-                        start(j, _env_info(infos, j))
+                        start(j, env_infos[j])
                         continue
                     snap, buf = snaps[j], buffers[j]
                     if snap is None or buf is None:
@@ -337,7 +341,7 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
                         continue
                     pending_reset[j] = True
                     src = sources[episode_of[j]]
-                    m = _env_info(infos, j).get("metrics", {})
+                    m = env_infos[j].get("metrics", {})
                     kind = "success" if m.get("success") else "collision" if term[j] else "timeout"
                     o = outcomes.setdefault(src, {"success": 0, "collision": 0, "timeout": 0})
                     o[kind] += 1

@@ -50,6 +50,7 @@ class HybridAPF:
         self.path = np.zeros((0, 2))
         self.idx = 0
         self._env: Any = None
+        self._reset_info: dict | None = None  # the info the current episode started from
 
     def bind(self, env: Any) -> HybridAPF:
         """Give the planner the env itself, so it replans on the true map with its own clearance margin."""
@@ -63,6 +64,7 @@ class HybridAPF:
         Without ``info`` it only forgets the old path; the next ``act`` with a reset info (or any info, when
         no path is held) plans anew.
         """
+        self._reset_info = info
         if info is None:
             self.path = np.zeros((0, 2))
             return
@@ -80,8 +82,9 @@ class HybridAPF:
         self.idx = 1
 
     def act(self, obs: dict, info: dict) -> np.ndarray:
-        """Action for one step. A reset ``info`` (it carries ``path``) starts a new episode."""
-        if "path" in info or len(self.path) == 0:
+        """Action for one step. A reset ``info`` (it carries ``path``) starts a new episode, unless ``reset``
+        was already called with that very info (callers that announce episodes must not cause a second plan)."""
+        if ("path" in info and info is not self._reset_info) or len(self.path) == 0:
             self.reset(info)
         x, y, yaw = (float(v) for v in info["pose"])
         pos = np.array([x, y])
