@@ -88,6 +88,34 @@ class Geometry:
             out.append((Geometry.from_primitives([p]), np.asarray(p.center[:2], np.float64), reach))
         return out
 
+    def footprints(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """Per kind: (kind, xy centres (N, 2) m, horizontal reach (N,) m) of its solids, for windowed queries."""
+        return [
+            ("box", self.box_c[:, :2], np.hypot(self.box_h[:, 0], self.box_h[:, 1])),
+            ("cylinder", self.cyl_c[:, :2], self.cyl_r),
+            ("sphere", self.sph_c[:, :2], self.sph_r),
+        ]
+
+    def distance_each(self, pts: np.ndarray, kind: str, idx: np.ndarray) -> np.ndarray:
+        """(P,) distance from each point ``pts[k]`` (P, 3) m to the one solid ``idx[k]`` of ``kind`` (0 inside).
+
+        Elementwise: one primitive per point, not the nearest of all (see :meth:`closest` for that).
+        """
+        if kind == "box":
+            rel = pts - self.box_c[idx]
+            c, s, h = self.box_cos[idx], self.box_sin[idx], self.box_h[idx]
+            ex = np.maximum(np.abs(c * rel[:, 0] + s * rel[:, 1]) - h[:, 0], 0)
+            ey = np.maximum(np.abs(c * rel[:, 1] - s * rel[:, 0]) - h[:, 1], 0)
+            ez = np.maximum(np.abs(rel[:, 2]) - h[:, 2], 0)
+            return np.sqrt(ex * ex + ey * ey + ez * ez)
+        if kind == "cylinder":
+            rel = pts - self.cyl_c[idx]
+            dr = np.maximum(np.hypot(rel[:, 0], rel[:, 1]) - self.cyl_r[idx], 0)
+            return np.hypot(dr, np.maximum(np.abs(rel[:, 2]) - self.cyl_hh[idx], 0))
+        if kind == "sphere":
+            return np.maximum(np.linalg.norm(pts - self.sph_c[idx], axis=1) - self.sph_r[idx], 0)
+        raise ValueError(f"kind: got {kind!r}, expected one of {KINDS}")
+
     @property
     def n(self) -> int:
         return len(self.box_c) + len(self.cyl_c) + len(self.sph_c)

@@ -1,188 +1,321 @@
-"""Vector envs: env 0 steps in the calling process, the others in AsyncVectorEnv workers, in parallel.
+"""Vector envs: env 0 steps in the calling process, the others in worker processes, in parallel.
 
-gymnasium's AsyncVectorEnv runs every env in a worker and the calling process waits. On a small machine (2
-cores, microVM) each step then pays a pipe round trip plus two process wake-ups (~0.9 ms measured against a
-~2.9 ms step at 64 px), and the caller's core idles while it waits. :class:`SplitVectorEnv` sends the actions
-to the workers first, steps env 0 itself meanwhile, then collects the workers' results, so the wait overlaps
-useful work (see ``python -m omcrl.bench env``). Semantics are gymnasium 1.x's: NEXT_STEP autoreset (the step
-after an episode ends returns the reset observation, its action is ignored; ``info["metrics"]`` arrives with
-the step that ended the episode) and infos batched as arrays with ``_key`` masks.
+gymnasium's AsyncVectorEnv runs every env in a worker, sends each command and result through a pipe and the
+calling process waits. On a small machine (2 cores, microVM) a pipe round trip plus two process wake-ups cost
+~0.9 ms against a ~2.9 ms step at 64 px, and the caller's core idles while it waits. :class:`SplitVectorEnv`
+instead
+
+* steps env 0 itself while the workers step theirs, so the caller's core does useful work;
+* hands actions, observations, rewards and flags over in shared memory (infos and errors as pickled bytes in
+  a shared buffer), so a step moves no data through a pipe;
+* signals with one semaphore per direction and worker, and spins on it briefly before blocking when there
+  is a core per process, so nobody pays a wake-up in the common case (see ``SPIN_SECONDS``).
+
+Semantics are gymnasium 1.x's ``SyncVectorEnv`` exactly (``tests/test_envs.py`` compares them step by step):
+NEXT_STEP autoreset (the step after an episode ends returns the reset observation with reward 0 and no
+flags, and ignores its action; ``info["metrics"]`` arrives with the step that ended the episode), infos
+batched by gymnasium's own ``VectorEnv._add_info`` with ``_key`` masks.
 """
 
 from __future__ import annotations
 
+import multiprocessing as mp
+import os
+import pickle
+import signal
+import time
+import traceback
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.vector.utils import batch_space
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space, create_shared_memory, read_from_shared_memory
 
 from omcrl.envs.nav_env import make_env
 
-# How long a waiting process spins on its pipe before blocking. A blocked process lets its vCPU halt, and
-# waking it again is what costs most of a pipe round trip in a microVM; the spin covers the usual turnaround
-# (one env step, ~3 ms at 64 px) and gives the core back quickly when nothing comes (during PPO updates).
+# How long a waiting process spins on its semaphore before blocking. A blocked process lets its vCPU halt, and
+# waking it again is most of what a hand-over costs in a microVM; the spin covers the usual turnaround (one env
+# step, ~3 ms at 64 px) and gives the core back soon when nothing comes (during PPO updates). Only used when
+# every process has a core of its own: with more processes than cores, spinning would steal the renderers' time.
 SPIN_SECONDS = 0.005
 
+# Bytes per worker for a pickled info dict or error (a reset info with its path is a few kB).
+PAYLOAD_BYTES = 1 << 20
 
-def _spin_until_ready(conn: Any, seconds: float = SPIN_SECONDS) -> None:
-    import time
-
-    end = time.perf_counter() + seconds
-    while not conn.poll(0) and time.perf_counter() < end:
-        pass
+_STEP, _RESET, _CLOSE = 1, 2, 3
+_OK, _ERROR = 0, 1
 
 
-class _SpinPipe:
-    """A worker's pipe whose ``recv`` spins briefly before blocking (see ``SPIN_SECONDS``)."""
-
-    def __init__(self, conn: Any) -> None:
-        self._conn = conn
-
-    def recv(self) -> Any:
-        _spin_until_ready(self._conn)
-        return self._conn.recv()
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._conn, name)
+def _cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return os.cpu_count() or 1
 
 
-def _spin_worker(index, env_fn, pipe, parent_pipe, shared_memory, error_queue, autoreset_mode, semaphore):
-    """gymnasium's ``_async_worker`` with a spinning pipe; everything else is unchanged."""
-    from gymnasium.vector.async_vector_env import _async_worker
+def _take(sem: Any, spin: float, alive: Callable[[], bool], lost: str) -> None:
+    """Acquire ``sem``: non-blocking tries for up to ``spin`` s, then blocking waits of 1 s while ``alive()``.
 
-    _async_worker(index, env_fn, _SpinPipe(pipe), parent_pipe, shared_memory, error_queue, autoreset_mode, semaphore)
+    Raises
+    ------
+    RuntimeError : ``lost`` when ``alive()`` turns False while waiting (the other side died).
+    """
+    if spin > 0:
+        end = time.perf_counter() + spin
+        while not sem.acquire(False):
+            if time.perf_counter() >= end:
+                break
+        else:
+            return
+    while not sem.acquire(timeout=1.0):
+        if not alive():
+            raise RuntimeError(lost)
+
+
+class _Channel:
+    """Shared memory of one worker: control words and a payload buffer for pickled objects."""
+
+    def __init__(self, ctx: Any) -> None:
+        self.ctrl = ctx.RawArray("q", 3)  # command, status, payload length (bytes)
+        self.buf = ctx.RawArray("B", PAYLOAD_BYTES)
+        self.cmd = ctx.Semaphore(0)
+        self.done = ctx.Semaphore(0)
+
+    def put(self, obj: Any) -> None:
+        data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+        if len(data) > PAYLOAD_BYTES:
+            raise ValueError(
+                f"vector env: a pickled info/command of {len(data)} bytes exceeds the {PAYLOAD_BYTES}-byte "
+                "payload buffer (omcrl.envs.vec.PAYLOAD_BYTES)"
+            )
+        memoryview(self.buf).cast("B")[: len(data)] = data
+        self.ctrl[2] = len(data)
+
+    def get(self) -> Any:
+        return pickle.loads(memoryview(self.buf).cast("B")[: self.ctrl[2]])
+
+
+def _worker(
+    slot: int,
+    env_fn: Callable[[], gym.Env],
+    ch: _Channel,
+    obs_shm: Any,
+    act_shm: Any,
+    scal_shm: Any,
+    obs_space: gym.Space,
+    act_space: gym.Space,
+    n: int,
+    spin: float,
+    parent: int,
+) -> None:
+    """Worker process: owns env ``slot``; serves step/reset/close commands until told to close."""
+    # Ctrl-C reaches the whole process group: the caller handles it and closes the workers in order.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    obs = read_from_shared_memory(obs_space, obs_shm, n)
+    act = read_from_shared_memory(act_space, act_shm, n)
+    scal = np.frombuffer(scal_shm, np.float64).reshape(3, n)  # reward, terminated, truncated
+    env = None
+    autoreset = False
+    parent_alive = lambda: os.getppid() == parent  # noqa: E731
+    while True:
+        try:
+            _take(ch.cmd, spin, parent_alive, "parent gone")
+        except RuntimeError:
+            break  # the caller died without closing us
+        cmd = ch.ctrl[0]
+        try:
+            if env is None:
+                env = env_fn()
+            if cmd == _CLOSE:
+                env.close()
+                ch.ctrl[1] = _OK
+                ch.done.release()
+                break
+            if cmd == _RESET:
+                seed, options = ch.get()
+                o, info = env.reset(seed=seed, options=options)
+                r, term, trunc = 0.0, False, False
+            elif autoreset:
+                o, info = env.reset()
+                r, term, trunc = 0.0, False, False
+            else:
+                o, r, term, trunc, info = env.step(act[slot])
+            autoreset = bool(term or trunc)
+            _write(obs, slot, o)
+            scal[:, slot] = (r, term, trunc)
+            ch.put(info)
+            ch.ctrl[1] = _OK
+        except Exception as exc:  # handed to the caller, which raises it
+            try:
+                ch.put((exc, traceback.format_exc()))
+            except Exception:  # unpicklable or too large: keep the text
+                ch.put((RuntimeError(f"{type(exc).__name__}: {exc}"), traceback.format_exc()))
+            ch.ctrl[1] = _ERROR
+        ch.done.release()
+
+
+def _write(views: Any, slot: int, obs: Any) -> None:
+    if isinstance(views, dict):
+        for k, v in views.items():
+            v[slot] = obs[k]
+    else:
+        views[slot] = obs
+
+
+def _empty_like(views: Any) -> Any:
+    if isinstance(views, dict):
+        return {k: np.empty_like(v) for k, v in views.items()}
+    return np.empty_like(views)
+
+
+class SplitVectorEnv(gym.vector.VectorEnv):
+    """``n`` envs: env 0 stepped directly in this process, envs 1..n-1 each in a worker process.
+
+    Results equal ``SyncVectorEnv``'s exactly (same NEXT_STEP autoreset, infos batched with gymnasium's
+    ``_add_info``). An exception in a worker is raised here with the worker's traceback as a note; a worker
+    that dies is reported instead of waited for.
+
+    Parameters
+    ----------
+    env_fns : ``n >= 2`` zero-argument env constructors; all envs must share their spaces.
+    spin : seconds to spin before blocking while waiting; default ``SPIN_SECONDS`` when every process has
+        a core of its own, else 0.
+    """
+
+    def __init__(self, env_fns: list, spin: float | None = None) -> None:
+        if len(env_fns) < 2:
+            raise ValueError(f"SplitVectorEnv needs at least 2 envs, got {len(env_fns)}")
+        self.num_envs = n = len(env_fns)
+        self.spin = (SPIN_SECONDS if n <= _cpus() else 0.0) if spin is None else float(spin)
+        self.local = env_fns[0]()
+        self.single_observation_space = self.local.observation_space
+        self.single_action_space = self.local.action_space
+        self.observation_space = batch_space(self.single_observation_space, n)
+        self.action_space = batch_space(self.single_action_space, n)
+        self.metadata = {**getattr(self.local, "metadata", {}), "autoreset_mode": AutoresetMode.NEXT_STEP}
+        self.render_mode = None
+        self.closed = False
+        self._autoreset = np.zeros(n, np.bool_)  # NEXT_STEP: these envs reset on the next step
+
+        ctx = mp.get_context("fork")  # workers inherit the env constructors; nothing is pickled
+        obs_shm = create_shared_memory(self.single_observation_space, n, ctx)
+        act_shm = create_shared_memory(self.single_action_space, n, ctx)
+        scal_shm = ctx.RawArray("d", 3 * n)
+        self._obs = read_from_shared_memory(self.single_observation_space, obs_shm, n)
+        self._act = read_from_shared_memory(self.single_action_space, act_shm, n)
+        self._scal = np.frombuffer(scal_shm, np.float64).reshape(3, n)
+        self._channels = [_Channel(ctx) for _ in range(1, n)]
+        self._procs = []
+        for slot, (fn, ch) in enumerate(zip(env_fns[1:], self._channels), start=1):
+            args = (slot, fn, ch, obs_shm, act_shm, scal_shm, self.single_observation_space)
+            args += (self.single_action_space, n, self.spin, os.getpid())
+            p = ctx.Process(target=_worker, args=args, name=f"omcrl-vec-{slot}", daemon=True)
+            p.start()
+            self._procs.append(p)
+
+    # ------------------------------------------------------------------ protocol
+    def _send(self, cmd: int, payload: Any = None) -> None:
+        for ch in self._channels:
+            ch.ctrl[0] = cmd
+            if payload is not None:
+                ch.put(payload)
+            ch.cmd.release()
+
+    def _collect(self) -> list[Any]:
+        """Wait for every worker's answer; their unpickled payloads in slot order (1..n-1)."""
+        out, error = [], None
+        for slot, (ch, p) in enumerate(zip(self._channels, self._procs), start=1):
+            _take(ch.done, self.spin, p.is_alive, f"vector env worker {slot} died (exit code {p.exitcode})")
+            payload = ch.get()
+            if ch.ctrl[1] == _ERROR:
+                exc, tb = payload
+                exc.add_note(f"raised in vector env worker {slot}:\n{tb}")
+                error = error or exc
+            out.append(payload)
+        if error is not None:
+            raise error
+        return out
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | list | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        n = self.num_envs
+        if seed is None:
+            seed = [None] * n
+        elif isinstance(seed, int):
+            seed = [seed + i for i in range(n)]
+        if len(seed) != n:
+            raise ValueError(f"reset: got {len(seed)} seeds, expected num_envs={n}")
+        if options and "reset_mask" in options:
+            raise ValueError("reset: options['reset_mask'] is not supported by SplitVectorEnv")
+        for slot, ch in enumerate(self._channels, start=1):
+            ch.ctrl[0] = _RESET
+            ch.put((seed[slot], options))
+            ch.cmd.release()
+        obs, infos, _ = self._finish(lambda: (*self.local.reset(seed=seed[0], options=options), 0.0, False, False))
+        self._autoreset[:] = False
+        return obs, infos
+
+    def step(self, actions: np.ndarray) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict]:
+        actions = np.asarray(actions)
+        if actions.shape != self._act.shape:
+            raise ValueError(f"step: actions of shape {actions.shape}, expected {self._act.shape} (n_envs, action)")
+        self._act[:] = actions
+        self._send(_STEP)
+
+        def local() -> tuple:
+            if self._autoreset[0]:
+                return (*self.local.reset(), 0.0, False, False)
+            o, r, term, trunc, info = self.local.step(self._act[0])
+            return o, info, r, term, trunc
+
+        obs, infos, scal = self._finish(local)
+        rewards = scal[0].copy()
+        terminated, truncated = scal[1].astype(np.bool_), scal[2].astype(np.bool_)
+        self._autoreset = terminated | truncated
+        return obs, rewards, terminated, truncated, infos
+
+    def _finish(self, local: Callable[[], tuple]) -> tuple[Any, dict, np.ndarray]:
+        """Run env 0 (``local()`` -> obs, info, reward, terminated, truncated) while the workers run the
+        command already sent; batch env 0's results before waiting, the workers' after (fresh arrays)."""
+        try:
+            o, info, r, term, trunc = local()
+            obs = _empty_like(self._obs)
+            _write(obs, 0, o)
+            self._scal[:, 0] = (r, term, trunc)
+            infos = self._add_info({}, info, 0)
+        finally:
+            remote = self._collect()  # even when env 0 failed: the workers' answers must be consumed
+        if isinstance(obs, dict):
+            for k, v in obs.items():
+                v[1:] = self._obs[k][1:]
+        else:
+            obs[1:] = self._obs[1:]
+        for i, info in enumerate(remote, start=1):
+            infos = self._add_info(infos, info, i)
+        return obs, infos, self._scal
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self.local.close()
+        for ch, p in zip(self._channels, self._procs):
+            if p.is_alive():
+                ch.ctrl[0] = _CLOSE
+                ch.cmd.release()
+        for p in self._procs:
+            p.join(timeout=5.0)
+            if p.is_alive():  # pragma: no cover - a wedged worker
+                p.terminate()
+                p.join()
 
 
 def _factory(scene: str, seed: int, kwargs: dict) -> Any:
     def thunk() -> gym.Env:
         # Each worker is its own process with one core at most: keep its BLAS/torch single-threaded.
-        import os
-
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         return make_env(scene, seed=seed, **kwargs)
 
     return thunk
-
-
-def _concat_obs(a: Any, b: Any) -> Any:
-    if isinstance(a, dict):
-        return {k: np.concatenate([a[k], b[k]]) for k in a}
-    return np.concatenate([a, b])
-
-
-def _merge_infos(a: dict, na: int, b: dict, nb: int) -> dict:
-    """Merge batched infos of two vector envs (``na`` then ``nb`` envs) into one batched info dict."""
-    out: dict = {}
-    for key in list(a) + [k for k in b if k not in a]:
-        va, vb = a.get(key), b.get(key)
-        ref = va if va is not None else vb
-        if isinstance(ref, dict):
-            out[key] = _merge_infos(va or {}, na, vb or {}, nb)
-            continue
-        ref = np.asarray(ref)
-        if ref.dtype == object or (
-            va is not None and vb is not None and np.asarray(va).shape[1:] != np.asarray(vb).shape[1:]
-        ):
-            arr = np.empty(na + nb, dtype=object)
-            arr[:] = None
-        else:
-            arr = np.zeros((na + nb, *ref.shape[1:]), dtype=ref.dtype)
-        if va is not None:
-            _fill(arr, slice(0, na), va)
-        if vb is not None:
-            _fill(arr, slice(na, na + nb), vb)
-        out[key] = arr
-    return out
-
-
-def _fill(arr: np.ndarray, where: slice, values: Any) -> None:
-    if arr.dtype == object:
-        for i, v in zip(range(where.start, where.stop), values):
-            arr[i] = v
-    else:
-        arr[where] = values
-
-
-class _OneEnvInfo:
-    """Batches one env's info exactly like a 1-env gymnasium vector env (``VectorEnv._add_info``)."""
-
-    num_envs = 1
-    _add_info = gym.vector.VectorEnv._add_info
-
-
-class SplitVectorEnv(gym.vector.VectorEnv):
-    """``n`` envs: env 0 stepped directly in this process, envs 1..n-1 in an AsyncVectorEnv.
-
-    Env 0 follows the same NEXT_STEP autoreset rule as gymnasium's vector envs (the step after an episode
-    ends resets it, with reward 0 and no flags) and its info is batched with gymnasium's own ``_add_info``,
-    so results equal ``SyncVectorEnv``'s exactly (``tests/test_envs.py``). Stepping it without a
-    SyncVectorEnv wrapper saves ~0.2 ms of bookkeeping per step, which is ~6% at 64 px.
-
-    Parameters
-    ----------
-    env_fns : ``n >= 2`` zero-argument env constructors.
-    """
-
-    def __init__(self, env_fns: list) -> None:
-        if len(env_fns) < 2:
-            raise ValueError(f"SplitVectorEnv needs at least 2 envs, got {len(env_fns)}")
-        # copy=False: the workers' observations are concatenated into fresh arrays right away.
-        self.remote = gym.vector.AsyncVectorEnv(
-            env_fns[1:], shared_memory=True, copy=False, context="fork", worker=_spin_worker
-        )
-        self.local = env_fns[0]()
-        self._autoreset = False
-        self._batch = _OneEnvInfo()
-        self.num_envs = len(env_fns)
-        self.metadata = dict(self.remote.metadata)
-        self.single_observation_space = self.local.observation_space
-        self.single_action_space = self.local.action_space
-        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self.render_mode = None
-        self.closed = False
-
-    def reset(self, *, seed: int | list | None = None, options: dict | None = None) -> tuple[Any, dict]:
-        if isinstance(seed, int):
-            seed = [seed + i for i in range(self.num_envs)]
-        s_local, s_remote = (seed[0], seed[1:]) if seed is not None else (None, None)
-        self.remote.reset_async(seed=s_remote, options=options)
-        lo, li = self.local.reset(seed=s_local, options=options)
-        self._autoreset = False
-        ro, ri = self.remote.reset_wait()
-        return _concat_obs(_one(lo), ro), _merge_infos(self._batch._add_info({}, li, 0), 1, ri, self.num_envs - 1)
-
-    def step(self, actions: np.ndarray) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict]:
-        actions = np.asarray(actions)
-        self.remote.step_async(actions[1:])
-        if self._autoreset:
-            lo, li = self.local.reset()
-            lr, lt, ltr = 0.0, False, False
-        else:
-            lo, lr, lt, ltr, li = self.local.step(actions[0])
-        self._autoreset = bool(lt or ltr)
-        for conn in self.remote.parent_pipes:
-            _spin_until_ready(conn)
-        ro, rr, rt, rtr, ri = self.remote.step_wait()
-        return (
-            _concat_obs(_one(lo), ro),
-            np.concatenate([np.array([lr], np.float64), rr]),
-            np.concatenate([np.array([lt], np.bool_), rt]),
-            np.concatenate([np.array([ltr], np.bool_), rtr]),
-            _merge_infos(self._batch._add_info({}, li, 0), 1, ri, self.num_envs - 1),
-        )
-
-    def close_extras(self, **kwargs: Any) -> None:
-        self.local.close()
-        self.remote.close(**kwargs)
-
-
-def _one(obs: Any) -> Any:
-    """A single env's observation with a leading batch axis of 1."""
-    if isinstance(obs, dict):
-        return {k: np.asarray(v)[None] for k, v in obs.items()}
-    return np.asarray(obs)[None]
 
 
 def make_vec_env(

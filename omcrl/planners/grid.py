@@ -9,6 +9,7 @@ then line-of-sight string pulling to an any-angle path. In an empty arena this e
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -70,25 +71,32 @@ def build_grid(
 ) -> OccupancyGrid:
     """Sample ``geometry`` at flight altitude on a grid of cell ``res`` m covering [-arena_half, arena_half]^2.
 
-    Distances are exact up to ``cap`` m and saturate at ``cap`` beyond it: each primitive is only evaluated
-    in a window of its footprint plus ``cap``, which makes building the map ~20x cheaper than a dense
-    evaluation while every consumer (blocked cells, start/goal clearance) only asks about short distances.
+    Distances are exact up to ``cap`` m and saturate at ``cap`` beyond it: each solid is only evaluated in a
+    window of its footprint plus ``cap`` (all windows of a kind in one vectorised pass), which makes building
+    the map ~20x cheaper than a dense evaluation while every consumer (blocked cells, start/goal clearance)
+    only asks about short distances.
     """
     g = math.floor(2 * arena_half / res) + 1
     origin = -arena_half
-    axis = origin + res * np.arange(g)
-    dist = np.full((g, g), cap, np.float64)
-    for part, c, reach in geometry.parts():
-        lo = np.clip(np.floor((c[:2] - reach - cap - origin) / res).astype(int), 0, g)
-        hi = np.clip(np.ceil((c[:2] + reach + cap - origin) / res).astype(int) + 1, 0, g)
-        if lo[0] >= hi[0] or lo[1] >= hi[1]:
+    dist = np.full(g * g, cap, np.float64)
+    for kind, centre, reach in geometry.footprints():
+        if len(centre) == 0:
             continue
-        xx, yy = np.meshgrid(axis[lo[0] : hi[0]], axis[lo[1] : hi[1]], indexing="ij")
-        pts = np.stack([xx.ravel(), yy.ravel(), np.full(xx.size, altitude)], 1)
-        d = part.closest(pts, points=False)[1].reshape(xx.shape)
-        blk = dist[lo[0] : hi[0], lo[1] : hi[1]]
-        np.minimum(blk, d, out=blk)
-    dist = dist.astype(np.float32)
+        span = (reach + cap)[:, None]
+        lo = np.clip(np.floor((centre - span - origin) / res).astype(np.int64), 0, g)
+        hi = np.clip(np.ceil((centre + span - origin) / res).astype(np.int64) + 1, 0, g)
+        n = np.maximum(hi - lo, 0)  # (N, 2) window size in cells
+        count = n[:, 0] * n[:, 1]
+        if count.sum() == 0:
+            continue
+        # Enumerate every window's cells at once: solid index and row-major offset inside its window.
+        solid = np.repeat(np.arange(len(centre)), count)
+        off = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+        ix = lo[solid, 0] + off // n[solid, 1]
+        iy = lo[solid, 1] + off % n[solid, 1]
+        pts = np.stack([origin + res * ix, origin + res * iy, np.full(ix.size, altitude)], 1)
+        np.minimum.at(dist, ix * g + iy, geometry.distance_each(pts, kind, solid))
+    dist = dist.reshape(g, g).astype(np.float32)
     return OccupancyGrid(origin=origin, res=res, dist=dist, occ=dist <= inflate)
 
 
@@ -100,26 +108,36 @@ def components(grid: OccupancyGrid) -> np.ndarray:
     return lab
 
 
+# The 8 lattice directions (dx, dy); every node lists its neighbours in this order in the CSR graph.
+_DIRS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+
+
+@functools.lru_cache(maxsize=4)
+def _lattice(g: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CSR structure of the full 8-neighbour lattice on a g x g grid: indptr (g*g+1,), indices (8*g*g,) and
+    unit step costs (8*g*g,). Neighbours beyond the border wrap around; :func:`_graph` never enables them."""
+    idx = np.arange(g * g, dtype=np.int32).reshape(g, g)
+    nbr = np.stack([np.roll(idx, (-dx, -dy), (0, 1)) for dx, dy in _DIRS], axis=-1)
+    cost = np.tile([_SQ2 if dx and dy else 1.0 for dx, dy in _DIRS], g * g)
+    return np.arange(0, 8 * g * g + 1, 8, dtype=np.int32), nbr.ravel(), cost
+
+
 def _graph(grid: OccupancyGrid) -> csr_matrix:
-    """8-connected graph over free cells; diagonal moves need both adjacent orthogonal cells free."""
+    """Directed (both ways) 8-connected graph over free cells; diagonal moves need both adjacent orthogonal
+    cells free. Disabled lattice edges get infinite weight, so the cached CSR structure is reused as is."""
     g = grid.size
+    indptr, indices, cost = _lattice(g)
     free = ~grid.occ
-    idx = np.arange(g * g).reshape(g, g)
-    rows, cols, w = [], [], []
-    for dx, dy, cost in ((1, 0, 1.0), (0, 1, 1.0), (1, 1, _SQ2), (1, -1, _SQ2)):
-        xs = slice(0, g - dx)
-        xd = slice(dx, g)
-        ys = slice(max(0, -dy), g - max(0, dy))
-        yd = slice(max(0, dy), g - max(0, -dy) if dy < 0 else g)
-        ok = free[xs, ys] & free[xd, yd]
+    pad = np.zeros((g + 2, g + 2), bool)  # blocked border: no edges leave the grid
+    pad[1:-1, 1:-1] = free
+    ok = np.empty((g, g, 8), bool)
+    for k, (dx, dy) in enumerate(_DIRS):
+        m = np.logical_and(free, pad[1 + dx : g + 1 + dx, 1 + dy : g + 1 + dy], out=ok[..., k])
         if dx and dy:  # no corner cutting
-            ok &= free[xd, ys] & free[xs, yd]
-        a, b = idx[xs, ys][ok], idx[xd, yd][ok]
-        rows += [a, b]
-        cols += [b, a]
-        w += [np.full(a.size, cost * grid.res)] * 2
-    r, c, ww = np.concatenate(rows), np.concatenate(cols), np.concatenate(w)
-    return csr_matrix((ww, (r, c)), shape=(g * g, g * g))
+            m &= pad[1 + dx : g + 1 + dx, 1 : g + 1]
+            m &= pad[1 : g + 1, 1 + dy : g + 1 + dy]
+    w = np.where(ok.ravel(), cost * grid.res, np.inf)
+    return csr_matrix((w, indices, indptr), shape=(g * g, g * g))
 
 
 def geodesic(grid: OccupancyGrid, source_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +150,7 @@ def geodesic(grid: OccupancyGrid, source_xy: np.ndarray) -> tuple[np.ndarray, np
     """
     ij = grid.to_cell(source_xy)
     src = int(ij[0] * grid.size + ij[1])
-    d, pred = dijkstra(_graph(grid), directed=False, indices=src, return_predecessors=True)
+    d, pred = dijkstra(_graph(grid), directed=True, indices=src, return_predecessors=True)
     return d.reshape(grid.size, grid.size), pred
 
 
