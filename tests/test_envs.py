@@ -270,6 +270,24 @@ def test_geometry_distances():
     np.testing.assert_allclose(d, [1.0, 1.5, 1.5, 1.0, 1.0], atol=1e-9)
 
 
+@pytest.mark.parametrize("scene", SCENES)
+def test_single_point_nearest_equals_batched_closest(scene):
+    """The env's per-step ``nearest`` gives the same surface point and distance as ``closest``."""
+    env = make_env(scene, seed=2, image_size=16)
+    env.reset(seed=2)
+    geo = env._geometry
+    rng = np.random.default_rng(0)
+    pts = np.concatenate([rng.uniform(-9, 9, (300, 3)) * [1, 1, 0.3] + [0, 0, 1], [[0, 0, env.cfg.altitude]]])
+    cp, cd = geo.closest(pts)
+    for p, q, d in zip(pts, cp, cd):
+        np_, nd = geo.nearest(p)
+        assert nd == pytest.approx(d, abs=1e-9)
+        np.testing.assert_allclose(np_, q, atol=1e-9)
+    env.close()
+    empty = Geometry.from_primitives([])
+    assert empty.nearest(np.zeros(3))[1] == math.inf
+
+
 def test_shortest_path_goes_around_a_wall():
     wall = Primitive("box", (0, 0, 1), (0.1, 2.0, 1.5))
     grid = build_grid(Geometry.from_primitives([wall]), 5.0, 1.0, 0.05, 0.15)

@@ -10,6 +10,7 @@ All positions are world-frame metres; ``z`` is up.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -172,6 +173,52 @@ class Geometry:
             if sel.any():
                 out[sel] = fn(pts[sel], idx[sel] - lo)
         return out, dist
+
+    def nearest(self, p: np.ndarray) -> tuple[np.ndarray, float]:
+        """:meth:`closest` for one point ``p`` (3,) m: (nearest surface point (3,) m, distance m).
+
+        The env asks this once per control substep, so it is written for one point: distances to all solids
+        of a kind in one pass over (N,) arrays, and the surface point of the winner in scalar math (~4x faster
+        than the batched :meth:`closest`, which it equals; ``tests/test_envs.py``).
+        """
+        x, y, z = float(p[0]), float(p[1]), float(p[2])
+        best, kind, k = math.inf, "", -1
+        if len(self.box_c):
+            rx, ry, rz = x - self.box_c[:, 0], y - self.box_c[:, 1], z - self.box_c[:, 2]
+            c, s, h = self.box_cos, self.box_sin, self.box_h
+            ex = np.maximum(np.abs(c * rx + s * ry) - h[:, 0], 0)
+            ey = np.maximum(np.abs(c * ry - s * rx) - h[:, 1], 0)
+            ez = np.maximum(np.abs(rz) - h[:, 2], 0)
+            d2 = ex * ex + ey * ey + ez * ez
+            i = int(np.argmin(d2))
+            best, kind, k = math.sqrt(d2[i]), "box", i
+        if len(self.cyl_c):
+            dr = np.maximum(np.hypot(x - self.cyl_c[:, 0], y - self.cyl_c[:, 1]) - self.cyl_r, 0)
+            d = np.hypot(dr, np.maximum(np.abs(z - self.cyl_c[:, 2]) - self.cyl_hh, 0))
+            i = int(np.argmin(d))
+            if d[i] < best:
+                best, kind, k = float(d[i]), "cylinder", i
+        if len(self.sph_c):
+            d = np.maximum(np.sqrt(((self.sph_c - (x, y, z)) ** 2).sum(1)) - self.sph_r, 0)
+            i = int(np.argmin(d))
+            if d[i] < best:
+                best, kind, k = float(d[i]), "sphere", i
+        if k < 0:
+            return np.array([x, y, z]), math.inf
+        cx, cy, cz = getattr(self, {"box": "box_c", "cylinder": "cyl_c", "sphere": "sph_c"}[kind])[k].tolist()
+        rx, ry, rz = x - cx, y - cy, z - cz
+        if kind == "box":
+            c, s = float(self.box_cos[k]), float(self.box_sin[k])
+            hx, hy, hz = self.box_h[k].tolist()
+            lx = min(hx, max(-hx, c * rx + s * ry))
+            ly = min(hy, max(-hy, -s * rx + c * ry))
+            return np.array([cx + c * lx - s * ly, cy + s * lx + c * ly, cz + min(hz, max(-hz, rz))]), best
+        if kind == "cylinder":
+            scale = min(1.0, float(self.cyl_r[k]) / max(math.hypot(rx, ry), 1e-12))
+            hh = float(self.cyl_hh[k])
+            return np.array([cx + rx * scale, cy + ry * scale, cz + min(hh, max(-hh, rz))]), best
+        scale = min(1.0, float(self.sph_r[k]) / max(math.sqrt(rx * rx + ry * ry + rz * rz), 1e-12))
+        return np.array([cx + rx * scale, cy + ry * scale, cz + rz * scale]), best
 
     def _box_point(self, p: np.ndarray, i: np.ndarray) -> np.ndarray:
         c, s, h = self.box_cos[i], self.box_sin[i], self.box_h[i]

@@ -282,7 +282,7 @@ class NavEnv(gym.Env):
         frame_rgb, frame_depth = self._render_frame()
         self._rgb[:] = frame_rgb
         self._depth[:] = frame_depth
-        obs = self._obs(self._geometry.closest(self._pos)[0][0])
+        obs = self._obs(self._geometry.nearest(self._pos)[0])
         # The path is a list, not an array: its length varies, and vector envs can only stack fixed shapes.
         info = {
             "pose": self.pose,
@@ -420,8 +420,8 @@ class NavEnv(gym.Env):
             px, py = px + mx, py + my
             self._path_len += math.hypot(mx, my)
             self._pos[0], self._pos[1] = px, py
-            closest, dist = geo.closest(self._pos)
-            if dist[0] <= c.drone_radius:
+            closest, dist = geo.nearest(self._pos)
+            if dist <= c.drone_radius:
                 collided = True
                 break
             if abs(px) > c.arena_half or abs(py) > c.arena_half:
@@ -449,7 +449,7 @@ class NavEnv(gym.Env):
         self._rgb[-1] = rgb
         self._depth[:-1] = self._depth[1:]
         self._depth[-1] = depth
-        obs = self._obs(closest[0])
+        obs = self._obs(closest)
         info: dict[str, Any] = {"pose": self.pose, "goal": self._goal[:2].copy()}
         if terminated or truncated:
             info["metrics"] = {
