@@ -316,6 +316,37 @@ def test_hybrid_apf_succeeds_in_box():
     assert successes / n >= 0.85, f"HybridAPF success {successes}/{n}"
 
 
+@pytest.mark.parametrize("layout_every", [1, 3])
+def test_prefetched_reset_equals_plain_reset(layout_every):
+    """A reset planned ahead (``prefetch``) gives exactly the episode a plain reset gives; a seeded reset
+    discards the plan."""
+    kw = dict(image_size=16, max_steps=5, layout_every=layout_every)
+    a, b = make_env("box", seed=4, **kw), make_env("box", seed=4, **kw)
+    a.reset(seed=4)
+    b.reset(seed=4)
+    plans = []
+    plan = a._plan
+    a._plan = lambda **kw: plans.append(1) or plan(**kw)
+    for ep in range(6):
+        assert a.prefetch() and not a.prefetch()  # one plan at a time
+        _run(a, [0.3, 0, 0], 5)
+        _run(b, [0.3, 0, 0], 5)
+        n = len(plans)
+        if ep == 4:  # a seeded reset ignores the plan
+            oa, ia = a.reset(seed=99)
+            ob, ib = b.reset(seed=99)
+            assert len(plans) == n + 1
+        else:
+            oa, ia = a.reset()
+            ob, ib = b.reset()
+            assert len(plans) == n  # the prefetched plan was used
+        assert all(np.array_equal(oa[k], ob[k]) for k in oa)
+        assert ia["layout_seed"] == ib["layout_seed"] and ia["path"] == ib["path"]
+        assert a.np_random.bit_generator.state == b.np_random.bit_generator.state
+    a.close()
+    b.close()
+
+
 def test_split_vector_env_matches_sync_vector_env():
     """Env 0 in-process + workers gives exactly SyncVectorEnv's observations, rewards, flags and infos."""
     a = make_vec_env("box", 3, seed=5, image_size=16, max_steps=25)

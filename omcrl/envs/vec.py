@@ -78,7 +78,7 @@ class _Channel:
     """Shared memory of one worker: control words and a payload buffer for pickled objects."""
 
     def __init__(self, ctx: Any) -> None:
-        self.ctrl = ctx.RawArray("q", 3)  # command, status, payload length (bytes)
+        self.ctrl = ctx.RawArray("q", 4)  # command, status, payload length (bytes), prefetch hint
         self.buf = ctx.RawArray("B", PAYLOAD_BYTES)
         self.cmd = ctx.Semaphore(0)
         self.done = ctx.Semaphore(0)
@@ -154,6 +154,18 @@ def _worker(
                 ch.put((RuntimeError(f"{type(exc).__name__}: {exc}"), traceback.format_exc()))
             ch.ctrl[1] = _ERROR
         ch.done.release()
+        if ch.ctrl[3]:  # another env is resetting: this process would only wait, so plan ahead
+            _prefetch(env)
+
+
+def _prefetch(env: gym.Env | None) -> None:
+    """Let ``env`` plan its next reset now if it can (``NavEnv.prefetch``); results are unchanged."""
+    fn = getattr(getattr(env, "unwrapped", None), "prefetch", None)
+    if fn is not None:
+        try:
+            fn()
+        except Exception:  # the reset itself recomputes the plan and raises whatever is wrong
+            pass
 
 
 def _write(views: Any, slot: int, obs: Any) -> None:
@@ -251,6 +263,7 @@ class SplitVectorEnv(gym.vector.VectorEnv):
             raise ValueError("reset: options['reset_mask'] is not supported by SplitVectorEnv")
         for slot, ch in enumerate(self._channels, start=1):
             ch.ctrl[0] = _RESET
+            ch.ctrl[3] = 0
             ch.put((seed[slot], options))
             ch.cmd.release()
         obs, infos, _ = self._finish(lambda: (*self.local.reset(seed=seed[0], options=options), 0.0, False, False))
@@ -262,12 +275,20 @@ class SplitVectorEnv(gym.vector.VectorEnv):
         if actions.shape != self._act.shape:
             raise ValueError(f"step: actions of shape {actions.shape}, expected {self._act.shape} (n_envs, action)")
         self._act[:] = actions
+        # Envs that reset in this step keep the others waiting (a reset costs several steps): the waiting
+        # processes use that time to plan their own next reset (``NavEnv.prefetch``).
+        resetting = self._autoreset
+        others = int(resetting.sum()) - resetting
+        for slot, ch in enumerate(self._channels, start=1):
+            ch.ctrl[3] = int(others[slot] > 0 and not resetting[slot])
         self._send(_STEP)
 
         def local() -> tuple:
-            if self._autoreset[0]:
+            if resetting[0]:
                 return (*self.local.reset(), 0.0, False, False)
             o, r, term, trunc, info = self.local.step(self._act[0])
+            if others[0] > 0:
+                _prefetch(self.local)
             return o, info, r, term, trunc
 
         obs, infos, scal = self._finish(local)
