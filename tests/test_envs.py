@@ -347,6 +347,25 @@ def test_prefetched_reset_equals_plain_reset(layout_every):
     b.close()
 
 
+def test_split_vector_env_reports_bad_input_worker_errors_and_deaths():
+    venv = make_vec_env("box", 2, seed=0, image_size=16)
+    venv.reset(seed=0)
+    with pytest.raises(ValueError, match=r"actions of shape \(3,\), expected \(2, 3\)"):
+        venv.step(np.zeros(3, np.float32))
+    bad = np.zeros((2, 3), np.float32)
+    bad[1, 0] = np.nan  # env 1 lives in the worker: its error comes back with the worker's traceback
+    with pytest.raises(ValueError, match="NaN") as err:
+        venv.step(bad)
+    assert any("vector env worker 1" in n for n in getattr(err.value, "__notes__", []))
+    obs, *_ = venv.step(np.zeros((2, 3), np.float32))  # still usable afterwards
+    assert obs["rgb"].shape[0] == 2
+    venv._procs[0].kill()
+    venv._procs[0].join()
+    with pytest.raises(RuntimeError, match="worker 1 died"):
+        venv.step(np.zeros((2, 3), np.float32))
+    venv.close()
+
+
 def test_split_vector_env_matches_sync_vector_env():
     """Env 0 in-process + workers gives exactly SyncVectorEnv's observations, rewards, flags and infos."""
     a = make_vec_env("box", 3, seed=5, image_size=16, max_steps=25)

@@ -9,7 +9,9 @@ instead
 * hands actions, observations, rewards and flags over in shared memory (infos and errors as pickled bytes in
   a shared buffer), so a step moves no data through a pipe;
 * signals with one semaphore per direction and worker, and spins on it briefly before blocking when there
-  is a core per process, so nobody pays a wake-up in the common case (see ``SPIN_SECONDS``).
+  is a core per process, so nobody pays a wake-up in the common case (see ``SPIN_SECONDS``);
+* lets a process that would only wait for another env's reset plan its own env's next reset meanwhile
+  (``NavEnv.prefetch``; bit-identical results), so resets stall the lock-step less.
 
 Semantics are gymnasium 1.x's ``SyncVectorEnv`` exactly (``tests/test_envs.py`` compares them step by step):
 NEXT_STEP autoreset (the step after an episode ends returns the reset observation with reward 0 and no
