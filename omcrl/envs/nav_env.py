@@ -318,6 +318,11 @@ class NavEnv(gym.Env):
                 )
         raise RuntimeError(f"scene {self.scene!r}: no reachable start/goal found in 50 layouts")  # pragma: no cover
 
+    @property
+    def prefetched(self) -> bool:
+        """True when the next automatic reset has been planned ahead by :meth:`prefetch`."""
+        return self._prefetched is not None
+
     def prefetch(self) -> bool:
         """Plan the next automatic reset (``reset()`` without seed or options) now, while there is time.
 

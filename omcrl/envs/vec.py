@@ -80,7 +80,8 @@ class _Channel:
     """Shared memory of one worker: control words and a payload buffer for pickled objects."""
 
     def __init__(self, ctx: Any) -> None:
-        self.ctrl = ctx.RawArray("q", 4)  # command, status, payload length (bytes), prefetch hint
+        # command, status, payload length (bytes), prefetch hint (to the worker), plan ready (from the worker)
+        self.ctrl = ctx.RawArray("q", 5)
         self.buf = ctx.RawArray("B", PAYLOAD_BYTES)
         self.cmd = ctx.Semaphore(0)
         self.done = ctx.Semaphore(0)
@@ -155,9 +156,16 @@ def _worker(
             except Exception:  # unpicklable or too large: keep the text
                 ch.put((RuntimeError(f"{type(exc).__name__}: {exc}"), traceback.format_exc()))
             ch.ctrl[1] = _ERROR
+        ch.ctrl[4] = int(_has_plan(env))
         ch.done.release()
         if ch.ctrl[3]:  # another env is resetting: this process would only wait, so plan ahead
             _prefetch(env)
+            ch.ctrl[4] = int(_has_plan(env))
+
+
+def _has_plan(env: gym.Env | None) -> bool:
+    """Whether ``env``'s next automatic reset is already planned (so it will be cheap)."""
+    return bool(getattr(getattr(env, "unwrapped", None), "prefetched", False))
 
 
 def _prefetch(env: gym.Env | None) -> None:
@@ -277,10 +285,12 @@ class SplitVectorEnv(gym.vector.VectorEnv):
         if actions.shape != self._act.shape:
             raise ValueError(f"step: actions of shape {actions.shape}, expected {self._act.shape} (n_envs, action)")
         self._act[:] = actions
-        # Envs that reset in this step keep the others waiting (a reset costs several steps): the waiting
-        # processes use that time to plan their own next reset (``NavEnv.prefetch``).
+        # Envs that reset in this step keep the others waiting (a reset that was not planned ahead costs
+        # several steps): the waiting processes use that time to plan their own next reset (NavEnv.prefetch).
         resetting = self._autoreset
-        others = int(resetting.sum()) - resetting
+        planned = np.array([_has_plan(self.local)] + [bool(ch.ctrl[4]) for ch in self._channels])
+        slow = resetting & ~planned
+        others = int(slow.sum()) - slow
         for slot, ch in enumerate(self._channels, start=1):
             ch.ctrl[3] = int(others[slot] > 0 and not resetting[slot])
         self._send(_STEP)
@@ -289,7 +299,7 @@ class SplitVectorEnv(gym.vector.VectorEnv):
             if resetting[0]:
                 return (*self.local.reset(), 0.0, False, False)
             o, r, term, trunc, info = self.local.step(self._act[0])
-            if others[0] > 0:
+            if others[0] > 0:  # not while resetting: then this process is the one being waited for
                 _prefetch(self.local)
             return o, info, r, term, trunc
 
