@@ -6,7 +6,8 @@ For each image size (64 and 128 px) and scene it measures, on the same scene and
   poses the env visited, so raw and env renders see the same views;
 * ``step_sps`` — ``NavEnv.step`` with one process, episode resets excluded from the clock;
 * ``step_sps_with_resets`` — the same with resets (new layouts) included, what training sees;
-* ``vec2_sps`` — a 2-worker ``AsyncVectorEnv`` (resets included), total env steps per second;
+* ``vec2_sps`` — a 2-env ``make_vec_env`` (env 0 in this process, one worker; resets included), total env
+  steps per second;
 
 and the two ratios the kit is held to: ``step/raw`` (target >= 0.8 at 64 px) and ``vec2/single`` (>= 1.6,
 both with resets included). Actions are a slow random walk so episodes last long enough to be typical.
@@ -33,12 +34,6 @@ def _walk(rng: np.random.Generator, n: int) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def _view(env) -> list:
-    """View matrix of the env's camera at its current pose (what its last render used)."""
-    pos, yaw = env._pos, env._yaw
-    return pb.computeViewMatrix(pos.tolist(), [pos[0] + np.cos(yaw), pos[1] + np.sin(yaw), pos[2]], [0, 0, 1])
-
-
 def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float = 1.0) -> dict:
     """Throughputs for one scene and image size.
 
@@ -59,7 +54,7 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
     def raw_rate() -> float:
         cid, proj = env._client, env._proj
         if not views:
-            views.append(_view(env))
+            views.append(env.view_matrix())
         n, t0 = 0, time.perf_counter()
         while time.perf_counter() - t0 < block:
             pb.getCameraImage(
@@ -83,7 +78,7 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
             _, _, term, trunc, _ = env.step(acts[state["k"] % len(acts)])
             t_step += time.perf_counter() - t1
             if len(views) < 2000:
-                views.append(_view(env))
+                views.append(env.view_matrix())
             state["k"] += 1
             n += 1
             if term or trunc:

@@ -82,22 +82,6 @@ class Geometry:
             solids=solid,
         )
 
-    def parts(self) -> list[tuple[Geometry, np.ndarray, float]]:
-        """One single-primitive Geometry per solid with its xy centre (2,) and horizontal reach (m)."""
-        out = []
-        for p in self.solids:
-            reach = float(np.hypot(p.size[0], p.size[1])) if p.kind == "box" else float(p.size[0])
-            out.append((Geometry.from_primitives([p]), np.asarray(p.center[:2], np.float64), reach))
-        return out
-
-    def footprints(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
-        """Per kind: (kind, xy centres (N, 2) m, horizontal reach (N,) m) of its solids, for windowed queries."""
-        return [
-            ("box", self.box_c[:, :2], np.hypot(self.box_h[:, 0], self.box_h[:, 1])),
-            ("cylinder", self.cyl_c[:, :2], self.cyl_r),
-            ("sphere", self.sph_c[:, :2], self.sph_r),
-        ]
-
     def distance_each(self, pts: np.ndarray, kind: str, idx: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Distance (m, 0 inside) from points to solids of one ``kind``, elementwise with numpy broadcasting.
 
@@ -120,12 +104,13 @@ class Geometry:
             return np.maximum(np.linalg.norm(pts - self.sph_c[idx], axis=-1) - self.sph_r[idx], 0)
         raise ValueError(f"kind: got {kind!r}, expected one of {KINDS}")
 
-    def _kinds(self) -> list[tuple[str, int, Callable[[np.ndarray, np.ndarray], np.ndarray]]]:
-        """(kind, number of solids, surface-point function) for each kind, in the order closest() ranks them."""
+    def kinds(self) -> list[tuple[str, np.ndarray, np.ndarray, Callable[[np.ndarray, np.ndarray], np.ndarray]]]:
+        """Per kind, in the order :meth:`closest` ranks them: (kind, xy centres (N, 2) m, horizontal reach (N,) m,
+        surface-point function ``(pts (K, 3), idx (K,)) -> (K, 3)``)."""
         return [
-            ("box", len(self.box_c), self._box_point),
-            ("cylinder", len(self.cyl_c), self._cyl_point),
-            ("sphere", len(self.sph_c), self._sph_point),
+            ("box", self.box_c[:, :2], np.hypot(self.box_h[:, 0], self.box_h[:, 1]), self._box_point),
+            ("cylinder", self.cyl_c[:, :2], self.cyl_r, self._cyl_point),
+            ("sphere", self.sph_c[:, :2], self.sph_r, self._sph_point),
         ]
 
     @property
@@ -150,10 +135,9 @@ class Geometry:
         dist : (P,) distance to it, m (0 inside an obstacle, ``inf`` for an empty scene).
         """
         pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
-        nb, nc, ns = len(self.box_c), len(self.cyl_c), len(self.sph_c)
-        if nb + nc + ns == 0:
+        if self.n == 0:
             return pts.copy(), np.full(len(pts), np.inf)
-        parts = [self.distance_each(pts[:, None, :], kind) for kind, n, _ in self._kinds() if n]
+        parts = [self.distance_each(pts[:, None, :], kind) for kind, xy, _, _ in self.kinds() if len(xy)]
         alld = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
         idx = np.argmin(alld, axis=1)
         dist = alld[np.arange(len(pts)), idx]
@@ -161,11 +145,11 @@ class Geometry:
             return None, dist
         out = np.empty_like(pts)
         lo = 0
-        for _, n, fn in self._kinds():
-            sel = (idx >= lo) & (idx < lo + n)
+        for _, xy, _, fn in self.kinds():
+            sel = (idx >= lo) & (idx < lo + len(xy))
             if sel.any():
                 out[sel] = fn(pts[sel], idx[sel] - lo)
-            lo += n
+            lo += len(xy)
         return out, dist
 
     def nearest(self, p: np.ndarray) -> tuple[np.ndarray, float]:
@@ -177,8 +161,8 @@ class Geometry:
         """
         p = np.asarray(p, dtype=np.float64).reshape(3)
         best, win = math.inf, None
-        for kind, n, fn in self._kinds():
-            if n:
+        for kind, xy, _, fn in self.kinds():
+            if len(xy):
                 d = self.distance_each(p, kind)
                 k = int(np.argmin(d))
                 if d[k] < best:  # strict: ties go to the earlier kind, as in closest()

@@ -387,7 +387,8 @@ class NavEnv(gym.Env):
                 # Uniform in the annulus lo <= r <= hi (area-uniform radius), snapped to cells.
                 r = np.sqrt(rng.uniform(lo * lo, hi * hi, _DRAWS))
                 t = rng.uniform(0.0, 2.0 * math.pi, _DRAWS)
-                return np.rint((anchor + np.stack([r * np.cos(t), r * np.sin(t)], 1) - grid.origin) / grid.res)
+                # Cells clipped onto the border are never allowed (arena margin), so clipping drops them.
+                return grid.to_cell(anchor + np.stack([r * np.cos(t), r * np.sin(t)], 1))
 
             def fits(ij: np.ndarray, anchor: np.ndarray = anchor, alab: int = alab) -> np.ndarray:
                 d = np.linalg.norm(grid.to_world(ij) - anchor, axis=1)
@@ -558,12 +559,16 @@ class NavEnv(gym.Env):
             kw["lightDiffuseCoeff"] = d.switch_diffuse
         return kw
 
+    def view_matrix(self) -> list[float]:
+        """PyBullet view matrix (16 floats) of the forward camera at the current pose (what renders use)."""
+        eye = self._pos
+        cy, sy = math.cos(self._yaw), math.sin(self._yaw)
+        return pb.computeViewMatrix(eye.tolist(), [eye[0] + cy, eye[1] + sy, eye[2]], [0.0, 0.0, 1.0])
+
     def _render_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """One TinyRenderer call: RGB (3, H, W) uint8 and linear depth (H, W) float32 in metres."""
         c = self.cfg
-        eye = self._pos
-        cy, sy = math.cos(self._yaw), math.sin(self._yaw)
-        view = pb.computeViewMatrix(eye.tolist(), [eye[0] + cy, eye[1] + sy, eye[2]], [0.0, 0.0, 1.0])
+        view = self.view_matrix()
         S = c.image_size
         _, _, rgba, zbuf, _ = pb.getCameraImage(
             S,
@@ -655,7 +660,7 @@ def _draw_cell(
     Parameters
     ----------
     ok : (G, G) bool, allowed cells.
-    propose : ``propose() -> (K, 2)`` candidate cell indices (float or int; out-of-grid ones are dropped).
+    propose : ``propose() -> (K, 2)`` int candidate cell indices (out-of-grid ones are dropped).
     fits : optional ``fits(ij (K, 2) int) -> (K,) bool`` extra condition.
     """
     g = ok.shape[0]

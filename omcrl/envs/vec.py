@@ -238,11 +238,13 @@ class SplitVectorEnv(gym.vector.VectorEnv):
             self._procs.append(p)
 
     # ------------------------------------------------------------------ protocol
-    def _send(self, cmd: int, payload: Any = None) -> None:
-        for ch in self._channels:
+    def _send(self, cmd: int, payloads: list | None = None, hints: list[int] | None = None) -> None:
+        """Give worker i (slot i + 1) ``cmd``, ``payloads[i]`` and prefetch hint ``hints[i]`` (default 0)."""
+        for i, ch in enumerate(self._channels):
             ch.ctrl[0] = cmd
-            if payload is not None:
-                ch.put(payload)
+            ch.ctrl[3] = hints[i] if hints is not None else 0
+            if payloads is not None:
+                ch.put(payloads[i])
             ch.cmd.release()
 
     def _collect(self) -> list[Any]:
@@ -271,11 +273,7 @@ class SplitVectorEnv(gym.vector.VectorEnv):
             raise ValueError(f"reset: got {len(seed)} seeds, expected num_envs={n}")
         if options and "reset_mask" in options:
             raise ValueError("reset: options['reset_mask'] is not supported by SplitVectorEnv")
-        for slot, ch in enumerate(self._channels, start=1):
-            ch.ctrl[0] = _RESET
-            ch.ctrl[3] = 0
-            ch.put((seed[slot], options))
-            ch.cmd.release()
+        self._send(_RESET, [(seed[slot], options) for slot in range(1, n)])
         obs, infos, _ = self._finish(lambda: (*self.local.reset(seed=seed[0], options=options), 0.0, False, False))
         self._autoreset[:] = False
         return obs, infos
@@ -291,9 +289,7 @@ class SplitVectorEnv(gym.vector.VectorEnv):
         planned = np.array([_has_plan(self.local)] + [bool(ch.ctrl[4]) for ch in self._channels])
         slow = resetting & ~planned
         others = int(slow.sum()) - slow
-        for slot, ch in enumerate(self._channels, start=1):
-            ch.ctrl[3] = int(others[slot] > 0 and not resetting[slot])
-        self._send(_STEP)
+        self._send(_STEP, hints=[int(others[i] > 0 and not resetting[i]) for i in range(1, self.num_envs)])
 
         def local() -> tuple:
             if resetting[0]:

@@ -79,7 +79,7 @@ def build_grid(
     g = math.floor(2 * arena_half / res) + 1
     origin = -arena_half
     dist = np.full(g * g, cap, np.float64)
-    for kind, centre, reach in geometry.footprints():
+    for kind, centre, reach, _ in geometry.kinds():
         if len(centre) == 0:
             continue
         span = (reach + cap)[:, None]
