@@ -22,6 +22,8 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from omcrl.config import PRESETS, Config, ConfigError, load_config
+from omcrl.models.features import CheckpointError
+from omcrl.runs import RunConfigMismatch
 
 # name -> (target "module:function", one-line description)
 STAGES: dict[str, tuple[str, str]] = {
@@ -31,11 +33,18 @@ STAGES: dict[str, tuple[str, str]] = {
         "run the notebook chain; executed copies in results/<preset>/executed/",
     ),
     "collect": ("omcrl.data.collect:run", "collect trajectory data for pretraining"),
-    "pretrain": ("omcrl.pretrain:run", "pretrain the encoder (masked contrastive / CURL)"),
-    "oracle": ("omcrl.rl:train_oracle", "train the privileged oracle with PPO"),
-    "student": ("omcrl.rl.train:run_student", "train the visuomotor student with oracle guidance"),
-    "evaluate": ("omcrl.eval:run", "evaluate policies and write tables"),
+    "pretrain": (
+        "omcrl.rl.methods:pretrain_stage",
+        "pretrain an encoder: of --method (ours, curl, curl-phi), else as cfg.pretrain says",
+    ),
+    "oracle": ("omcrl.rl.methods:oracle_stage", "train the privileged oracle with PPO (= train --method oracle)"),
+    "student": ("omcrl.rl.methods:student_stage", "train the oracle-guided student (= train --method ours)"),
+    "train": ("omcrl.rl.methods:train_stage", "train one method of the comparison: --method NAME [--seed K]"),
+    "evaluate": ("omcrl.eval:run", "evaluate the policies of --seed (or cfg.seed) and write a quick table"),
+    "tables": ("omcrl.eval.table1:run", "evaluate every method at cfg.seeds and write Table I with CIs"),
 }
+# Stages that take --method.
+METHOD_STAGES = ("train", "pretrain")
 
 
 class StageUnavailable(RuntimeError):
@@ -75,14 +84,25 @@ def print_config(cfg: Config) -> None:
     sys.stdout.write(yaml.safe_dump(plain, sort_keys=False))
 
 
+def _methods_help() -> str:
+    from omcrl.rl.methods import METHODS
+
+    return "\n".join(f"  {n:<22} {s.description}" for n, s in METHODS.items())
+
+
 def build_parser() -> argparse.ArgumentParser:
     stages = "\n".join(f"  {n:<10} {d}" for n, (_, d) in STAGES.items())
     ap = argparse.ArgumentParser(
         prog="python -m omcrl",
         description="Run one stage of the OMC-RL reproduction kit.",
-        epilog=f"stages:\n{stages}\n\nexample: python -m omcrl pretrain --preset quick --set pretrain.mask_prob=0.3",
+        epilog=f"stages:\n{stages}\n\nmethods (--method):\n{_methods_help()}\n\nexamples:\n"
+        "  python -m omcrl pretrain --method curl --preset quick\n"
+        "  python -m omcrl train --method curl --preset quick --seed 1\n"
+        "  python -m omcrl tables --preset quick --set seeds=[0,1,2]",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    ap.add_argument("--method", default=None, help="method for 'train' and 'pretrain' (see below)")
+    ap.add_argument("--seed", type=int, default=None, help="training seed (sets the config field 'seed')")
     ap.add_argument("stage", help="stage to run (see below)")
     ap.add_argument("--preset", default="quick", choices=PRESETS, help="configuration preset (default: quick)")
     ap.add_argument(
@@ -109,8 +129,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.print_usage(sys.stderr)
         print(f"error: unknown stage {args.stage!r}; stages: {', '.join(STAGES)}", file=sys.stderr)
         return 2
+    if args.method is not None and args.stage not in METHOD_STAGES:
+        print(f"error: --method applies to the stages {list(METHOD_STAGES)}, not {args.stage!r}", file=sys.stderr)
+        return 2
+    overrides = list(args.overrides) + ([f"seed={args.seed}"] if args.seed is not None else [])
     try:
-        cfg = load_config(args.preset, overrides=args.overrides, path=args.config)
+        cfg = load_config(args.preset, overrides=overrides, path=args.config)
+        if args.method is not None:
+            from omcrl.rl.methods import get_method
+
+            get_method(args.method)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -121,10 +149,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 3
     t0 = time.perf_counter()
     try:
-        result = func(cfg)
+        result = func(cfg, method=args.method) if args.stage in METHOD_STAGES else func(cfg)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except (CheckpointError, RunConfigMismatch, FileNotFoundError) as e:
+        # Expected failures (a prerequisite missing, a run of another configuration): one line, no traceback.
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"\ninterrupted: stage {args.stage}", file=sys.stderr)
         return 130

@@ -178,7 +178,8 @@ class Config:
     """Everything a run needs. ``seed`` is explicit: the same seed gives the same result on the CPU."""
 
     preset: str = _f("quick", choices=PRESETS)
-    seed: int = _f(0, lo=0, hi=2**31 - 1)
+    seed: int = _f(0, lo=0, hi=2**31 - 1, doc="seed of a single run (the CLI's --seed)")
+    seeds: list = _f([0], doc="training seeds of a comparison grid (Table I, sweeps); paper: [0, 1, 2]")
     results_dir: str = _f("results", doc="root of results/<preset>/...")
     env: EnvConfig = field(default_factory=EnvConfig)
     data: DataConfig = field(default_factory=DataConfig)
@@ -190,6 +191,14 @@ class Config:
     def run_root(self) -> Path:
         """``results/<preset>``."""
         return Path(self.results_dir) / self.preset
+
+    def with_seed(self, seed: int) -> Config:
+        """A copy of this config for one training seed (``seed`` set, everything else equal)."""
+        import copy
+
+        out = copy.deepcopy(self)
+        out.seed = int(seed)
+        return validate(out)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -291,6 +300,15 @@ def validate(cfg: Config) -> Config:
     for scene in cfg.eval.scenes:
         if scene not in ("box", "furniture", "barrier", "tree"):
             raise ConfigError(f"config field 'eval.scenes': unknown scene {scene!r}")
+    try:
+        seeds = [int(v) for v in cfg.seeds]
+        if not seeds or any(v < 0 or v != float(w) for v, w in zip(seeds, cfg.seeds)) or len(set(seeds)) < len(seeds):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise ConfigError(
+            f"config field 'seeds': got {cfg.seeds!r}, expected a non-empty list of distinct integers >= 0"
+        ) from None
+    cfg.seeds = seeds
     mix = cfg.data.mix
     if set(mix) - {"pilot", "random", "policy"} or any(float(v) < 0 for v in mix.values()):
         raise ConfigError(

@@ -79,7 +79,7 @@ def test_oracle_and_guided_student_train_on_real_env(chain):
     assert alpha[0] == pytest.approx(cfg.rl.alpha_start) and alpha[-1] < alpha[0]
     kl = m[m.metric == "kl"].value.to_numpy()
     assert len(kl) and np.isfinite(kl).all() and (kl > 0).any()
-    spec = torch.load(student.final_path, weights_only=False)["spec"]["features"]
+    spec = torch.load(student.final_path, weights_only=True)["spec"]["features"]
     assert spec["kind"] == "student" and spec["encoder_path"] == str(chain["enc_path"])
 
 
@@ -128,8 +128,8 @@ def test_missing_or_mismatched_encoder_and_oracle_name_the_file(chain, tmp_path)
     with pytest.raises(CheckpointError, match=r"oracle24\.pt.*depth"):
         train_student(cfg, enc, bad, name="e", **kw)
     # No run folder was started for any of the failed runs.
-    runs = chain["root"] / cfg.preset / "runs" / "student"
-    assert sorted(p.name for p in runs.iterdir()) == ["omc"]
+    runs = chain["root"] / cfg.preset / "runs" / "rl"
+    assert sorted(p.name.rsplit("-", 1)[0] for p in runs.iterdir()) == ["oracle", "ours"]
 
 
 def test_hybrid_apf_as_npe_guide_gets_each_episodes_reset_path():
@@ -204,9 +204,9 @@ def test_evaluate_stage_finds_policies_writes_tables_and_caches(chain, monkeypat
     cfg = load_config(
         "smoke", overrides=[f"results_dir={chain['root']}", "eval.scenes=[box, barrier]", "eval.episodes=2"]
     )
-    assert list(stage.find_policies(cfg)) == ["oracle", "omc"]
+    assert list(stage.find_policies(cfg)) == ["oracle", "ours"]
     res = stage.run(cfg, progress=False)
-    assert list(res.table.index) == [(m, s) for m in ("oracle", "omc", "HybridAPF") for s in ("box", "barrier")]
+    assert list(res.table.index) == [(m, s) for m in ("oracle", "ours", "HybridAPF") for s in ("box", "barrier")]
     wide = res.wide()
     assert list(wide.columns.get_level_values(0).unique()) == ["box", "barrier"]  # paper order, not sorted
     md = res.paths["md"].read_text()

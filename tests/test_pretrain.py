@@ -185,7 +185,8 @@ def test_omc_loss_decreases(data, tmp_path):
 def test_run_outputs_cache_and_artifact(data, tmp_path):
     cfg = _cfg(tmp_path)
     r = run(cfg, data, progress=False)
-    assert r.run_dir == tmp_path / "res" / "smoke" / "runs" / "pretrain" / "omc" / "seed0" and not r.skipped
+    assert r.run_dir.parent.parent == tmp_path / "res" / "smoke" / "runs" / "pretrain" and not r.skipped
+    assert r.run_dir.name == "seed0" and r.run_dir.parent.name.startswith("omc-")
     assert {p.name for p in r.run_dir.iterdir()} >= {
         "config.yaml",
         "metrics.csv",

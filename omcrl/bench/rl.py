@@ -11,7 +11,7 @@ init encoder artifact, so no pretraining is needed) it measures, in env steps pe
 * ``(c0) student α≡0``  the same without guidance (``rl.alpha_schedule=none``);
 * ``(d) oracle``        ``train_oracle`` for ``--steps`` env steps;
 * ``(c) before``        with ``--baseline``: (c) with the guide evaluated every vector step (the loop before
-  the guide was batched; ``omcrl.rl.train.GUIDE_CHUNK = 1``).
+  the guide was batched; ``omcrl.rl.rollout.GUIDE_CHUNK = 1``).
 
 Training throughput is taken from the run's own clock (Σ update steps / steps_per_s: rollouts and updates,
 without process start-up): ``steps_per_s`` over all updates, ``steady_sps`` without the first update (first
@@ -97,7 +97,7 @@ def measure(cfg: Config, steps: int, vec_steps: int, root: Path, baseline: bool 
     from omcrl.models import random_encoder, save_encoder
     from omcrl.rl import train_oracle, train_student
 
-    rl_train = importlib.import_module("omcrl.rl.train")  # the module (the package re-exports a function `train`)
+    rollout = importlib.import_module("omcrl.rl.rollout")  # where the runner reads GUIDE_CHUNK
 
     enc = random_encoder(cfg, seed=0)
     enc_path = save_encoder(root / "encoder.pt", enc.f, enc.phi, cfg)
@@ -116,8 +116,8 @@ def measure(cfg: Config, steps: int, vec_steps: int, root: Path, baseline: bool 
     )
     rows.append(_train_rate("(d) oracle", lambda: train_oracle(run, progress=False)))
     if baseline:
-        chunk = rl_train.GUIDE_CHUNK
-        rl_train.GUIDE_CHUNK = 1
+        chunk = rollout.GUIDE_CHUNK
+        rollout.GUIDE_CHUNK = 1
         try:
             rows.append(
                 _train_rate(
@@ -125,7 +125,7 @@ def measure(cfg: Config, steps: int, vec_steps: int, root: Path, baseline: bool 
                 )
             )
         finally:
-            rl_train.GUIDE_CHUNK = chunk
+            rollout.GUIDE_CHUNK = chunk
     base = rows[1]["steps_per_s"]
     for r in rows:
         r["vs_(b)"] = r["steps_per_s"] / base

@@ -4,22 +4,32 @@
 ``<run_root>/runs`` plus Hybrid APF in all evaluation scenes, tables under ``<run_root>/tables``.
 """
 
-from omcrl.eval.metrics import METRICS, format_table, summarize, summary_table
+from omcrl.eval.metrics import METRICS, episode_values, format_table, summarize, summary_table
 from omcrl.eval.runner import eval_seeds, evaluate, start_episode
 from omcrl.eval.stage import EvalResult, evaluate_methods, find_policies, run, to_markdown, write_tables
+from omcrl.eval.stats import aggregate, compare_sr, mean_ci
+from omcrl.eval.table1 import Table1Result, evaluate_grid, paper_table1, write_table1
 
 __all__ = [
     "METRICS",
     "EvalResult",
+    "Table1Result",
+    "aggregate",
+    "compare_sr",
+    "episode_values",
     "eval_seeds",
     "evaluate",
+    "evaluate_grid",
     "evaluate_methods",
     "find_policies",
     "format_table",
+    "mean_ci",
+    "paper_table1",
     "run",
     "start_episode",
     "summarize",
     "summary_table",
     "to_markdown",
+    "write_table1",
     "write_tables",
 ]

@@ -25,8 +25,35 @@ REQUIRED = (
 )
 
 
+def episode_values(df: pd.DataFrame, os_threshold: float = 0.5) -> pd.DataFrame:
+    """Per-episode values whose means are the paper's metrics: columns NE OS SR SPL CR TTS (TTS NaN if failed).
+
+    ``df`` has one row per episode with the columns in :data:`omcrl.eval.metrics.REQUIRED`.
+    """
+    missing = [c for c in REQUIRED if c not in df.columns]
+    if missing:
+        raise KeyError(f"episode_values: missing columns {missing}; got {list(df.columns)}")
+    success = df["success"].astype(bool).to_numpy()
+    ell = df["optimal_path_length"].to_numpy(float)
+    d = df["path_length"].to_numpy(float)
+    # max(d, ℓ) > 0 unless both are 0; a zero-length optimal path contributes 0 rather than NaN.
+    denom = np.maximum(d, ell)
+    spl = np.where(success & (denom > 0), ell / np.where(denom > 0, denom, 1.0), 0.0)
+    return pd.DataFrame(
+        {
+            "NE": df["final_distance"].to_numpy(float),
+            "OS": 100.0 * (df["min_distance"].to_numpy(float) <= os_threshold),
+            "SR": 100.0 * success,
+            "SPL": spl,
+            "CR": 100.0 * df["collision"].astype(bool).to_numpy(),
+            "TTS": np.where(success, df["steps"].to_numpy(float), np.nan),
+        },
+        index=df.index,
+    )
+
+
 def summarize(df: pd.DataFrame, os_threshold: float = 0.5) -> pd.Series:
-    """Aggregate episodes into the paper's metrics.
+    """Aggregate episodes into the paper's metrics (means of :func:`episode_values`).
 
     Parameters
     ----------
@@ -40,29 +67,12 @@ def summarize(df: pd.DataFrame, os_threshold: float = 0.5) -> pd.Series:
     I_i · ℓ_i / max(d_i, ℓ_i), as a fraction in [0, 1]), CR (% episodes with a collision), TTS (mean steps
     over successful episodes only; NaN when none succeeded) and ``episodes`` (count).
     """
-    missing = [c for c in REQUIRED if c not in df.columns]
-    if missing:
-        raise KeyError(f"summarize: missing columns {missing}; got {list(df.columns)}")
-    n = len(df)
-    if n == 0:
+    v = episode_values(df, os_threshold)
+    if len(df) == 0:
         return pd.Series({**{m: math.nan for m in METRICS}, "episodes": 0})
-    success = df["success"].astype(bool).to_numpy()
-    ell = df["optimal_path_length"].to_numpy(float)
-    d = df["path_length"].to_numpy(float)
-    # max(d, ℓ) > 0 unless both are 0; a zero-length optimal path contributes 0 rather than NaN.
-    denom = np.maximum(d, ell)
-    spl_terms = np.where(success & (denom > 0), ell / np.where(denom > 0, denom, 1.0), 0.0)
-    return pd.Series(
-        {
-            "NE": float(df["final_distance"].astype(float).mean()),
-            "OS": 100.0 * float((df["min_distance"].astype(float) <= os_threshold).mean()),
-            "SR": 100.0 * float(success.mean()),
-            "SPL": float(spl_terms.mean()),
-            "CR": 100.0 * float(df["collision"].astype(bool).mean()),
-            "TTS": float(df.loc[success, "steps"].astype(float).mean()) if success.any() else math.nan,
-            "episodes": int(n),
-        }
-    )
+    out = {m: float(v[m].mean()) for m in METRICS if m != "TTS"}
+    out["TTS"] = float(v["TTS"].mean()) if v["TTS"].notna().any() else math.nan
+    return pd.Series({**{m: out[m] for m in METRICS}, "episodes": len(df)})
 
 
 def summary_table(df: pd.DataFrame, by: Sequence[str] = ("method", "scene"), os_threshold: float = 0.5) -> pd.DataFrame:

@@ -1,11 +1,11 @@
 """Evaluation stage: find trained policies, evaluate them (and Hybrid APF) in every scene, write Table I.
 
 ``run(cfg)`` is the CLI stage ``python -m omcrl evaluate --preset P``. It evaluates every finished policy under
-``<run_root>/runs/{oracle,student}/<name>/seed<k>/final.pt`` plus the privileged :class:`HybridAPF` baseline
+``<run_root>/runs/rl/<method>-<key>/seed<k>/final.pt`` plus the privileged :class:`HybridAPF` baseline
 in ``cfg.eval.scenes`` for ``cfg.eval.episodes`` episodes each (the same evaluation seeds for every method),
 and writes under ``<run_root>/``::
 
-    eval/<method>/<scene>.csv      one row per episode (cache, keyed by checkpoint, env config and seeds)
+    eval/<method>/seed<k>/<scene>.csv   one row per episode (cache, keyed by checkpoint, env config and seeds)
     tables/<name>_episodes.csv     all episodes of this evaluation
     tables/<name>.csv              method × scene metrics (long form: NE OS SR SPL CR TTS episodes)
     tables/<name>.md               the paper's Table I layout (methods × (scene, metric))
@@ -31,8 +31,8 @@ from omcrl.eval.runner import evaluate
 from omcrl.utils.io import atomic_write_text, file_digest
 
 HYBRID_APF = "HybridAPF"
-# Stages searched for trained policies, in the order their rows appear in the tables.
-POLICY_STAGES = ("oracle", "student")
+# Planner methods evaluated by name (no checkpoint); see omcrl.rl.methods.
+PLANNERS = (HYBRID_APF, "hybrid-apf", "hybrid-apf-perceptive")
 
 
 @dataclass(repr=False)
@@ -57,30 +57,40 @@ class EvalResult:
         return "\n".join(lines)
 
 
-def find_policies(cfg: Config, stages: Sequence[str] = POLICY_STAGES) -> dict[str, Path]:
-    """``{method: final.pt}`` for every finished run ``<run_root>/runs/<stage>/<name>/seed<cfg.seed>``.
+def find_policies(cfg: Config) -> dict[str, Path]:
+    """``{method: final.pt}`` for every finished RL run at ``cfg.seed`` (``<run_root>/runs/rl/*/seed<k>``).
 
-    The method label is the run name (``oracle``, ``omc``, ``omc-noOT``, ...); a name used by two stages is
-    prefixed with its stage.
+    The label is the method name; when one method has runs of several configurations, each is labelled
+    ``<method>-<key>``.
     """
-    found: dict[str, Path] = {}
-    for stage in stages:
-        base = cfg.run_root / "runs" / stage
-        if not base.is_dir():
-            continue
-        for final in sorted(base.glob(f"*/seed{cfg.seed}/final.pt")):
-            name = final.parent.parent.name
-            found[f"{stage}/{name}" if name in found else name] = final
-    return found
+    from omcrl.runs import find_runs
+
+    runs = [r for r in find_runs(cfg.run_root, "rl") if r["seed"] == cfg.seed and (r["dir"] / "final.pt").exists()]
+    count: dict[str, int] = {}
+    for r in runs:
+        count[r["method"]] = count.get(r["method"], 0) + 1
+    return {
+        (r["method"] if count[r["method"]] == 1 else f"{r['method']}-{r['key']}"): r["dir"] / "final.pt" for r in runs
+    }
+
+
+def planner_for(name: str, env_config: Any = None) -> Any:
+    """A fresh planner for a planner method name (``hybrid-apf``, ``hybrid-apf-perceptive``; ``HybridAPF``)."""
+    from omcrl.planners import HybridAPF, PerceptiveHybridAPF
+
+    cls = {HYBRID_APF: HybridAPF, "hybrid-apf": HybridAPF, "hybrid-apf-perceptive": PerceptiveHybridAPF}[name]
+    return cls(env_config)
 
 
 def _load(method: str, source: Any) -> tuple[Any, str]:
-    """A policy object and a cache key for ``source``: a checkpoint path, ``"HybridAPF"`` or a policy."""
-    from omcrl.planners import HybridAPF
+    """A policy object and a cache key for ``source``: a checkpoint path, a planner name or a policy."""
     from omcrl.rl import load_policy
 
-    if isinstance(source, (str, Path)) and str(source) == HYBRID_APF:
-        return HybridAPF(), HYBRID_APF
+    if isinstance(source, str) and source in PLANNERS:
+        # Planners are code, not files: their cache key is the digest of the module that implements them.
+        import omcrl.planners.apf as apf
+
+        return planner_for(source), f"{source}:{file_digest(Path(apf.__file__))}"
     if isinstance(source, (str, Path)):
         return load_policy(source, name=method), file_digest(Path(source))
     # An object: only cached under its explicit checkpoint, if it names one.
@@ -127,12 +137,16 @@ def evaluate_methods(
     methods : ``{label: source}``, source = a policy checkpoint path, ``"HybridAPF"`` or a policy object with
         ``act(obs, info)``.
     scenes, episodes : default ``cfg.eval.scenes`` and ``cfg.eval.episodes``.
-    cache : read/write ``<run_root>/eval/<label>/<scene>.csv`` keyed by checkpoint content, env config, seeds.
+    cache : read/write ``<run_root>/eval/<label>/seed<k>/<scene>.csv`` keyed by checkpoint content, env config
+        and episode seeds.
+
+    Every method, and every training seed ``cfg.seed``, is evaluated on the same episodes: episode ``i`` resets
+    with seed ``cfg.eval.seed_offset + i`` (paired comparisons across methods and seeds).
 
     Returns
     -------
-    DataFrame with the columns of :func:`omcrl.eval.evaluate` (``method`` = label, ``scene``), methods in the
-    given order, scenes in the given order.
+    DataFrame with the columns of :func:`omcrl.eval.evaluate` (``method`` = label, ``scene``, ``train_seed`` = the
+    training seed), methods in the given order, scenes in the given order.
     """
     scenes = list(scenes if scenes is not None else cfg.eval.scenes)
     episodes = int(episodes if episodes is not None else cfg.eval.episodes)
@@ -143,15 +157,15 @@ def evaluate_methods(
         policy, pkey = _load(label, source)
         for scene in scenes:
             ident = {"policy": pkey, "env": env_key, "scene": scene, "episodes": episodes}
-            key = config_hash({**ident, "seed": cfg.seed, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
-            path = cfg.run_root / "eval" / label.replace("/", "_") / f"{scene}.csv"
+            key = config_hash({**ident, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
+            path = cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}" / f"{scene}.csv"
             df = _read_cache(path, key) if cache else None
             if df is None:
                 df = evaluate(
                     policy,
                     scene,
                     episodes,
-                    cfg.seed,
+                    0,
                     seed_offset=cfg.eval.seed_offset,
                     method=label,
                     progress=progress,
@@ -159,7 +173,7 @@ def evaluate_methods(
                 )
                 if cache and key:
                     _write_cache(path, key, df)
-            frames.append(df.assign(method=label, scene=scene))
+            frames.append(df.assign(method=label, scene=scene, train_seed=cfg.seed))
     return pd.concat(frames, ignore_index=True)
 
 
@@ -199,7 +213,7 @@ def run(cfg: Config, *, name: str = "table1", progress: bool = True) -> EvalResu
     policies = find_policies(cfg)
     if not policies:
         raise FileNotFoundError(
-            f"no trained policy under {cfg.run_root / 'runs'}/{{oracle,student}}/*/seed{cfg.seed}/final.pt; "
+            f"no trained policy under {cfg.run_root / 'runs'}/rl/*/seed{cfg.seed}/final.pt; "
             "run the oracle / student stages (or notebooks 03-04) first"
         )
     methods: dict[str, Any] = {**policies, HYBRID_APF: HYBRID_APF}

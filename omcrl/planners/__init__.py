@@ -1,9 +1,6 @@
-"""Occupancy grid, any-angle shortest path and the Hybrid APF baseline."""
+"""Occupancy grid, any-angle shortest path and the Hybrid APF baseline (privileged and perceptive)."""
 
+from omcrl.planners.apf import HybridAPF, PerceptiveHybridAPF
 from omcrl.planners.grid import OccupancyGrid, build_grid, geodesic, shortest_path
 
-__all__ = ["OccupancyGrid", "build_grid", "geodesic", "shortest_path"]
-
-from omcrl.planners.apf import HybridAPF
-
-__all__ += ["HybridAPF"]
+__all__ = ["HybridAPF", "OccupancyGrid", "PerceptiveHybridAPF", "build_grid", "geodesic", "shortest_path"]

@@ -16,7 +16,15 @@ from omcrl.pretrain.masking import (
     sample_mask_ops,
 )
 from omcrl.pretrain.probe import probe, probe_targets
-from omcrl.pretrain.train import PretrainResult, default_dataset_path, method_name, run, run_dir
+from omcrl.pretrain.train import (
+    PretrainResult,
+    default_dataset_path,
+    encoder_path,
+    method_name,
+    pretrain_run,
+    run,
+    run_dir,
+)
 
 __all__ = [
     "OP_KEEP",
@@ -28,9 +36,11 @@ __all__ = [
     "apply_mask_ops",
     "bilinear_info_nce",
     "default_dataset_path",
+    "encoder_path",
     "mask_sequence",
     "masked_info_nce",
     "method_name",
+    "pretrain_run",
     "probe",
     "probe_targets",
     "run",

@@ -30,6 +30,7 @@ from omcrl.data.dataset import open_dataset
 from omcrl.data.sampler import SequenceSampler
 from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
+from omcrl.runs import Run, make_run
 from omcrl.utils.io import atomic_save_torch, atomic_write_text
 from omcrl.utils.runtime import set_threads
 
@@ -78,9 +79,31 @@ def method_name(p: PretrainConfig) -> str:
     return name
 
 
+def pretrain_run(cfg: Config) -> Run:
+    """The :class:`omcrl.runs.Run` of this pretraining configuration.
+
+    Its identity is everything that changes the encoder: the pretraining fields (less ``checkpoint_every`` and
+    ``num_threads``), the data collection settings, the frame stack and the image size; the dataset's content
+    fingerprint is checked separately (``done.json``), so re-collected data retrains the same run.
+    """
+    p = {k: v for k, v in dataclasses.asdict(cfg.pretrain).items() if k not in ("checkpoint_every", "num_threads")}
+    ident = {
+        "pretrain": p,
+        "data": dataclasses.asdict(cfg.data),
+        "frame_stack": cfg.env.frame_stack,
+        "image_size": cfg.env.image_size,
+    }
+    return make_run(cfg, "pretrain", method_name(cfg.pretrain), ident)
+
+
 def run_dir(cfg: Config) -> Path:
-    """``<run_root>/runs/pretrain/<method_name>/seed<k>``."""
-    return cfg.run_root / "runs" / "pretrain" / method_name(cfg.pretrain) / f"seed{cfg.seed}"
+    """``<run_root>/runs/pretrain/<method_name>-<key>/seed<k>`` (see :func:`pretrain_run`)."""
+    return pretrain_run(cfg).dir
+
+
+def encoder_path(cfg: Config) -> Path:
+    """Where this configuration's frozen encoder is (or will be): ``run_dir(cfg) / "encoder.pt"``."""
+    return run_dir(cfg) / "encoder.pt"
 
 
 def default_dataset_path(cfg: Config) -> Path:
@@ -134,7 +157,9 @@ def run(
     ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
     fp = ds.fingerprint
     name = method_name(p)
-    out = run_dir(cfg)
+    run_rec = pretrain_run(cfg)
+    run_rec.check()
+    out = run_rec.dir
     enc_path, metrics_path, ck_path, done_path = (
         out / n for n in ("encoder.pt", "metrics.csv", "checkpoint.pt", "done.json")
     )
@@ -147,7 +172,7 @@ def run(
             return PretrainResult(
                 name, out, enc_path, metrics_path, done["iterations"], done["final_loss"], fp, skipped=True
             )
-    out.mkdir(parents=True, exist_ok=True)
+    run_rec.claim()
     save_config(cfg, out)
 
     torch.manual_seed(cfg.seed)

@@ -1,46 +1,63 @@
-"""Downstream RL: PPO with an optional guide-KL term, α schedules, oracle / student trainers (paper IV-C)."""
+"""Downstream RL: the rollout runner, PPO with an optional guide-KL term, α schedules, and the methods of the
+paper's comparison (oracle, ours, ours-noOT, ppo, curl, curl-phi, npe, npe-ot; paper IV-C, V-C).
+
+``train_method(cfg, "curl")`` trains one named method (:mod:`omcrl.rl.methods`); the lower-level trainers
+(``train_oracle``, ``train_student``, ``train_pixel``, ``train_ppo``) take explicit inputs.
+"""
 
 from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_at, alpha_from_config, info_at, obs_at
+from omcrl.rl.methods import METHODS, MethodSpec, get_method, train_method
 from omcrl.rl.policy import CheckpointError, Policy, load_policy
 from omcrl.rl.ppo import (
+    PPO,
     ActorCritic,
     FeatureExtractor,
     IdentityFeatures,
     NonFiniteLossError,
     OracleFeatures,
+    PixelFeatures,
     StudentFeatures,
     compute_gae,
     gaussian_kl,
     ppo_loss,
     ppo_update,
 )
-from omcrl.rl.train import Result, RunConfigMismatch, train, train_oracle, train_ppo, train_student
+from omcrl.rl.rollout import Runner
+from omcrl.rl.train import Result, RunConfigMismatch, train, train_oracle, train_pixel, train_ppo, train_student
 
 __all__ = [
+    "METHODS",
+    "PPO",
     "ActorCritic",
     "CheckpointError",
     "FeatureExtractor",
     "Guide",
     "IdentityFeatures",
+    "MethodSpec",
     "NonFiniteLossError",
     "OracleFeatures",
+    "PixelFeatures",
     "PlannerGuide",
     "Policy",
     "PolicyGuide",
     "Result",
     "RunConfigMismatch",
+    "Runner",
     "StudentFeatures",
     "alpha_at",
     "alpha_from_config",
     "compute_gae",
     "gaussian_kl",
+    "get_method",
     "info_at",
     "load_policy",
     "obs_at",
     "ppo_loss",
     "ppo_update",
     "train",
+    "train_method",
     "train_oracle",
+    "train_pixel",
     "train_ppo",
     "train_student",
 ]

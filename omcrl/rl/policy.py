@@ -1,8 +1,9 @@
 """Saving, loading and running trained PPO policies with the common evaluation interface.
 
 A policy file (``final.pt``) holds ``{"format", "spec", "model", "step", "meta"}``; ``spec`` is enough to
-rebuild the network (feature kind and sizes, the env observation shapes it was trained on, hidden width). The
-student's frozen encoder is *not* copied into the file: ``spec["features"]["encoder_path"]`` points to it.
+rebuild the network (feature kind and sizes, the env observation shapes it was trained on, hidden width). A
+frozen pretrained encoder is *not* copied into the file: ``spec["features"]["encoder_path"]`` points to it; an
+end-to-end pixel encoder's weights are part of ``model``.
 """
 
 from __future__ import annotations
@@ -12,98 +13,32 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import nn
 
-from omcrl.rl.ppo import ActorCritic, FeatureExtractor, IdentityFeatures, OracleFeatures, StudentFeatures
+from omcrl.models.actor_critic import ActorCritic
+from omcrl.models.features import (
+    CheckpointError,
+    build_features,
+    make_oracle_features,
+    make_pixel_features,
+    make_student_features,
+    space_shapes,
+)
+
+__all__ = [
+    "FORMAT",
+    "CheckpointError",
+    "Policy",
+    "build_features",
+    "load_policy",
+    "make_oracle_features",
+    "make_pixel_features",
+    "make_student_features",
+    "policy_payload",
+    "read_payload",
+    "space_shapes",
+]
 
 FORMAT = "omcrl.rl.policy/1"
-
-
-class CheckpointError(RuntimeError):
-    """A checkpoint (policy, oracle or encoder) is missing, unreadable or does not fit the environment."""
-
-
-def _depth_encoder_cls() -> type:
-    try:
-        from omcrl.models import DepthEncoder  # type: ignore[attr-defined]
-    except ImportError:  # package __init__ may not re-export it
-        from omcrl.models.encoder import DepthEncoder
-    return DepthEncoder
-
-
-def _load_encoder(path: str | Path, image_size: int, frame_stack: int) -> nn.Module:
-    """Load the frozen pretrained encoder, turning every failure into a CheckpointError naming the file."""
-    p = Path(path)
-    if not p.exists():
-        raise CheckpointError(f"encoder checkpoint {p} does not exist (run the pretraining stage first)")
-    try:
-        from omcrl.models import load_encoder  # type: ignore[attr-defined]
-    except ImportError as e:
-        raise CheckpointError(f"cannot load encoder {p}: omcrl.models.load_encoder is unavailable ({e})") from e
-    try:
-        enc = load_encoder(p, image_size, frame_stack)
-    except Exception as e:
-        raise CheckpointError(
-            f"encoder checkpoint {p} cannot be loaded for image_size={image_size}, frame_stack={frame_stack}: {e}"
-        ) from e
-    enc.eval()
-    for prm in enc.parameters():
-        prm.requires_grad_(False)
-    return enc
-
-
-def space_shapes(space: Any) -> dict[str, list[int]]:
-    """``{key: shape}`` of a (Dict) observation space; a Box gives ``{"obs": shape}``."""
-    if hasattr(space, "spaces") and isinstance(space.spaces, dict):
-        return {k: list(s.shape) for k, s in space.spaces.items()}
-    return {"obs": list(space.shape)}
-
-
-def make_student_features(encoder_path: str | Path, obs_space: Any) -> StudentFeatures:
-    """Load the frozen encoder and check it encodes the env's rgb stacks; raise CheckpointError otherwise."""
-    shapes = space_shapes(obs_space)
-    if "rgb" not in shapes or "state" not in shapes:
-        raise CheckpointError(f"student needs 'rgb' and 'state' observations, env gives {shapes}")
-    frame_stack, _, h, w = shapes["rgb"]
-    if h != w:
-        raise CheckpointError(f"rgb images must be square, env gives {shapes['rgb']}")
-    enc = _load_encoder(encoder_path, h, frame_stack)
-    try:
-        with torch.no_grad():
-            z = enc(torch.zeros(1, 3 * frame_stack, h, w, dtype=torch.uint8))
-    except Exception as e:
-        raise CheckpointError(
-            f"encoder checkpoint {encoder_path} does not fit the env's rgb stacks "
-            f"{tuple(shapes['rgb'])} (as (1, {3 * frame_stack}, {h}, {w})): {e}"
-        ) from e
-    if z.dim() != 2 or z.shape[0] != 1:
-        raise CheckpointError(f"encoder checkpoint {encoder_path}: expected output (1, d), got {tuple(z.shape)}")
-    return StudentFeatures(enc, z.shape[1], str(encoder_path), h, frame_stack)
-
-
-def make_oracle_features(obs_space: Any, feature_dim: int, far: float) -> OracleFeatures:
-    """Fresh trainable depth encoder sized for the env's depth stacks."""
-    shapes = space_shapes(obs_space)
-    for key in ("depth", "state", "privileged"):
-        if key not in shapes:
-            raise CheckpointError(f"oracle needs a {key!r} observation, env gives {shapes}")
-    frame_stack, h, _ = shapes["depth"]
-    kwargs = {"frame_stack": frame_stack, "image_size": h, "feature_dim": int(feature_dim), "far": float(far)}
-    return OracleFeatures(_depth_encoder_cls()(**kwargs), feature_dim, kwargs)
-
-
-def build_features(spec: dict) -> FeatureExtractor:
-    """Rebuild a feature extractor from its ``spec()``."""
-    kind = spec["kind"]
-    if kind == "identity":
-        return IdentityFeatures(spec["obs_dim"])
-    if kind == "oracle":
-        kw = spec["encoder_kwargs"]
-        return OracleFeatures(_depth_encoder_cls()(**kw), spec["depth_dim"], kw)
-    if kind == "student":
-        enc = _load_encoder(spec["encoder_path"], spec["image_size"], spec["frame_stack"])
-        return StudentFeatures(enc, spec["enc_dim"], spec["encoder_path"], spec["image_size"], spec["frame_stack"])
-    raise CheckpointError(f"unknown feature kind {kind!r}")
 
 
 class Policy:

@@ -1,24 +1,12 @@
-"""PPO with an optional guide-KL term (paper IV-C, Eqs. 7-9).
+"""PPO with an optional guide-KL term (paper IV-C, Eqs. 7-9) as an algorithm object.
 
 Design
 ------
-A policy is ``features -> heads``. A :class:`FeatureExtractor` turns a *batched* vector-env observation into
-
-* ``preprocess(obs) -> dict[str, Tensor]``: what the rollout buffer stores per step. Frozen parts (the
-  student's pretrained pixel encoder) are run here, once per env step, batched across envs, under
-  ``no_grad``; trainable parts (the oracle's depth encoder) store their raw input so PPO epochs can
-  back-propagate through them.
-* ``forward(stored) -> Tensor (B, F)``: the feature vector the actor and critic see.
-
-Three extractors cover every trainer: :class:`IdentityFeatures` (plain Box observations),
-:class:`OracleFeatures` ([DepthEncoder(depth stack), v, ω, θ, Δp ∈ R⁶], depth encoder trained with the
-policy) and :class:`StudentFeatures` ([frozen f(rgb stack), v, ω, θ, Δp_goal]).
-
-Heads (:class:`ActorCritic`): separate actor and critic MLPs, each ``LayerNorm(F) -> Linear(hidden) -> Tanh ->
-Linear(hidden) -> Tanh -> Linear``; LayerNorm on the inputs follows the paper (V-D); Tanh rather than ReLU
-because it is the better-behaved default for PPO on continuous control (Andrychowicz et al. 2021, "What
-matters in on-policy RL") and keeps the small-output-init policy close to zero-mean. Gaussian policy with a
-state-independent learned log-std.
+A policy is ``features -> heads`` (:mod:`omcrl.models.features`, :mod:`omcrl.models.actor_critic`). The
+rollout runner (:mod:`omcrl.rl.rollout`) fills a :class:`Rollout`; :class:`PPO` owns the optimiser and turns a
+rollout into an update with ``update(batch, alpha=..., lr=..., step=...) -> dict[str, float]`` of metrics.
+Extra losses (an auxiliary objective of a baseline) plug in as ``extra_losses``: callables
+``(agent, minibatch) -> (loss tensor, metrics dict)`` added to the total.
 
 Action bounds: the policy samples an *unbounded* Gaussian action; the rollout sends ``clip(a, -1, 1)`` to the
 env and stores the unclipped sample, whose log-probability is used in the ratio (the usual PPO practice; the
@@ -34,226 +22,40 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
-LOG_2PI = math.log(2.0 * math.pi)
+from omcrl.models.actor_critic import ActorCritic, gaussian_entropy, gaussian_kl, gaussian_log_prob
+from omcrl.models.features import (
+    FeatureExtractor,
+    IdentityFeatures,
+    OracleFeatures,
+    PixelFeatures,
+    StudentFeatures,
+)
 
-
-# ---------------------------------------------------------------- features
-class FeatureExtractor(nn.Module):
-    """Base class: batched observation -> stored tensors -> feature vector of size ``out_dim``."""
-
-    out_dim: int
-    kind: str = "base"
-
-    def preprocess(self, obs: Any) -> dict[str, torch.Tensor]:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def spec(self) -> dict:
-        """JSON-able description used to rebuild the extractor from a checkpoint."""
-        return {"kind": self.kind, "out_dim": self.out_dim}
-
-
-class IdentityFeatures(FeatureExtractor):
-    """Feature = flattened Box observation. ``obs``: (B, *obs_shape) -> stored ``x`` (B, F) float32."""
-
-    kind = "identity"
-
-    def __init__(self, obs_dim: int) -> None:
-        super().__init__()
-        self.out_dim = int(obs_dim)
-
-    def preprocess(self, obs: Any) -> dict[str, torch.Tensor]:
-        x = torch.as_tensor(np.asarray(obs), dtype=torch.float32)
-        return {"x": x.reshape(x.shape[0], -1)}
-
-    def forward(self, stored: dict[str, torch.Tensor]) -> torch.Tensor:
-        return stored["x"]
-
-    def spec(self) -> dict:
-        return {"kind": self.kind, "out_dim": self.out_dim, "obs_dim": self.out_dim}
-
-
-class OracleFeatures(FeatureExtractor):
-    """Oracle feature [DepthEncoder(depth), v, ω, θ, Δp_obstacle, Δp_goal] (paper Eq. 5-6).
-
-    ``obs["depth"]`` (B, L, H, W) float32 metres is stored as float16 (halves buffer memory; 0.01 m
-    resolution at 20 m is far below what the encoder resolves). ``low`` = state[:, :9] (v, ω, θ) ++
-    privileged (6,) -> (B, 15). The depth encoder is trained with the policy, so ``forward`` runs it on every
-    minibatch.
-    """
-
-    kind = "oracle"
-
-    def __init__(self, depth_encoder: nn.Module, depth_dim: int, encoder_kwargs: dict | None = None) -> None:
-        super().__init__()
-        self.depth_encoder = depth_encoder
-        self.depth_dim = int(depth_dim)
-        self.encoder_kwargs = dict(encoder_kwargs or {})
-        self.out_dim = self.depth_dim + 15
-
-    def preprocess(self, obs: Any) -> dict[str, torch.Tensor]:
-        depth = torch.as_tensor(np.asarray(obs["depth"]), dtype=torch.float16)
-        low = np.concatenate([np.asarray(obs["state"])[:, :9], np.asarray(obs["privileged"])], axis=1)
-        return {"depth": depth, "low": torch.as_tensor(low, dtype=torch.float32)}
-
-    def forward(self, stored: dict[str, torch.Tensor]) -> torch.Tensor:
-        z = self.depth_encoder(stored["depth"].float())
-        return torch.cat([z, stored["low"]], dim=1)
-
-    def spec(self) -> dict:
-        return {
-            "kind": self.kind,
-            "out_dim": self.out_dim,
-            "depth_dim": self.depth_dim,
-            "encoder_kwargs": self.encoder_kwargs,
-        }
-
-
-class StudentFeatures(FeatureExtractor):
-    """Student feature [f(rgb stack), v, ω, θ, Δp_goal] with a frozen pretrained encoder f (paper IV-C).
-
-    ``obs["rgb"]`` (B, L, 3, H, W) uint8 is reshaped to (B, 3L, H, W) and encoded once per env step in
-    ``preprocess`` (no grad); the buffer stores only ``x`` (B, d + 12). The encoder is deliberately *not* a
-    registered submodule: it is not optimised and not saved in policy checkpoints (they record its path
-    instead).
-    """
-
-    kind = "student"
-
-    def __init__(
-        self,
-        encoder: nn.Module,
-        enc_dim: int,
-        encoder_path: str = "",
-        image_size: int = 0,
-        frame_stack: int = 0,
-    ) -> None:
-        super().__init__()
-        self.__dict__["encoder"] = encoder  # bypass nn.Module registration on purpose (frozen, external)
-        self.enc_dim = int(enc_dim)
-        self.encoder_path = str(encoder_path)
-        self.image_size, self.frame_stack = int(image_size), int(frame_stack)
-        self.out_dim = self.enc_dim + 12
-
-    @torch.no_grad()
-    def preprocess(self, obs: Any) -> dict[str, torch.Tensor]:
-        rgb = torch.as_tensor(np.asarray(obs["rgb"]))
-        b = rgb.shape[0]
-        z = self.encoder(rgb.reshape(b, -1, rgb.shape[-2], rgb.shape[-1])).float()
-        state = torch.as_tensor(np.asarray(obs["state"]), dtype=torch.float32)
-        return {"x": torch.cat([z.reshape(b, -1), state], dim=1)}
-
-    def forward(self, stored: dict[str, torch.Tensor]) -> torch.Tensor:
-        return stored["x"]
-
-    def spec(self) -> dict:
-        return {
-            "kind": self.kind,
-            "out_dim": self.out_dim,
-            "enc_dim": self.enc_dim,
-            "encoder_path": self.encoder_path,
-            "image_size": self.image_size,
-            "frame_stack": self.frame_stack,
-        }
-
-
-# ---------------------------------------------------------------- heads
-def _mlp(inp: int, hidden: int, out: int, out_gain: float, layer_norm: bool) -> nn.Sequential:
-    net = nn.Sequential(
-        nn.LayerNorm(inp) if layer_norm else nn.Identity(),  # Identity keeps the state-dict indices
-        nn.Linear(inp, hidden),
-        nn.Tanh(),
-        nn.Linear(hidden, hidden),
-        nn.Tanh(),
-        nn.Linear(hidden, out),
-    )
-    # Orthogonal init (standard PPO); a small last layer gives a near-zero initial mean.
-    for m in net:
-        if isinstance(m, nn.Linear):
-            nn.init.orthogonal_(m.weight, gain=math.sqrt(2.0))
-            nn.init.zeros_(m.bias)
-    nn.init.orthogonal_(net[-1].weight, gain=out_gain)
-    return net
-
-
-class ActorCritic(nn.Module):
-    """Features -> (Gaussian policy mean, std) and value.
-
-    Parameters
-    ----------
-    features : the feature extractor (its trainable parameters are optimised with the heads).
-    act_dim : action size (3 for the drone: vx, vy, ωz in [-1, 1]).
-    hidden : width of the two hidden layers of actor and critic.
-    init_log_std : initial state-independent log standard deviation.
-    layer_norm : LayerNorm on the head inputs (paper V-D; default). Switch it off for tiny raw observations:
-        over a 2-D input LayerNorm keeps only the sign of x − y and discards the magnitude.
-    """
-
-    def __init__(
-        self,
-        features: FeatureExtractor,
-        act_dim: int,
-        hidden: int = 256,
-        init_log_std: float = -0.5,
-        layer_norm: bool = True,
-    ) -> None:
-        super().__init__()
-        self.features = features
-        self.act_dim, self.hidden, self.layer_norm = int(act_dim), int(hidden), bool(layer_norm)
-        self.actor = _mlp(features.out_dim, hidden, act_dim, out_gain=0.01, layer_norm=layer_norm)
-        self.critic = _mlp(features.out_dim, hidden, 1, out_gain=1.0, layer_norm=layer_norm)
-        self.log_std = nn.Parameter(torch.full((act_dim,), float(init_log_std)))
-
-    def forward(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Return mean (B, A), std (B, A) and value (B,) for stored observations."""
-        f = self.features(stored)
-        mean = self.actor(f)
-        std = self.log_std.exp().expand_as(mean)
-        return mean, std, self.critic(f).squeeze(-1)
-
-    @torch.no_grad()
-    def step(
-        self, stored: dict[str, torch.Tensor], deterministic: bool = False
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Sample (unclipped) actions. Returns action, log-prob, value, mean, std."""
-        mean, std, value = self(stored)
-        action = mean if deterministic else mean + std * torch.randn_like(mean)
-        return action, gaussian_log_prob(action, mean, std), value, mean, std
-
-    def spec(self) -> dict:
-        return {
-            "features": self.features.spec(),
-            "act_dim": self.act_dim,
-            "hidden": self.hidden,
-            "layer_norm": self.layer_norm,
-        }
-
-
-# ---------------------------------------------------------------- maths
-def gaussian_log_prob(x: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
-    """Log density of a diagonal Gaussian, summed over the last dim. (..., A) -> (...)."""
-    return (-0.5 * ((x - mean) / std) ** 2 - std.log() - 0.5 * LOG_2PI).sum(-1)
-
-
-def gaussian_entropy(std: torch.Tensor) -> torch.Tensor:
-    """Entropy of a diagonal Gaussian, summed over the last dim. (..., A) -> (...)."""
-    return (0.5 + 0.5 * LOG_2PI + std.log()).sum(-1)
-
-
-def gaussian_kl(mean_p: torch.Tensor, std_p: torch.Tensor, mean_q: torch.Tensor, std_q: torch.Tensor) -> torch.Tensor:
-    """Closed-form KL(p ‖ q) of diagonal Gaussians, summed over the last dim. (..., A) -> (...).
-
-    KL = Σ_i log(σ_q/σ_p) + (σ_p² + (μ_p − μ_q)²) / (2σ_q²) − 1/2. With p the guide and q the learner this is
-    the paper's D_KL(π^o ‖ π) (Eq. 8), the expectation under the guide's actions.
-    """
-    var_q = std_q**2
-    return (torch.log(std_q / std_p) + (std_p**2 + (mean_p - mean_q) ** 2) / (2.0 * var_q) - 0.5).sum(-1)
+__all__ = [
+    "PPO",
+    "ActorCritic",
+    "FeatureExtractor",
+    "IdentityFeatures",
+    "LossParts",
+    "NonFiniteLossError",
+    "OracleFeatures",
+    "PixelFeatures",
+    "Rollout",
+    "StudentFeatures",
+    "compute_gae",
+    "gaussian_entropy",
+    "gaussian_kl",
+    "gaussian_log_prob",
+    "ppo_loss",
+    "ppo_update",
+]
 
 
 def compute_gae(
@@ -389,6 +191,10 @@ def ppo_loss(
     return LossParts(total, rl, policy_loss, value_loss, entropy, kl, extras)
 
 
+# An extra loss term: (agent, minibatch) -> (scalar loss with grad, metrics); see PPO.
+ExtraLoss = Callable[[ActorCritic, dict], tuple[torch.Tensor, dict]]
+
+
 class NonFiniteLossError(FloatingPointError):
     """A loss became NaN/inf; the message names the env step and which loss."""
 
@@ -407,9 +213,11 @@ def ppo_update(
     entropy_coef: float,
     max_grad_norm: float,
     step: int = 0,
+    extra_losses: Sequence[ExtraLoss] = (),
 ) -> dict[str, float]:
     """Run ``epochs`` passes of minibatch SGD on one rollout; return mean loss statistics.
 
+    ``extra_losses`` are added to each minibatch's total (their metrics are averaged like the others).
     Raises :class:`NonFiniteLossError` before any parameter update with a non-finite loss is applied.
     """
     data = rollout.flat()
@@ -430,6 +238,10 @@ def ppo_update(
             for k in ("actions", "log_probs", "advantages", "returns", "guide_mean", "guide_std"):
                 mb[k] = None if data[k] is None else data[k][idx]
             parts = ppo_loss(agent, mb, alpha, beta, clip, value_coef, entropy_coef)
+            for extra in extra_losses:
+                loss, metrics = extra(agent, mb)
+                parts.total = parts.total + loss
+                parts.extras.update(metrics)
             for name in ("policy", "value", "entropy", "kl", "total"):
                 if not torch.isfinite(getattr(parts, name)):
                     raise NonFiniteLossError(
@@ -458,3 +270,104 @@ def ppo_update(
                 sums[k] = sums.get(k, 0.0) + v
             count += 1
     return {k: v / count for k, v in sums.items()}
+
+
+class PPO:
+    """PPO with the guide-KL term as an algorithm object: it owns the optimiser; ``update`` returns metrics.
+
+    Parameters
+    ----------
+    agent : the actor-critic; its trainable parameters (heads and any trainable feature encoder) are optimised
+        with Adam (eps 1e-5).
+    lr : initial learning rate (the trainer sets the current one per update; the paper decays it linearly).
+    epochs, minibatch : SGD passes over a rollout and minibatch size (transitions).
+    gamma, gae_lambda : discount and GAE λ.
+    clip, value_coef, entropy_coef, max_grad_norm : the usual PPO settings.
+    beta : the KL scale β of Eq. 9.
+    extra_losses : additional loss terms (:data:`ExtraLoss`) added to each minibatch's total.
+    """
+
+    def __init__(
+        self,
+        agent: ActorCritic,
+        *,
+        lr: float,
+        epochs: int,
+        minibatch: int,
+        gamma: float,
+        gae_lambda: float,
+        clip: float,
+        value_coef: float,
+        entropy_coef: float,
+        max_grad_norm: float,
+        beta: float,
+        extra_losses: Sequence[ExtraLoss] = (),
+    ) -> None:
+        self.agent = agent
+        self.epochs, self.minibatch = int(epochs), int(minibatch)
+        self.gamma, self.gae_lambda = float(gamma), float(gae_lambda)
+        self.clip, self.value_coef, self.entropy_coef = float(clip), float(value_coef), float(entropy_coef)
+        self.max_grad_norm, self.beta = float(max_grad_norm), float(beta)
+        self.extra_losses = list(extra_losses)
+        params = [p for p in agent.parameters() if p.requires_grad]
+        self.optimizer = torch.optim.Adam(params, lr=lr, eps=1e-5)
+
+    @classmethod
+    def from_config(cls, agent: ActorCritic, rl: Any, extra_losses: Sequence[ExtraLoss] = ()) -> PPO:
+        """Build from an :class:`omcrl.config.RLConfig`."""
+        return cls(
+            agent,
+            lr=rl.lr,
+            epochs=rl.epochs,
+            minibatch=rl.minibatch,
+            gamma=rl.gamma,
+            gae_lambda=rl.gae_lambda,
+            clip=rl.clip,
+            value_coef=rl.value_coef,
+            entropy_coef=rl.entropy_coef,
+            max_grad_norm=rl.max_grad_norm,
+            beta=rl.beta,
+            extra_losses=extra_losses,
+        )
+
+    def set_lr(self, lr: float) -> None:
+        for g in self.optimizer.param_groups:
+            g["lr"] = lr
+
+    def update(self, batch: Rollout, *, alpha: float, step: int = 0) -> dict[str, float]:
+        """One PPO update on a rollout (GAE, then ``epochs`` of minibatch SGD); returns mean metrics.
+
+        ``alpha`` weighs the guide KL (0 without a guide); ``step`` only labels errors.
+        """
+        adv, ret = compute_gae(
+            batch.rewards,
+            batch.values,
+            batch.next_values,
+            batch.terminated,
+            batch.ends,
+            self.gamma,
+            self.gae_lambda,
+        )
+        batch.advantages, batch.returns = adv, ret
+        self.agent.train()
+        return ppo_update(
+            self.agent,
+            self.optimizer,
+            batch,
+            epochs=self.epochs,
+            minibatch=self.minibatch,
+            alpha=alpha,
+            beta=self.beta,
+            clip=self.clip,
+            value_coef=self.value_coef,
+            entropy_coef=self.entropy_coef,
+            max_grad_norm=self.max_grad_norm,
+            step=step,
+            extra_losses=self.extra_losses,
+        )
+
+    def state_dict(self) -> dict:
+        return {"optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.optimizer.load_state_dict(state["optimizer"])

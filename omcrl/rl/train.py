@@ -1,29 +1,29 @@
-"""PPO training runs: one generic trainer, used by the oracle, the student and any Box-observation env.
+"""PPO training runs: one generic trainer behind every RL method (oracle, ours, baselines).
 
-Run folder ``<run_root>/runs/<stage>/<name>/seed<k>/``::
+Run folder (:mod:`omcrl.runs`) ``<run_root>/runs/rl/<method>-<key>/seed<k>/``::
 
+    run.json         identity: method, seed, key and what the key hashes (config fields, upstream digests)
     config.yaml      resolved config (omcrl.config.save_config)
     checkpoint.pt    latest resumable state, written atomically every ``rl.checkpoint_every`` env steps:
-                     model, optimizer, RNG states, env-step count, update index, schedule state (α, lr)
-    final.pt         the trained policy (omcrl.rl.policy format) + ``config_hash``; its presence = finished
+                     model, optimizer, RNG states (tensors and plain containers: loads with weights_only=True),
+                     env-step count, update index, schedule state (α, lr)
+    final.pt         the trained policy (omcrl.rl.policy format); its presence = finished
     metrics.csv      tidy rows (step, metric, value)
     tb/              TensorBoard events
 
 Step accounting: every vector step counts ``n_envs`` env steps (including next-step-autoreset dummy steps,
 which are real env calls). A run performs ``ceil(total_steps / (rollout_len * n_envs))`` updates and so ends
-at the same step count whether or not it was interrupted and resumed.
+at the same step count whether or not it was interrupted and resumed. A resumed run is *not* bit-identical to
+an uninterrupted one: model, optimiser and RNG states are restored exactly, but the vector env is re-created
+and reset with a new seed (``seed·1000 + 100·resumes``), so episodes after the resume differ.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import math
-import random
-import shutil
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -31,28 +31,41 @@ from typing import Any
 import numpy as np
 import torch
 
-from omcrl.config import Config, config_hash, save_config
-from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_from_config, info_at
+from omcrl.config import Config, save_config
+from omcrl.models.actor_critic import ActorCritic
+from omcrl.models.features import FeatureExtractor, IdentityFeatures
+from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_from_config
 from omcrl.rl.policy import (
     CheckpointError,
     Policy,
     load_policy,
     make_oracle_features,
+    make_pixel_features,
     make_student_features,
     policy_payload,
     space_shapes,
 )
-from omcrl.rl.ppo import (
-    ActorCritic,
-    FeatureExtractor,
-    IdentityFeatures,
-    NonFiniteLossError,
-    Rollout,
-    compute_gae,
-    ppo_update,
-)
-from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest
+from omcrl.rl.ppo import PPO, ExtraLoss, NonFiniteLossError
+from omcrl.rl.rollout import Runner
+from omcrl.runs import MetricsLog, Run, RunConfigMismatch, make_run, rng_state, set_rng_state
+from omcrl.utils.io import atomic_save_torch, file_digest
 from omcrl.utils.runtime import seed_everything, set_threads
+
+__all__ = [
+    "METRIC_NAMES",
+    "Result",
+    "RunConfigMismatch",
+    "oracle_run",
+    "policy_run",
+    "rl_identity",
+    "rl_run",
+    "rollout_geometry",
+    "train",
+    "train_oracle",
+    "train_pixel",
+    "train_ppo",
+    "train_student",
+]
 
 METRIC_NAMES = (
     "episodic_return",
@@ -70,289 +83,113 @@ METRIC_NAMES = (
     "steps_per_s",
 )
 
-
-# States per call of a batched guide: large enough to amortise reading the oracle's weights, small enough that
-# the pending depth stacks stay small (256 · 3 · 224² float16 ≈ 77 MB at the paper's image size).
-GUIDE_CHUNK = 256
-
-
-class RunConfigMismatch(RuntimeError):
-    """The run folder holds a checkpoint or final model of a different configuration."""
+# RL fields that do not change the trained artifact (they may differ between a run and its resume).
+_NOT_IDENTITY = ("checkpoint_every",)
+_GUIDE_FIELDS = ("alpha_schedule", "alpha_start", "alpha_decay_steps", "alpha_exp_factor", "alpha_exp_every", "beta")
 
 
 @dataclass
 class Result:
     """What a training run produced. ``policy()`` loads the final policy for evaluation."""
 
-    run_dir: Path
+    run: Run
     final_path: Path
     steps: int
     skipped: bool
-    metrics_path: Path
+
+    @property
+    def run_dir(self) -> Path:
+        return self.run.dir
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.run.metrics_path
 
     def policy(self) -> Policy:
         return load_policy(self.final_path)
 
     def metrics(self) -> Any:
-        import pandas as pd
+        from omcrl.runs import read_metrics
 
-        return pd.read_csv(self.metrics_path)
-
-
-# ---------------------------------------------------------------- rollouts
-def _autoreset_mode(env: Any) -> str:
-    """'next' (gymnasium 1.x default) or 'same'; other modes are rejected."""
-    mode = getattr(env, "metadata", {}).get("autoreset_mode", "NextStep")
-    name = getattr(mode, "value", str(mode))
-    if name == "NextStep":
-        return "next"
-    if name == "SameStep":
-        return "same"
-    raise ValueError(f"vector env autoreset_mode {name!r} is not supported (use NEXT_STEP or SAME_STEP)")
+        return read_metrics(self.metrics_path)
 
 
-def _index_obs(obs: Any, idx: np.ndarray) -> Any:
-    if isinstance(obs, dict):
-        return {k: np.asarray(v)[idx] for k, v in obs.items()}
-    return np.asarray(obs)[idx]
+def rollout_geometry(rl: Any) -> tuple[int, int, int, int]:
+    """``(rollout_len, env_steps_per_update, n_updates, final_step)`` for an :class:`~omcrl.config.RLConfig`."""
+    n_envs = rl.n_envs
+    length = rl.buffer_size // n_envs if rl.buffer_size >= n_envs else rl.horizon
+    per_update = length * n_envs
+    n_updates = math.ceil(rl.total_steps / per_update)
+    return length, per_update, n_updates, n_updates * per_update
 
 
-def _stack_final_obs(final_obs: np.ndarray, idx: np.ndarray) -> Any:
-    items = [final_obs[i] for i in idx]
-    if isinstance(items[0], dict):
-        return {k: np.stack([np.asarray(it[k]) for it in items]) for k in items[0]}
-    return np.stack([np.asarray(it) for it in items])
+def rl_identity(cfg: Config, guide: str | None, **extra: Any) -> dict:
+    """The identity of an RL run: every field that changes its trained policy.
 
-
-class Runner:
-    """Steps a gymnasium vector env with the current policy and fills :class:`Rollout` buffers.
-
-    Keeps env state between rollouts (current observation, next-step-autoreset flags, running returns) and a
-    list of finished episodes ``{"return", "length", **info["metrics"]}``.
+    ``cfg.rl`` (less ``checkpoint_every``; less the α/β fields without a guide; ``guide_std`` only with a
+    planner guide; ``oracle_guide`` only for the oracle, via ``extra``) and ``cfg.env``, plus ``extra``
+    (upstream digests, network sizes taken from other sections). ``guide``: None, ``"planner"`` or
+    ``"policy"``.
     """
-
-    def __init__(
-        self, env: Any, agent: ActorCritic, guide: Guide | None, seed: int, guide_chunk: int | None = None
-    ) -> None:
-        self.env, self.agent, self.guide = env, agent, guide
-        self.guide_batched = bool(getattr(guide, "batched", False))
-        # Vector steps whose guide inputs are evaluated together (about ``guide_chunk`` states per call;
-        # default GUIDE_CHUNK, read at run time so a benchmark can compare against per-step evaluation).
-        chunk = GUIDE_CHUNK if guide_chunk is None else guide_chunk
-        self.guide_every = max(1, chunk // env.num_envs)
-        self.mode = _autoreset_mode(env)
-        self.n = env.num_envs
-        self.obs, self.infos = env.reset(seed=seed)
-        self.stored = agent.features.preprocess(self.obs)
-        self.starts = np.ones(self.n, bool)
-        self.dummy = np.zeros(self.n, bool)  # next-step mode: this step only resets, the action is ignored
-        self.ep_return = np.zeros(self.n)
-        self.ep_len = np.zeros(self.n, int)
-        self.episodes: list[dict] = []
-
-    def collect(self, length: int, horizon: int, use_guide: bool) -> Rollout:
-        n = self.n
-        buf: dict[str, list] = {
-            k: [] for k in ("obs", "act", "logp", "val", "rew", "term", "ends", "valid", "gm", "gs")
-        }
-        final_values: dict[tuple[int, int], float] = {}
-        guided = use_guide and self.guide is not None
-        pending: list[dict[str, torch.Tensor]] = []  # prepared guide inputs not evaluated yet (batched guides)
-        for t in range(length):
-            action, logp, value, _, _ = self.agent.step(self.stored)
-            if guided and self.guide_batched:
-                pending.append(self.guide.prepare(self.obs))
-                if len(pending) == self.guide_every or t == length - 1:
-                    self._flush_guide(pending, buf)
-            elif guided:
-                gm, gs = self.guide.distribution(self.obs, self.infos, self.starts)
-                buf["gm"].append(torch.as_tensor(gm, dtype=torch.float32))
-                buf["gs"].append(torch.as_tensor(gs, dtype=torch.float32))
-            buf["obs"].append(self.stored)
-            buf["act"].append(action)
-            buf["logp"].append(logp)
-            buf["val"].append(value)
-            valid = ~self.dummy
-            # The env sees the clipped action; the buffer keeps the unclipped sample (see ppo.py docstring).
-            obs, rew, term, trunc, infos = self.env.step(np.clip(action.numpy(), -1.0, 1.0))
-            rew = np.asarray(rew, dtype=np.float64)
-            term, trunc = np.asarray(term, bool), np.asarray(trunc, bool)
-            done = term | trunc
-            buf["rew"].append(torch.as_tensor(rew, dtype=torch.float32))
-            buf["term"].append(torch.as_tensor(term, dtype=torch.float32))
-            cut = (t + 1) % horizon == 0 or t == length - 1
-            buf["ends"].append(torch.as_tensor(done | cut, dtype=torch.float32))
-            buf["valid"].append(torch.as_tensor(valid, dtype=torch.float32))
-            self.ep_return[valid] += rew[valid]
-            self.ep_len[valid] += 1
-            ended = np.flatnonzero(done & valid)
-            if self.mode == "same" and ended.size:
-                # Same-step autoreset returns the reset obs; bootstrap truncations from the real final obs.
-                with torch.no_grad():
-                    fo = self.agent.features.preprocess(_stack_final_obs(infos["final_obs"], ended))
-                    _, _, v_final = self.agent(fo)
-                for j, i in enumerate(ended):
-                    final_values[(t, int(i))] = float(v_final[j])
-            src = infos.get("final_info", {}) if self.mode == "same" else infos
-            for i in ended:
-                ep = {"return": float(self.ep_return[i]), "length": int(self.ep_len[i])}
-                ep.update(info_at(src, int(i)).get("metrics", {}) if src else {})
-                self.episodes.append(ep)
-                self.ep_return[i], self.ep_len[i] = 0.0, 0
-            if self.mode == "next":
-                self.starts, self.dummy = self.dummy.copy(), done & valid
-            else:
-                self.starts, self.dummy = done.copy(), np.zeros(n, bool)
-            self.obs, self.infos = obs, infos
-            self.stored = self.agent.features.preprocess(obs)
-        with torch.no_grad():
-            _, _, last_value = self.agent(self.stored)
-        values = torch.stack(buf["val"])
-        # V(s_{t+1}) is the next slot's value; in next-step mode that slot holds an ended episode's final obs.
-        next_values = torch.cat([values[1:], last_value[None]], dim=0)
-        for (t, i), v in final_values.items():
-            next_values[t, i] = v
-        obs_t = {k: torch.stack([s[k] for s in buf["obs"]]) for k in buf["obs"][0]}
-        return Rollout(
-            obs=obs_t,
-            actions=torch.stack(buf["act"]),
-            log_probs=torch.stack(buf["logp"]),
-            values=values,
-            next_values=next_values,
-            rewards=torch.stack(buf["rew"]),
-            terminated=torch.stack(buf["term"]),
-            ends=torch.stack(buf["ends"]),
-            valid=torch.stack(buf["valid"]),
-            guide_mean=torch.stack(buf["gm"]) if buf["gm"] else None,
-            guide_std=torch.stack(buf["gs"]) if buf["gs"] else None,
-        )
-
-    def _flush_guide(self, pending: list[dict[str, torch.Tensor]], buf: dict[str, list]) -> None:
-        """Evaluate a batched guide on the pending steps at once and append one (N, A) row per step."""
-        stored = {k: torch.cat([p[k] for p in pending]) for k in pending[0]}
-        mean, std = self.guide.distribution_stored(stored)
-        buf["gm"].extend(mean.split(self.n))
-        buf["gs"].extend(std.split(self.n))
-        pending.clear()
+    rl = {k: v for k, v in asdict(cfg.rl).items() if k not in _NOT_IDENTITY and k != "oracle_guide"}
+    if guide is None or cfg.rl.alpha_schedule == "none":
+        for k in (*_GUIDE_FIELDS, "guide_std"):
+            rl.pop(k)
+        rl["alpha_schedule"] = "none"
+    elif guide != "planner":
+        rl.pop("guide_std")
+    return {"rl": rl, "env": asdict(cfg.env), **extra}
 
 
-# ---------------------------------------------------------------- metrics output
-class MetricsLog:
-    """Tidy ``metrics.csv`` (step, metric, value) + TensorBoard; resuming drops rows past the checkpoint."""
-
-    def __init__(self, run_dir: Path, resume_step: int | None) -> None:
-        from torch.utils.tensorboard import SummaryWriter
-
-        self.path = run_dir / "metrics.csv"
-        if resume_step is None or not self.path.exists():
-            atomic_write_text(self.path, "step,metric,value\n")
-        else:
-            with open(self.path, newline="") as fh:
-                rows = [r for r in csv.reader(fh)][1:]
-            keep = io.StringIO()
-            w = csv.writer(keep, lineterminator="\n")
-            w.writerow(["step", "metric", "value"])
-            w.writerows(r for r in rows if r and int(r[0]) <= resume_step)
-            atomic_write_text(self.path, keep.getvalue())
-        self.tb = SummaryWriter(str(run_dir / "tb"), purge_step=resume_step)
-
-    def log(self, step: int, values: dict[str, float]) -> None:
-        with open(self.path, "a", newline="") as fh:
-            w = csv.writer(fh, lineterminator="\n")
-            for k, v in values.items():
-                if v is None or (isinstance(v, float) and math.isnan(v)):
-                    continue
-                w.writerow([step, k, f"{float(v):.6g}"])
-                self.tb.add_scalar(k, float(v), step)
-
-    def close(self) -> None:
-        self.tb.flush()
-        self.tb.close()
-
-
-# ---------------------------------------------------------------- generic trainer
-def _rng_state() -> dict:
-    # The legacy global numpy RNG is saved because third-party code (envs, planners) may draw from it.
-    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}  # noqa: NPY002
-
-
-def _set_rng_state(s: dict) -> None:
-    torch.set_rng_state(s["torch"])
-    np.random.set_state(s["numpy"])  # noqa: NPY002
-    random.setstate(s["python"])
-
-
-def run_dir_for(cfg: Config, stage: str, name: str) -> Path:
-    return cfg.run_root / "runs" / stage / name / f"seed{cfg.seed}"
+def rl_run(cfg: Config, method: str, identity: dict) -> Run:
+    """The run folder of an RL method (stage ``rl``)."""
+    return make_run(cfg, "rl", method, identity)
 
 
 def train(
     cfg: Config,
     *,
-    stage: str,
-    name: str,
+    run: Run,
     make_env: Callable[[int], Any],
     build_features: Callable[[Any], FeatureExtractor],
     make_guide: Callable[[Any], Guide | None] | None = None,
-    extra: dict | None = None,
     overwrite: bool = False,
     progress: bool = True,
     layer_norm: bool = True,
+    extra_losses: Sequence[ExtraLoss] = (),
+    meta: dict | None = None,
 ) -> Result:
     """Train (or resume, or skip) one PPO run; the single implementation behind every trainer.
 
     Parameters
     ----------
     cfg : resolved config; ``cfg.rl`` sets PPO and guidance, ``cfg.seed`` the seed.
-    stage, name : run folder ``<run_root>/runs/<stage>/<name>/seed<k>``.
+    run : where the run lives and what identifies it (:func:`rl_run`).
     make_env : ``seed -> vector env`` (gymnasium SyncVectorEnv/AsyncVectorEnv, ``cfg.rl.n_envs`` envs); the
         env is reset with ``seed``.
     build_features : ``single_observation_space -> FeatureExtractor``; may raise CheckpointError before
         training.
     make_guide : ``env -> guide or None``; None (or ``alpha_schedule == 'none'``) trains without the KL term.
-    extra : identifying inputs beyond the config (e.g. encoder/oracle paths), part of the cache key.
-    overwrite : delete a run folder of a different configuration instead of raising RunConfigMismatch.
+    overwrite : delete a run folder of a different identity instead of raising RunConfigMismatch.
     layer_norm : LayerNorm on the actor/critic inputs (paper V-D); see :class:`ActorCritic`.
+    extra_losses : additional loss terms for :class:`~omcrl.rl.ppo.PPO`.
+    meta : plain values stored in the policy file's ``meta``.
     """
     rl = cfg.rl
     set_threads(rl.num_threads)
-    run_dir = run_dir_for(cfg, stage, name)
+    run_dir = run.dir
     ckpt_path, final_path = run_dir / "checkpoint.pt", run_dir / "final.pt"
-    key = config_hash(
-        {
-            "rl": asdict(rl),
-            "env": asdict(cfg.env),
-            "seed": cfg.seed,
-            "stage": stage,
-            "extra": {k: str(v) for k, v in (extra or {}).items()},
-        }
-    )
-
-    for p in (final_path, ckpt_path):
-        if p.exists():
-            # final.pt is a policy file (tensors and plain containers); only checkpoint.pt also holds RNG states.
-            found = torch.load(p, map_location="cpu", weights_only=p == final_path).get("config_hash")
-            if found != key:
-                if not overwrite:
-                    raise RunConfigMismatch(
-                        f"{p} belongs to a different configuration (hash {found} != {key}); "
-                        "use another run name, delete the folder or pass overwrite=True"
-                    )
-                shutil.rmtree(run_dir)
-                break
-    if final_path.exists():
+    if not overwrite:
+        run.check()
+    if final_path.exists() and not overwrite:
         step = int(torch.load(final_path, map_location="cpu", weights_only=True)["step"])
-        return Result(run_dir, final_path, step, True, run_dir / "metrics.csv")
+        return Result(run, final_path, step, True)
 
-    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False) if ckpt_path.exists() else None
+    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True) if ckpt_path.exists() else None
     if ckpt is None:
         seed_everything(cfg.seed)
 
-    n_envs = rl.n_envs
-    length = rl.buffer_size // n_envs if rl.buffer_size >= n_envs else rl.horizon
-    per_update = length * n_envs
-    n_updates = math.ceil(rl.total_steps / per_update)
-    final_step = n_updates * per_update
+    length, per_update, n_updates, final_step = rollout_geometry(rl)
     resumes = 0 if ckpt is None else ckpt["resumes"] + 1
     env = make_env(cfg.seed * 1000 + 100 * resumes)
     writer = None
@@ -361,63 +198,37 @@ def train(
         features = build_features(obs_space)
         act_dim = int(np.prod(env.single_action_space.shape))
         agent = ActorCritic(features, act_dim, rl.hidden, rl.init_log_std, layer_norm=layer_norm)
-        params = [p for p in agent.parameters() if p.requires_grad]
-        optimizer = torch.optim.Adam(params, lr=rl.lr, eps=1e-5)
+        algo = PPO.from_config(agent, rl, extra_losses)
         guide = make_guide(env) if (make_guide is not None and rl.alpha_schedule != "none") else None
         # Only now, with encoder / oracle / env known to fit, does the run folder appear: a failed start
         # (missing or mismatched checkpoint) leaves nothing behind that looks like a run.
-        run_dir.mkdir(parents=True, exist_ok=True)
+        run.claim(overwrite=overwrite)
         save_config(cfg, run_dir)
         step, update = 0, 0
         if ckpt is not None:
             agent.load_state_dict(ckpt["model"])
-            optimizer.load_state_dict(ckpt["optimizer"])
+            algo.load_state_dict({"optimizer": ckpt["optimizer"]})
             step, update = int(ckpt["step"]), int(ckpt["update"])
-            _set_rng_state(ckpt["rng"])
+            set_rng_state(ckpt["rng"])
         writer = MetricsLog(run_dir, step if ckpt is not None else None)
         shapes = space_shapes(obs_space)
         runner = Runner(env, agent, guide, seed=cfg.seed * 1000 + 100 * resumes)
-        recent = deque(maxlen=50)
-        bar = _progress(progress, final_step, step, f"{stage}/{name}")
+        recent: deque = deque(maxlen=50)
+        bar = _progress(progress, final_step, step, f"{run.stage}/{run.method}")
         last_ckpt = step
         while update < n_updates:
             alpha = alpha_from_config(step, rl) if guide is not None else 0.0
             lr = rl.lr * max(0.0, 1.0 - step / max(final_step, 1))  # linear decay to 0 over the run
-            for g in optimizer.param_groups:
-                g["lr"] = lr
+            algo.set_lr(lr)
             t0 = time.perf_counter()
             n_done = len(runner.episodes)
             agent.eval()
             rollout = runner.collect(length, rl.horizon, use_guide=alpha > 0.0)
-            adv, ret = compute_gae(
-                rollout.rewards,
-                rollout.values,
-                rollout.next_values,
-                rollout.terminated,
-                rollout.ends,
-                rl.gamma,
-                rl.gae_lambda,
-            )
-            rollout.advantages, rollout.returns = adv, ret
-            agent.train()
             try:
-                stats = ppo_update(
-                    agent,
-                    optimizer,
-                    rollout,
-                    epochs=rl.epochs,
-                    minibatch=rl.minibatch,
-                    alpha=alpha,
-                    beta=rl.beta,
-                    clip=rl.clip,
-                    value_coef=rl.value_coef,
-                    entropy_coef=rl.entropy_coef,
-                    max_grad_norm=rl.max_grad_norm,
-                    step=step,
-                )
+                stats = algo.update(rollout, alpha=alpha, step=step)
             except NonFiniteLossError as e:
                 where = f"last good checkpoint: {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written"
-                raise NonFiniteLossError(f"{stage}/{name} seed {cfg.seed}: {e}; {where}") from None
+                raise NonFiniteLossError(f"{run.method} seed {cfg.seed}: {e}; {where}") from None
             step += per_update
             update += 1
             dt = time.perf_counter() - t0
@@ -443,13 +254,13 @@ def train(
                 atomic_save_torch(
                     {
                         "model": agent.state_dict(),
-                        "optimizer": optimizer.state_dict(),
+                        "optimizer": algo.state_dict()["optimizer"],
                         "step": step,
                         "update": update,
-                        "rng": _rng_state(),
+                        "rng": rng_state(),
                         "resumes": resumes,
                         "schedule": {"alpha": alpha, "lr": lr},
-                        "config_hash": key,
+                        "key": run.key,
                     },
                     ckpt_path,
                 )
@@ -460,21 +271,16 @@ def train(
             agent,
             shapes,
             step,
-            meta={
-                "stage": stage,
-                "name": name,
-                "seed": cfg.seed,
-                **{k: str(v) for k, v in (extra or {}).items()},
-            },
+            meta={"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})},
         )
-        payload["config_hash"] = key
+        payload["key"] = run.key
         atomic_save_torch(payload, final_path)
         ckpt_path.unlink(missing_ok=True)  # finished: final.pt is the artifact, the resumable state is obsolete
     finally:
         if writer is not None:
             writer.close()
         env.close()
-    return Result(run_dir, final_path, step, False, run_dir / "metrics.csv")
+    return Result(run, final_path, step, False)
 
 
 def _progress(enabled: bool, total: int, initial: int, desc: str) -> Any:
@@ -485,7 +291,7 @@ def _progress(enabled: bool, total: int, initial: int, desc: str) -> Any:
     return tqdm(total=total, initial=initial, desc=desc, unit="step", dynamic_ncols=True)
 
 
-# ---------------------------------------------------------------- stage entry points
+# ---------------------------------------------------------------- trainers
 def _default_make_env(cfg: Config) -> Callable[[int], Any]:
     def make(seed: int) -> Any:
         from omcrl.envs import make_vec_env
@@ -499,22 +305,22 @@ def train_ppo(
     cfg: Config,
     make_env: Callable[[int], Any],
     *,
-    stage: str = "ppo",
-    name: str = "ppo",
+    name: str = "ppo-flat",
     make_guide: Callable[[Any], Guide | None] | None = None,
     overwrite: bool = False,
     progress: bool = True,
     layer_norm: bool = False,
 ) -> Result:
-    """PPO on a Box-observation vector env (feature = flattened observation).
+    """PPO on a Box-observation vector env (feature = flattened observation); for custom envs and tests.
 
+    The env is the caller's, so the run is identified by ``name`` and the config (not by the env's code).
     ``layer_norm`` defaults to False here: small raw observations lose their scale under LayerNorm (the
-    paper's LayerNorm is kept for the oracle and student, whose inputs are wide feature vectors).
+    paper's LayerNorm is kept for the image policies, whose inputs are wide feature vectors).
     """
+    ident = rl_identity(cfg, "planner" if make_guide is not None else None, layer_norm=layer_norm)
     return train(
         cfg,
-        stage=stage,
-        name=name,
+        run=rl_run(cfg, name, ident),
         make_env=make_env,
         build_features=lambda space: IdentityFeatures(int(np.prod(space.shape))),
         make_guide=make_guide,
@@ -537,10 +343,13 @@ def train_oracle(
     With ``rl.oracle_guide == 'apf'`` (default) the PPO loss gets the same decaying KL term as the student,
     towards the privileged HybridAPF planner (fixed std ``rl.guide_std``), so the oracle becomes an expert in
     a CPU budget; ``'none'`` is the paper's unguided PPO (see docs/DEVIATIONS.md for why and what it costs).
+    The depth encoder's width is ``pretrain.feature_dim`` (the same d as the student's features), which is
+    therefore part of the run's identity.
     """
+    guided = cfg.rl.oracle_guide != "none"
 
     def make_guide(env: Any) -> Guide | None:
-        if cfg.rl.oracle_guide == "none":
+        if not guided:
             return None
         from omcrl.planners import HybridAPF
 
@@ -548,8 +357,7 @@ def train_oracle(
 
     return train(
         cfg,
-        stage="oracle",
-        name=name,
+        run=oracle_run(cfg, name, custom_env=make_env is not None),
         make_env=make_env or _default_make_env(cfg),
         build_features=lambda space: make_oracle_features(space, cfg.pretrain.feature_dim, cfg.env.far),
         make_guide=make_guide,
@@ -558,32 +366,12 @@ def train_oracle(
     )
 
 
-def train_student(
-    cfg: Config,
-    encoder_path: str | Path,
-    oracle_path: str | Path | None = None,
-    *,
-    name: str = "omc",
-    planner_factory: Callable[[], Any] | None = None,
-    make_env: Callable[[int], Any] | None = None,
-    overwrite: bool = False,
-    progress: bool = True,
-) -> Result:
-    """Visuomotor student: PPO on [frozen f(rgb stack), v, ω, θ, Δp_goal] with guide KL (paper IV-C, Eq. 9).
-
-    Guide: the oracle at ``oracle_path`` (its mean and learned std on the privileged obs), else a planner from
-    ``planner_factory`` with fixed std ``rl.guide_std`` (NPE), else none. ``rl.alpha_schedule='none'`` gives
-    the "w/o OT" variant. Encoder and oracle are checked against the env before any training step.
-    """
-    # Resolved paths (the CLI passes relative ones, notebooks absolute ones: same run) and content digests (a
-    # retrained encoder or oracle at the same path must not reuse this run).
-    extra = {
-        "encoder": Path(encoder_path).resolve(),
-        "encoder_digest": file_digest(encoder_path),
-        "oracle": Path(oracle_path).resolve() if oracle_path is not None else "",
-        "oracle_digest": file_digest(oracle_path) if oracle_path is not None else "",
-        "planner": getattr(planner_factory, "__name__", "") if planner_factory else "",
-    }
+def _guide_maker(
+    cfg: Config, oracle_path: str | Path | None, planner_factory: Callable[[], Any] | None
+) -> Callable[[Any], Guide | None]:
+    """env -> guide for an oracle file, a planner factory, or neither."""
+    if oracle_path is not None and not Path(oracle_path).exists():
+        raise CheckpointError(f"oracle checkpoint {oracle_path} does not exist (train the oracle first)")
 
     def make_guide(env: Any) -> Guide | None:
         if oracle_path is not None:
@@ -593,34 +381,108 @@ def train_student(
             return PlannerGuide(planner_factory, cfg.rl.guide_std, n_envs=env.num_envs)
         return None
 
-    if oracle_path is not None and not Path(oracle_path).exists():
-        raise CheckpointError(f"oracle checkpoint {oracle_path} does not exist (train the oracle first)")
+    return make_guide
+
+
+def oracle_run(cfg: Config, name: str = "oracle", *, custom_env: bool = False) -> Run:
+    """The run of the oracle for ``cfg``: its depth encoder's width ``pretrain.feature_dim`` is part of it."""
+    guided = cfg.rl.oracle_guide != "none"
+    ident = rl_identity(
+        cfg,
+        "planner" if guided else None,
+        oracle_guide=cfg.rl.oracle_guide,
+        feature_dim=cfg.pretrain.feature_dim,
+        custom_env=custom_env,
+    )
+    return rl_run(cfg, name, ident)
+
+
+def policy_run(
+    cfg: Config,
+    name: str,
+    encoder_path: str | Path | None,
+    oracle_path: str | Path | None = None,
+    planner_factory: Callable[[], Any] | None = None,
+    *,
+    custom_env: bool = False,
+) -> Run:
+    """The run of a visuomotor policy: on the frozen encoder at ``encoder_path``, or end to end when None.
+
+    Upstream artifacts enter by content digest, not path: a retrained oracle or encoder at the same path must
+    not reuse a run, and the same file reached by a relative (CLI) or absolute (notebook) path must.
+    """
+    kind = "policy" if oracle_path is not None else "planner" if planner_factory is not None else None
+    if encoder_path is not None:
+        feats = {"features": "frozen", "encoder_digest": file_digest(encoder_path)}
+    else:
+        feats = {"features": "pixel", "crop": cfg.pretrain.crop_to, "feature_dim": cfg.pretrain.feature_dim}
+    guide = {}
+    if kind is not None and cfg.rl.alpha_schedule != "none":
+        guide = {
+            "oracle_digest": file_digest(oracle_path) if oracle_path is not None else "",
+            "planner": getattr(planner_factory, "__name__", "") if planner_factory else "",
+        }
+    return rl_run(cfg, name, rl_identity(cfg, kind, **feats, custom_env=custom_env, **guide))
+
+
+def train_student(
+    cfg: Config,
+    encoder_path: str | Path,
+    oracle_path: str | Path | None = None,
+    *,
+    name: str = "ours",
+    planner_factory: Callable[[], Any] | None = None,
+    make_env: Callable[[int], Any] | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> Result:
+    """Visuomotor policy on a frozen pretrained encoder: PPO on [f(rgb stack), v, ω, θ, Δp_goal] (paper IV-C).
+
+    Guide: the oracle at ``oracle_path`` (its mean and learned std on the privileged obs), else a planner from
+    ``planner_factory`` with fixed std ``rl.guide_std``, else none (``ours-noOT``, ``curl``). ``rl.alpha_schedule
+    ='none'`` also trains without the KL term. Encoder and oracle are checked against the env before any
+    training step.
+    """
+    make_guide = _guide_maker(cfg, oracle_path, planner_factory)
+    if not Path(encoder_path).exists():
+        raise CheckpointError(f"encoder checkpoint {encoder_path} does not exist (run the pretraining stage first)")
     return train(
         cfg,
-        stage="student",
-        name=name,
+        run=policy_run(cfg, name, encoder_path, oracle_path, planner_factory, custom_env=make_env is not None),
         make_env=make_env or _default_make_env(cfg),
         build_features=lambda space: make_student_features(encoder_path, space),
         make_guide=make_guide,
-        extra=extra,
         overwrite=overwrite,
         progress=progress,
+        meta={"encoder": str(encoder_path), "oracle": str(oracle_path or "")},
     )
 
 
-def run_student(cfg: Config, *, progress: bool = True) -> Result:
-    """CLI stage ``student``: the OMC student from this preset's pretraining and oracle runs.
+def train_pixel(
+    cfg: Config,
+    oracle_path: str | Path | None = None,
+    *,
+    name: str = "ppo",
+    planner_factory: Callable[[], Any] | None = None,
+    make_env: Callable[[int], Any] | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> Result:
+    """End-to-end visuomotor PPO: the pixel encoder f (same architecture, trained with the policy) (V-C).
 
-    The encoder is ``omcrl.pretrain.run_dir(cfg) / "encoder.pt"`` and the oracle
-    ``results/<preset>/runs/oracle/oracle/seed<k>/final.pt``; with ``rl.alpha_schedule=none`` it trains the
-    unguided "w/o OT" twin (run name ``omc-noOT``), which needs no oracle.
+    No guide: the ``ppo`` baseline; a planner guide (Hybrid APF, fixed std): ``npe``; the oracle: ``npe-ot``.
+    f sees the centre ``pretrain.crop_to`` px of the env's frames (what the frozen encoders see) and has
+    ``pretrain.feature_dim`` outputs, so both fields are part of the run's identity.
     """
-    from omcrl import pretrain
-
-    encoder = pretrain.run_dir(cfg) / "encoder.pt"
-    if not encoder.exists():
-        raise CheckpointError(f"encoder {encoder} does not exist (run the pretrain stage first)")
-    if cfg.rl.alpha_schedule == "none":
-        return train_student(cfg, encoder, None, name="omc-noOT", progress=progress)
-    oracle = run_dir_for(cfg, "oracle", "oracle") / "final.pt"
-    return train_student(cfg, encoder, oracle, name="omc", progress=progress)
+    make_guide = _guide_maker(cfg, oracle_path, planner_factory)
+    crop, dim = cfg.pretrain.crop_to, cfg.pretrain.feature_dim
+    return train(
+        cfg,
+        run=policy_run(cfg, name, None, oracle_path, planner_factory, custom_env=make_env is not None),
+        make_env=make_env or _default_make_env(cfg),
+        build_features=lambda space: make_pixel_features(space, crop, dim),
+        make_guide=make_guide,
+        overwrite=overwrite,
+        progress=progress,
+        meta={"oracle": str(oracle_path or "")},
+    )

@@ -133,7 +133,9 @@ def plot_eval_bars(
     return fig
 
 
-def plot_trajectories(episodes: pd.DataFrame, scene: str, episode: int = 0, env_config: Any = None) -> plt.Figure:
+def plot_trajectories(
+    episodes: pd.DataFrame, scene: str, episode: int = 0, env_config: Any = None, ax: plt.Axes | None = None
+) -> plt.Figure:
     """Top-down (x, y) paths of every method on one evaluation episode (the same layout for all methods).
 
     Parameters
@@ -143,10 +145,15 @@ def plot_trajectories(episodes: pd.DataFrame, scene: str, episode: int = 0, env_
     env_config : the :class:`omcrl.config.EnvConfig` evaluated with; when given, the episode's map, start, goal
         and shortest path are drawn underneath (the layout follows from ``eval_seed``).
 
+    ax : draw into this axes (default: a new figure).
+
     The start is a dot, the end a cross (green: success, red: collision, grey: timeout).
     """
     rows = episodes[(episodes.scene == scene) & (episodes.episode == episode)]
-    fig, ax = plt.subplots(figsize=(4.6, 4.6))
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(4.6, 4.6))
+    else:
+        fig = ax.figure
     if env_config is not None and len(rows):
         from omcrl.viz.scenes import draw_map, scene_snapshot
 

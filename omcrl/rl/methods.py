@@ -1,0 +1,240 @@
+"""The methods of the paper's comparison (Table I, V-C) as named recipes over the trainers.
+
+Each method is a :class:`MethodSpec`: which features its policy sees (privileged depth, a frozen pretrained
+encoder, or a pixel encoder trained end to end), which encoder pretraining it needs, and which guide pulls it
+early through the decaying KL term. ``train_method(cfg, name)`` trains one at ``cfg.seed`` (or skips it when
+its run is finished, or resumes it), with the same env-step budget, PPO settings and seed for every method.
+
+| method | features | encoder | guide |
+| --- | --- | --- | --- |
+| ``oracle`` | depth + privileged state | — (trained) | Hybrid APF (``rl.oracle_guide``) |
+| ``ours`` | frozen f+φ | OMC | the oracle |
+| ``ours-noOT`` | frozen f+φ | OMC | none |
+| ``curl`` | frozen f | CURL (no φ) | none |
+| ``curl-phi`` | frozen f+φ | CURL with φ | none |
+| ``ppo`` | f trained end to end | — | none |
+| ``npe`` | f trained end to end | — | Hybrid APF, fixed std ``rl.guide_std`` |
+| ``npe-ot`` | f trained end to end | — | the oracle |
+| ``hybrid-apf`` | privileged map | — | (planner, not learned) |
+| ``hybrid-apf-perceptive`` | depth camera map | — | (planner, not learned) |
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omcrl.config import Config, ConfigError
+from omcrl.rl.policy import CheckpointError
+from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, train_pixel, train_student
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """One method of the comparison.
+
+    Attributes
+    ----------
+    name : the kit's name (run folders, CLI ``--method``, table rows).
+    label : the paper's name in tables and figures.
+    features : ``oracle`` | ``frozen`` | ``pixel`` | ``planner``.
+    encoder : pretraining overrides for a frozen encoder (``{"method": "curl", "use_projection": False}``).
+    guide : ``oracle`` | ``apf`` | None (``oracle-config``: the oracle's own ``rl.oracle_guide``).
+    privileged : uses inputs a real robot does not have (true map or depth + obstacle vectors).
+    description : one line for ``--help``.
+    """
+
+    name: str
+    label: str
+    features: str
+    encoder: dict = field(default_factory=dict)
+    guide: str | None = None
+    privileged: bool = False
+    description: str = ""
+
+    @property
+    def learned(self) -> bool:
+        return self.features != "planner"
+
+
+METHODS: dict[str, MethodSpec] = {
+    m.name: m
+    for m in (
+        MethodSpec("oracle", "Oracle", "oracle", guide="oracle-config", privileged=True,
+                   description="privileged PPO teacher on depth + state (upper bound)"),
+        MethodSpec("ours", "Ours", "frozen", {"method": "omc"}, guide="oracle",
+                   description="OMC-RL: frozen masked-contrastive encoder, oracle-guided PPO"),
+        MethodSpec("ours-noOT", "Ours w/o OT", "frozen", {"method": "omc"},
+                   description="OMC encoder, PPO without the oracle teacher"),
+        MethodSpec("npe", "NPE", "pixel", guide="apf",
+                   description="end-to-end PPO from RGB guided early by Hybrid APF (non-expert)"),
+        MethodSpec("npe-ot", "NPE w/ OT", "pixel", guide="oracle",
+                   description="end-to-end PPO from RGB guided early by the oracle"),
+        MethodSpec("curl", "CURL", "frozen", {"method": "curl", "use_projection": False},
+                   description="frozen CURL encoder (no phi), PPO without guidance"),
+        MethodSpec("curl-phi", "CURL w/ phi", "frozen", {"method": "curl", "use_projection": True},
+                   description="frozen CURL encoder with projection phi, PPO without guidance"),
+        MethodSpec("ppo", "PPO", "pixel",
+                   description="end-to-end PPO from RGB, no pretraining, no guidance"),
+        MethodSpec("hybrid-apf", "Hybrid APF", "planner", privileged=True,
+                   description="A* on the true map + potential field on the true nearest obstacle"),
+        MethodSpec("hybrid-apf-perceptive", "Hybrid APF (perceptive)", "planner",
+                   description="A* on the map seen by the depth camera + potential field on sensed obstacles"),
+    )
+}  # fmt: skip
+
+# Methods of Table I in the paper's order (the oracle first as the upper bound).
+TABLE1_METHODS = tuple(METHODS)
+
+
+def get_method(name: str) -> MethodSpec:
+    """The spec of ``name``; a ConfigError lists the known methods otherwise."""
+    if name not in METHODS:
+        raise ConfigError(f"method: got {name!r}, known methods are {list(METHODS)}")
+    return METHODS[name]
+
+
+def encoder_config(cfg: Config, method: str | MethodSpec) -> Config:
+    """``cfg`` with the pretraining overrides of ``method``'s frozen encoder applied (a copy)."""
+    spec = get_method(method) if isinstance(method, str) else method
+    if spec.features != "frozen":
+        raise ConfigError(f"method {spec.name!r} has no pretrained encoder (features: {spec.features})")
+    out = copy.deepcopy(cfg)
+    for k, v in spec.encoder.items():
+        setattr(out.pretrain, k, v)
+    return out
+
+
+def encoder_path(cfg: Config, method: str | MethodSpec) -> Path:
+    """Where ``method``'s frozen encoder for ``cfg`` (and ``cfg.seed``) is written by pretraining."""
+    from omcrl import pretrain
+
+    return pretrain.encoder_path(encoder_config(cfg, method))
+
+
+def pretrain_command(cfg: Config, method: str | MethodSpec) -> str:
+    """The CLI line that pretrains ``method``'s encoder (for error messages)."""
+    spec = get_method(method) if isinstance(method, str) else method
+    return f"python -m omcrl pretrain --method {spec.name} --preset {cfg.preset} --seed {cfg.seed}"
+
+
+def pretrain_method(cfg: Config, method: str, *, progress: bool = True) -> Any:
+    """Pretrain (or find) the frozen encoder of ``method`` at ``cfg.seed``; returns the PretrainResult."""
+    from omcrl import pretrain
+
+    return pretrain.run(encoder_config(cfg, method), progress=progress)
+
+
+def oracle_path(cfg: Config) -> Path:
+    """The oracle's ``final.pt`` for ``cfg`` (``cfg.seed``): where ``train_method(cfg, "oracle")`` writes it."""
+    return oracle_run(cfg).dir / "final.pt"
+
+
+def _require(path: Path, what: str, command: str) -> Path:
+    if not path.exists():
+        raise CheckpointError(f"{what} {path} does not exist; run first: {command}")
+    return path
+
+
+def train_method(
+    cfg: Config,
+    method: str,
+    *,
+    progress: bool = True,
+    overwrite: bool = False,
+    make_env: Callable[[int], Any] | None = None,
+) -> Result:
+    """Train one learned method of the comparison at ``cfg.seed`` (skip if finished, resume if interrupted).
+
+    Prerequisites are found, not trained: a frozen encoder must have been pretrained
+    (:func:`pretrain_method`) and a method guided by the oracle needs the oracle's run finished. A missing one
+    raises :class:`CheckpointError` naming the file and the command that makes it, before anything is trained.
+    """
+    spec = get_method(method)
+    if not spec.learned:
+        raise ConfigError(f"method {method!r} is a planner: it is not trained (evaluate it directly)")
+    if spec.features == "oracle":
+        return train_oracle(cfg, name=spec.name, make_env=make_env, overwrite=overwrite, progress=progress)
+    oracle = None
+    if spec.guide == "oracle":
+        oracle = _require(
+            oracle_path(cfg),
+            "oracle checkpoint",
+            f"python -m omcrl train --method oracle --preset {cfg.preset} --seed {cfg.seed}",
+        )
+    planner = _apf_factory(cfg) if spec.guide == "apf" else None
+    common = {"name": spec.name, "planner_factory": planner, "make_env": make_env, "overwrite": overwrite}
+    if spec.features == "frozen":
+        enc = _require(encoder_path(cfg, spec), f"{spec.name} encoder", pretrain_command(cfg, spec))
+        return train_student(cfg, enc, oracle, progress=progress, **common)
+    return train_pixel(cfg, oracle, progress=progress, **common)
+
+
+def _apf_factory(cfg: Config) -> Callable[[], Any]:
+    from omcrl.planners import HybridAPF
+
+    def hybrid_apf() -> Any:
+        return HybridAPF(cfg.env)
+
+    return hybrid_apf
+
+
+def final_policy_path(cfg: Config, method: str) -> Path | None:
+    """``final.pt`` of a learned method's finished run at ``cfg.seed``, or None when it is not there.
+
+    The run is derived from the current config and upstream artifacts exactly as :func:`train_method` derives
+    it, so only a run of this very configuration is found.
+    """
+    spec = get_method(method)
+    if spec.features == "oracle":
+        p = oracle_path(cfg)
+        return p if p.exists() else None
+    oracle = oracle_path(cfg) if spec.guide == "oracle" else None
+    enc = encoder_path(cfg, spec) if spec.features == "frozen" else None
+    if (oracle is not None and not oracle.exists()) or (enc is not None and not enc.exists()):
+        return None
+    planner = _apf_factory(cfg) if spec.guide == "apf" else None
+    p = policy_run(cfg, spec.name, enc, oracle, planner).dir / "final.pt"
+    return p if p.exists() else None
+
+
+def training_runs(cfg: Config, methods: list[str] | None = None, seeds: list[int] | None = None) -> dict:
+    """``{method: {seed: run folder}}`` of the finished training runs of learned methods at ``seeds``."""
+    out: dict[str, dict[int, Path]] = {}
+    for m in methods or [n for n, s in METHODS.items() if s.learned]:
+        for s in seeds if seeds is not None else cfg.seeds:
+            p = final_policy_path(cfg.with_seed(s), m)
+            if p is not None:
+                out.setdefault(m, {})[s] = p.parent
+    return out
+
+
+# ---------------------------------------------------------------- CLI stages
+def train_stage(cfg: Config, method: str | None = None, *, progress: bool = True) -> Result:
+    """CLI stage ``train``: ``python -m omcrl train --method <name> --preset P [--seed k]``."""
+    if method is None:
+        learned = [m for m, s in METHODS.items() if s.learned]
+        raise ConfigError(f"stage 'train' needs --method, one of {learned}")
+    return train_method(cfg, method, progress=progress)
+
+
+def oracle_stage(cfg: Config, *, progress: bool = True) -> Result:
+    """CLI stage ``oracle``: the same as ``train --method oracle``."""
+    return train_method(cfg, "oracle", progress=progress)
+
+
+def student_stage(cfg: Config, *, progress: bool = True) -> Result:
+    """CLI stage ``student``: ``ours`` (``ours-noOT`` with ``rl.alpha_schedule=none``)."""
+    return train_method(cfg, "ours-noOT" if cfg.rl.alpha_schedule == "none" else "ours", progress=progress)
+
+
+def pretrain_stage(cfg: Config, method: str | None = None, *, progress: bool = True) -> Any:
+    """CLI stage ``pretrain``: the encoder of ``--method`` (ours, curl, curl-phi, ...), else ``cfg.pretrain``."""
+    if method is None:
+        from omcrl import pretrain
+
+        return pretrain.run(cfg, progress=progress)
+    return pretrain_method(cfg, method, progress=progress)

@@ -1,0 +1,247 @@
+"""One home for runs: naming, identity keys, skip-if-finished / resume, metrics I/O and RNG state.
+
+Every stage that trains something (pretraining, the oracle, each RL method) writes one *run*::
+
+    <run_root>/runs/<stage>/<method>-<key>/seed<k>/
+        run.json        identity: stage, method, seed, key and the identity dict the key hashes
+        config.yaml     the resolved config (omcrl.config.save_config)
+        metrics.csv     tidy rows step,metric,value (MetricsLog writes, read_metrics reads)
+        ...             the stage's checkpoints and artifacts
+
+A run is identified by its **method**, its **identity** (every config field and upstream artifact digest that
+changes what is trained, nothing else) and its **seed**. The folder name carries a short hash of the identity,
+so two different configurations never share a folder, and the same configuration always finds its run again:
+a finished run is skipped, an interrupted one resumes from its last checkpoint. ``run.json`` is checked on
+every open, so even a hash collision or a hand-copied folder cannot make one configuration reuse another's
+run (:class:`RunConfigMismatch`).
+
+RNG states are stored as tensors and plain containers, so checkpoints load with ``weights_only=True``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import random
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omcrl.config import Config, config_hash
+from omcrl.utils.io import atomic_write_text
+
+RUN_FILE = "run.json"
+
+
+class RunConfigMismatch(RuntimeError):
+    """A run folder holds a run of a different identity (configuration, method or seed)."""
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run: where it lives and what it is.
+
+    Attributes
+    ----------
+    stage : ``pretrain``, ``oracle``, ``student``, ...
+    method : the method or pretraining-variant name (``ours``, ``curl``, ``omc-rho0.3``, ...).
+    seed : the training seed.
+    key : 10-hex-digit hash of ``identity``.
+    identity : JSON-able dict of everything that changes the trained artifact.
+    dir : ``<run_root>/runs/<stage>/<method>-<key>/seed<seed>``.
+    """
+
+    stage: str
+    method: str
+    seed: int
+    key: str
+    identity: dict
+    dir: Path
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.dir / "metrics.csv"
+
+    def claim(self, overwrite: bool = False) -> None:
+        """Create the folder and write ``run.json``; raise RunConfigMismatch if it holds another run.
+
+        ``overwrite`` deletes a folder of a different identity instead of raising.
+        """
+        found = read_identity(self.dir)
+        if found is not None and found.get("key") != self.key:
+            if not overwrite:
+                raise RunConfigMismatch(
+                    f"run folder {self.dir} holds a run with key {found.get('key')}, this configuration has key "
+                    f"{self.key}; delete the folder or pass overwrite=True"
+                )
+            import shutil
+
+            shutil.rmtree(self.dir)
+            found = None
+        self.dir.mkdir(parents=True, exist_ok=True)
+        if found is None:
+            record = {"stage": self.stage, "method": self.method, "seed": self.seed, "key": self.key}
+            atomic_write_text(self.dir / RUN_FILE, json.dumps({**record, "identity": self.identity}, indent=1))
+
+    def check(self) -> None:
+        """Raise RunConfigMismatch when the folder exists with a ``run.json`` of another key."""
+        found = read_identity(self.dir)
+        if found is not None and found.get("key") != self.key:
+            raise RunConfigMismatch(
+                f"run folder {self.dir} holds a run with key {found.get('key')}, this configuration has key {self.key}"
+            )
+
+
+def _plain(x: Any) -> Any:
+    """JSON-able copy: tuples become lists, paths strings."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+def run_key(identity: dict) -> str:
+    """10-hex-digit hash of an identity dict (order of keys does not matter)."""
+    return config_hash(_plain(identity))[:10]
+
+
+def make_run(cfg: Config, stage: str, method: str, identity: dict) -> Run:
+    """The :class:`Run` of ``method`` at ``cfg.seed`` whose artifact is determined by ``identity``.
+
+    ``identity`` must hold every config field and upstream digest that changes the artifact; the seed and
+    method are added here. It is stored as given (plain JSON) in ``run.json``.
+    """
+    ident = _plain({"stage": stage, "method": method, **identity})
+    key = run_key(ident)
+    d = cfg.run_root / "runs" / stage / f"{method}-{key}" / f"seed{cfg.seed}"
+    return Run(stage, method, int(cfg.seed), key, ident, d)
+
+
+def read_identity(run_dir: str | Path) -> dict | None:
+    """The ``run.json`` of a run folder, or None when there is none."""
+    p = Path(run_dir) / RUN_FILE
+    if not p.is_file():
+        return None
+    try:
+        return json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise RunConfigMismatch(f"{p} is not a readable run record ({e}); delete the run folder") from None
+
+
+def find_runs(run_root: str | Path, stage: str | None = None, method: str | None = None) -> list[dict]:
+    """Every run under ``<run_root>/runs`` (optionally of one stage / method): their ``run.json`` + ``dir``."""
+    base = Path(run_root) / "runs"
+    out = []
+    for rec in sorted(base.glob(f"{stage or '*'}/*/seed*/{RUN_FILE}")):
+        ident = read_identity(rec.parent)
+        if ident is None or (method is not None and ident.get("method") != method):
+            continue
+        out.append({**ident, "dir": rec.parent})
+    return out
+
+
+# ---------------------------------------------------------------- metrics
+def read_metrics(path: str | Path) -> Any:
+    """A tidy ``metrics.csv`` (or a run folder holding one) as a DataFrame with columns step, metric, value."""
+    import pandas as pd
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / "metrics.csv"
+    if not p.exists():
+        return pd.DataFrame({"step": pd.Series(dtype=int), "metric": pd.Series(dtype=str), "value": []})
+    return pd.read_csv(p)
+
+
+def metric_series(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``{metric: (steps, values)}`` from a tidy metrics file, each sorted by step."""
+    df = read_metrics(path)
+    out = {}
+    for name, g in df.groupby("metric", sort=False):
+        g = g.sort_values("step", kind="stable")
+        out[str(name)] = (g["step"].to_numpy(), g["value"].to_numpy(dtype=float))
+    return out
+
+
+class MetricsLog:
+    """Append-only tidy ``metrics.csv`` (step, metric, value) plus TensorBoard events.
+
+    Resuming at ``resume_step`` drops rows past it (they belong to work the checkpoint does not hold), so a
+    resumed run's file equals an uninterrupted one's. ``tensorboard=False`` writes the CSV only.
+    """
+
+    def __init__(self, run_dir: str | Path, resume_step: int | None, tensorboard: bool = True) -> None:
+        run_dir = Path(run_dir)
+        self.path = run_dir / "metrics.csv"
+        if resume_step is None or not self.path.exists():
+            atomic_write_text(self.path, "step,metric,value\n")
+        else:
+            with open(self.path, newline="") as fh:
+                rows = list(csv.reader(fh))[1:]
+            keep = io.StringIO()
+            w = csv.writer(keep, lineterminator="\n")
+            w.writerow(["step", "metric", "value"])
+            w.writerows(r for r in rows if r and int(r[0]) <= resume_step)
+            atomic_write_text(self.path, keep.getvalue())
+        self.tb = None
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self.tb = SummaryWriter(str(run_dir / "tb"), purge_step=resume_step)
+
+    def log(self, step: int, values: dict[str, float]) -> None:
+        with open(self.path, "a", newline="") as fh:
+            w = csv.writer(fh, lineterminator="\n")
+            for k, v in values.items():
+                if v is None or (isinstance(v, float) and math.isnan(v)):
+                    continue
+                w.writerow([step, k, f"{float(v):.6g}"])
+                if self.tb is not None:
+                    self.tb.add_scalar(k, float(v), step)
+
+    def close(self) -> None:
+        if self.tb is not None:
+            self.tb.flush()
+            self.tb.close()
+
+
+# ---------------------------------------------------------------- RNG state
+def rng_state() -> dict:
+    """torch, numpy-legacy and python RNG states as tensors and plain containers (``weights_only`` safe).
+
+    The legacy global numpy RNG is saved because third-party code (envs, planners) may draw from it.
+    """
+    import torch
+
+    name, keys, pos, has_gauss, cached = np.random.get_state()  # noqa: NPY002
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": {
+            "name": str(name),
+            "keys": torch.from_numpy(np.asarray(keys, np.int64)),
+            "pos": int(pos),
+            "has_gauss": int(has_gauss),
+            "cached": float(cached),
+        },
+        "python": [list(random.getstate()[1]), random.getstate()[0]],
+    }
+
+
+def set_rng_state(s: dict) -> None:
+    """Restore what :func:`rng_state` returned."""
+    import torch
+
+    torch.set_rng_state(s["torch"])
+    n = s["numpy"]
+    np.random.set_state(  # noqa: NPY002
+        (n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached"])
+    )
+    internal, version = s["python"]
+    random.setstate((int(version), tuple(int(v) for v in internal), None))

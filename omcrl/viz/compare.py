@@ -1,0 +1,159 @@
+"""Figures of the comparison (notebook 07): learning curves over seeds (Fig. 5), trajectories of every method
+(Fig. 6) and sample efficiency (env steps to a training success rate).
+
+Curves read the runs' tidy ``metrics.csv`` (:func:`omcrl.runs.metric_series`); x is env steps over all envs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from omcrl.runs import metric_series
+from omcrl.viz.pretrain import smooth
+
+CURVE_METRICS = (("episodic_return", "episodic reward"), ("success_rate", "training success rate"))
+
+
+def _labels() -> dict[str, str]:
+    from omcrl.rl.methods import METHODS
+
+    return {m: s.label for m, s in METHODS.items()}
+
+
+def seed_curves(
+    runs: Mapping[int, str | Path], metric: str, window: int = 5, points: int = 100
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Mean over seeds of a smoothed training metric on a common step grid, with a 95% t-interval.
+
+    Parameters
+    ----------
+    runs : ``{seed: run folder or metrics.csv}``.
+    metric : a metric of the runs' ``metrics.csv`` (e.g. ``success_rate``).
+    window : trailing moving average over updates, applied per seed before averaging.
+
+    Returns
+    -------
+    steps (P,), mean (P,), lo (P,), hi (P,); lo = hi = mean with one seed.
+    """
+    from scipy import stats
+
+    series = []
+    for path in runs.values():
+        m = metric_series(path)
+        if metric in m and len(m[metric][0]):
+            series.append((m[metric][0], smooth(m[metric][1], window)))
+    if not series:
+        return (np.zeros(0),) * 4
+    end = min(s[0][-1] for s in series)
+    grid = np.linspace(min(s[0][0] for s in series), end, points)
+    ys = np.stack([np.interp(grid, x, y) for x, y in series])
+    mean = ys.mean(0)
+    if len(ys) < 2:
+        return grid, mean, mean, mean
+    half = stats.t.ppf(0.975, len(ys) - 1) * ys.std(0, ddof=1) / math.sqrt(len(ys))
+    return grid, mean, mean - half, mean + half
+
+
+def plot_learning_curves(
+    runs: Mapping[str, Mapping[int, str | Path]],
+    metrics: Sequence[tuple[str, str]] = CURVE_METRICS,
+    window: int = 5,
+) -> plt.Figure:
+    """Fig. 5: one panel per metric, one line per method (mean over seeds, shaded 95% CI across seeds).
+
+    ``runs`` is ``{method: {seed: run folder}}`` (:func:`omcrl.rl.methods.training_runs`). The oracle is
+    drawn dashed as the upper bound.
+    """
+    labels = _labels()
+    fig, axes = plt.subplots(1, len(metrics), figsize=(5.2 * len(metrics), 3.6), squeeze=False)
+    for ax, (metric, title) in zip(axes[0], metrics):
+        for i, (method, seeds) in enumerate(runs.items()):
+            x, y, lo, hi = seed_curves(seeds, metric, window)
+            if not len(x):
+                continue
+            style = "--" if method == "oracle" else "-"
+            ax.plot(x, y, style, color=f"C{i}", label=f"{labels.get(method, method)} ({len(seeds)} seeds)")
+            ax.fill_between(x, lo, hi, color=f"C{i}", alpha=0.18, lw=0)
+        ax.set(xlabel="env steps", title=title)
+        if metric == "success_rate":
+            ax.set(ylim=(-0.02, 1.02), ylabel="fraction of episodes")
+        else:
+            ax.set(ylabel="return per episode")
+    axes[0][-1].legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    return fig
+
+
+def steps_to_success(path: str | Path, threshold: float = 0.8, window: int = 5) -> float:
+    """First env step at which the moving-average training success rate reaches ``threshold`` (NaN: never)."""
+    m = metric_series(path)
+    if "success_rate" not in m:
+        return math.nan
+    x, y = m["success_rate"]
+    hit = np.flatnonzero(smooth(y, window) >= threshold)
+    return float(x[hit[0]]) if len(hit) else math.nan
+
+
+def sample_efficiency(
+    runs: Mapping[str, Mapping[int, str | Path]], threshold: float = 0.8, window: int = 5
+) -> pd.DataFrame:
+    """Per method and seed: env steps to reach ``threshold`` training success in box (NaN when never)."""
+    rows = [
+        {"method": m, "train_seed": s, "steps": steps_to_success(p, threshold, window)}
+        for m, seeds in runs.items()
+        for s, p in seeds.items()
+    ]
+    return pd.DataFrame(rows, columns=["method", "train_seed", "steps"])
+
+
+def plot_sample_efficiency(eff: pd.DataFrame, budget: float, threshold: float = 0.8) -> plt.Figure:
+    """Bars: mean env steps to ``threshold`` training success per method (dots: seeds; hatched: some seed
+    never reached it within ``budget`` env steps, drawn at the budget)."""
+    labels = _labels()
+    methods = list(dict.fromkeys(eff["method"]))
+    fig, ax = plt.subplots(figsize=(1.0 + 0.9 * len(methods), 3.4))
+    for i, m in enumerate(methods):
+        v = eff.loc[eff.method == m, "steps"].to_numpy(float)
+        reached = np.isfinite(v)
+        shown = np.where(reached, v, budget)
+        ax.bar(i, shown.mean(), color=f"C{i}", hatch=None if reached.all() else "//", alpha=0.8)
+        ax.plot(np.full(len(v), i), shown, "k.", ms=5)
+        if not reached.all():
+            ax.text(i, budget, f"{(~reached).sum()}/{len(v)}\nnot\nreached", ha="center", va="bottom", fontsize=7)
+    ax.set(
+        xticks=range(len(methods)),
+        xticklabels=[labels.get(m, m) for m in methods],
+        ylabel="env steps",
+        title=f"env steps to {threshold:.0%} training success (box)",
+        ylim=(0, budget * 1.25),
+    )
+    ax.tick_params(axis="x", rotation=30)
+    fig.tight_layout()
+    return fig
+
+
+def plot_trajectory_grid(
+    episodes: pd.DataFrame,
+    scenes: Sequence[str] = ("furniture", "barrier", "tree"),
+    episode: int = 0,
+    train_seed: int | None = None,
+    env_config: Any = None,
+) -> plt.Figure:
+    """Fig. 6: every method's path from the same start to the same goal, one panel per scene, on the map."""
+    from omcrl.viz.rl import plot_trajectories
+
+    labels = _labels()
+    seed = train_seed if train_seed is not None else int(episodes["train_seed"].min())
+    sub = episodes[episodes["train_seed"] == seed].assign(method=lambda d: d["method"].map(lambda m: labels.get(m, m)))
+    fig, axes = plt.subplots(1, len(scenes), figsize=(4.8 * len(scenes), 4.8), squeeze=False)
+    for ax, scene in zip(axes[0], scenes):
+        plot_trajectories(sub, scene, episode, env_config=env_config, ax=ax)
+    fig.tight_layout()
+    return fig
