@@ -22,6 +22,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from omcrl.config import PRESETS, Config, ConfigError, load_config
+from omcrl.deploy.export import ExportError
 from omcrl.models.features import CheckpointError
 from omcrl.runs import RunConfigMismatch
 
@@ -42,6 +43,7 @@ STAGES: dict[str, tuple[str, str]] = {
     "train": ("omcrl.rl.methods:train_stage", "train one method of the comparison: --method NAME [--seed K]"),
     "evaluate": ("omcrl.eval:run", "evaluate the policies of --seed (or cfg.seed) and write a quick table"),
     "tables": ("omcrl.eval.table1:run", "evaluate every method at cfg.seeds and write Table I with CIs"),
+    "export": ("omcrl.deploy.export:export_stage", "export a visuomotor policy to ONNX: --policy RUN [--out FILE]"),
 }
 # Stages that take --method.
 METHOD_STAGES = ("train", "pretrain")
@@ -103,6 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("--method", default=None, help="method for 'train' and 'pretrain' (see below)")
     ap.add_argument("--seed", type=int, default=None, help="training seed (sets the config field 'seed')")
+    ap.add_argument("--policy", default=None, help="for 'export': a run folder or its final.pt")
+    ap.add_argument("--out", default=None, help="for 'export': the ONNX file (default: policy.onnx beside final.pt)")
     ap.add_argument("stage", help="stage to run (see below)")
     ap.add_argument("--preset", default="quick", choices=PRESETS, help="configuration preset (default: quick)")
     ap.add_argument(
@@ -149,11 +153,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 3
     t0 = time.perf_counter()
     try:
-        result = func(cfg, method=args.method) if args.stage in METHOD_STAGES else func(cfg)
+        if args.stage in METHOD_STAGES:
+            result = func(cfg, method=args.method)
+        elif args.stage == "export":
+            result = func(cfg, policy=args.policy, out=args.out)
+        else:
+            result = func(cfg)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    except (CheckpointError, RunConfigMismatch, FileNotFoundError) as e:
+    except (CheckpointError, RunConfigMismatch, FileNotFoundError, ExportError) as e:
         # Expected failures (a prerequisite missing, a run of another configuration): one line, no traceback.
         print(f"error: {e}", file=sys.stderr)
         return 1

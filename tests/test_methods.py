@@ -176,3 +176,24 @@ def test_training_runs_and_seeds_field(grid):
         load_config("smoke", overrides=["seeds=[0,0]"])
     assert load_config("paper").seeds == [0, 1, 2] and load_config("quick").seeds == [0]
     assert np.array_equal(load_config("smoke", overrides=["seeds=[2,0]"]).seeds, [2, 0])
+
+
+def test_every_visuomotor_method_exports_to_onnx_with_parity(grid, tmp_path):
+    from omcrl.deploy import ExportError, OnnxPolicy, export_onnx
+
+    rng = np.random.default_rng(0)
+    cfg = grid["cfg"]
+    obs = [
+        {
+            "rgb": rng.integers(0, 256, (cfg.env.frame_stack, 3, 32, 32), dtype=np.uint8),
+            "state": rng.normal(size=12).astype(np.float32),
+        }
+        for _ in range(20)
+    ]
+    for m, r in grid["results"].items():
+        if m == "oracle":
+            with pytest.raises(ExportError, match="privileged"):
+                export_onnx(r.run_dir, tmp_path / "oracle.onnx")
+            continue
+        pol, ref = OnnxPolicy(export_onnx(r.run_dir, tmp_path / f"{m}.onnx")), load_policy(r.final_path)
+        assert max(np.abs(pol.act(o) - ref.act(o)).max() for o in obs) <= 1e-4, m

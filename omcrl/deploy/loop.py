@@ -1,0 +1,301 @@
+"""The drone control loop (paper VI-B): camera frames + motion-capture pose → ONNX policy → velocity commands.
+
+One loop, three interfaces (any object with these methods works):
+
+* a **drone**: ``takeoff()``, ``send_velocity(vx, vy, wz)`` (body frame: m/s forward, m/s left, rad/s
+  counter-clockwise), ``land()``;
+* a **video source**: ``read() -> (frame (H, W, 3) uint8 RGB, t)`` or None before the first frame, ``t`` the
+  ``time.monotonic()`` at which the frame arrived;
+* a **pose source**: ``read() -> (pose (6,) = x, y, z m, roll, pitch, yaw rad in the world frame, t)`` or None.
+
+Each tick (at the model's ``control_hz``) the loop checks its safety rules, builds the observation exactly as
+the simulator does (frames resized to the model's image size and stacked, state v, ω, θ, Δp_goal in the body
+frame), runs the policy, scales, clamps and rate-limits the command and sends it. It lands, and says why, on:
+arrival within ``goal_radius`` (the paper's real-world success rule, 0.5 m), video or pose older than
+``stale_s`` (0.5 s), leaving the geofence, the time limit, any exception, and Ctrl-C (SIGINT). Every tick is
+appended to a CSV flight log and flushed, so a crash loses nothing.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+
+class Drone(Protocol):
+    def takeoff(self) -> None: ...
+    def send_velocity(self, vx: float, vy: float, wz: float) -> None: ...
+    def land(self) -> None: ...
+
+
+class VideoSource(Protocol):
+    def read(self) -> tuple[np.ndarray, float] | None: ...
+
+
+class PoseSource(Protocol):
+    def read(self) -> tuple[np.ndarray, float] | None: ...
+
+
+@dataclass
+class Safety:
+    """Safety settings of a flight. Units: m, m/s, rad/s, s.
+
+    Attributes
+    ----------
+    max_speed, max_yaw_rate : command clamps (default: the model's action scale).
+    max_accel : rate limit on |Δv| per second (m/s²); max_yaw_accel likewise (rad/s²).
+    geofence : (x_min, x_max, y_min, y_max) the drone must stay in, world frame.
+    stale_s : land when the newest video frame or pose is older than this.
+    goal_radius : arrival distance that ends the flight as a success.
+    max_time_s : land after this long in the air.
+    """
+
+    max_speed: float | None = None
+    max_yaw_rate: float | None = None
+    max_accel: float = 3.0
+    max_yaw_accel: float = 6.0
+    geofence: tuple[float, float, float, float] = (-8.0, 8.0, -8.0, 8.0)
+    stale_s: float = 0.5
+    goal_radius: float = 0.5
+    max_time_s: float = 120.0
+
+
+@dataclass
+class FlightResult:
+    """How a flight ended: ``reason`` is arrived | video_lost | pose_lost | geofence | timeout | error |
+    interrupted; ``landed_after_s`` is the time from the cause being detectable to the land command."""
+
+    reason: str
+    success: bool
+    ticks: int
+    duration_s: float
+    log_path: Path | None
+    final_distance: float
+    error: str = ""
+    poses: list = field(default_factory=list)
+
+
+def _resize(frame: np.ndarray, size: int) -> np.ndarray:
+    """(H, W, 3) uint8 → (3, size, size) uint8, bilinear (what a camera driver's resize does)."""
+    from PIL import Image
+
+    if frame.shape[0] == size and frame.shape[1] == size:
+        return np.ascontiguousarray(frame.transpose(2, 0, 1))
+    img = Image.fromarray(np.ascontiguousarray(frame)).resize((size, size), Image.BILINEAR)
+    return np.asarray(img, np.uint8).transpose(2, 0, 1)
+
+
+class StateEstimator:
+    """Body-frame state vector (12,) from successive poses: v from position differences (low-passed), ω_z from
+    yaw differences, θ from the pose, Δp_goal rotated into the body frame (paper IV-C, the env's layout)."""
+
+    def __init__(self, goal: tuple[float, float], altitude: float, smoothing: float = 0.5) -> None:
+        self.goal = np.asarray(goal, np.float64)
+        self.altitude, self.a = float(altitude), float(smoothing)
+        self.prev: tuple[np.ndarray, float] | None = None
+        self.v = np.zeros(2)
+        self.wz = 0.0
+
+    def update(self, pose: np.ndarray, t: float) -> np.ndarray:
+        x, y, _, roll, pitch, yaw = (float(v) for v in pose)
+        if self.prev is not None and t > self.prev[1]:
+            p0, t0 = self.prev
+            dt = t - t0
+            c, s = math.cos(yaw), math.sin(yaw)
+            dx, dy = (x - p0[0]) / dt, (y - p0[1]) / dt
+            v_body = np.array([c * dx + s * dy, -s * dx + c * dy])
+            self.v = self.a * self.v + (1 - self.a) * v_body
+            dyaw = (yaw - p0[5] + math.pi) % (2 * math.pi) - math.pi
+            self.wz = self.a * self.wz + (1 - self.a) * dyaw / dt
+        self.prev = (np.asarray(pose, np.float64), t)
+        c, s = math.cos(yaw), math.sin(yaw)
+        gx, gy = self.goal[0] - x, self.goal[1] - y
+        return np.array(
+            [self.v[0], self.v[1], 0.0, 0.0, 0.0, self.wz, roll, pitch, yaw, c * gx + s * gy, -s * gx + c * gy, 0.0],
+            np.float32,
+        )
+
+
+class ControlLoop:
+    """Fly ``policy`` (an :class:`omcrl.deploy.OnnxPolicy`) to ``goal`` with a drone, a camera and a pose source.
+
+    Parameters
+    ----------
+    policy : has ``run(rgb (1, 3L, H, W) uint8, state (1, 12)) -> (1, 3)`` and ``spec`` (image_size,
+        frame_stack, action_scale, control_hz).
+    drone, video, pose : the interfaces above.
+    goal : (x, y) world frame, m.
+    safety : :class:`Safety`; clamps default to the model's action scale.
+    log_path : CSV flight log, one row per tick (written and flushed as it goes).
+    camera : (image_size, frame_stack) the camera pipeline is configured for; checked against the model
+        before takeoff (ModelSpecError).
+    clock, sleep : time functions (``time.monotonic``, ``time.sleep``).
+    """
+
+    LOG_FIELDS = (
+        "t",
+        "tick",
+        "x",
+        "y",
+        "z",
+        "yaw",
+        "pose_age",
+        "frame_age",
+        "cmd_vx",
+        "cmd_vy",
+        "cmd_wz",
+        "latency_ms",
+        "goal_distance",
+        "event",
+    )
+
+    def __init__(
+        self,
+        policy: Any,
+        drone: Drone,
+        video: VideoSource,
+        pose: PoseSource,
+        goal: tuple[float, float],
+        safety: Safety | None = None,
+        log_path: str | Path | None = None,
+        camera: tuple[int, int] | None = None,
+        clock: Any = time.monotonic,
+        sleep: Any = time.sleep,
+    ) -> None:
+        self.policy, self.drone, self.video, self.pose = policy, drone, video, pose
+        spec = policy.spec
+        if camera is not None:
+            policy.check(camera[0], camera[1])
+        self.size, self.stack = int(spec["image_size"]), int(spec["frame_stack"])
+        self.safety = safety or Safety()
+        sc = spec["action_scale"]
+        self.max_speed = min(self.safety.max_speed or sc["max_speed"], sc["max_speed"])
+        self.max_yaw = min(self.safety.max_yaw_rate or sc["max_yaw_rate"], sc["max_yaw_rate"])
+        self.scale = np.array([sc["max_speed"], sc["max_speed"], sc["max_yaw_rate"]])
+        self.dt = 1.0 / float(spec["control_hz"])
+        self.goal = np.asarray(goal, np.float64)
+        self.estimator = StateEstimator(goal, spec.get("altitude", 1.0))
+        self.log_path = Path(log_path) if log_path is not None else None
+        self.clock, self.sleep = clock, sleep
+        self.frames: deque = deque(maxlen=self.stack)
+        self.cmd = np.zeros(3)
+
+    # ---------------------------------------------------------------- one tick
+    def command(self, action: np.ndarray) -> np.ndarray:
+        """Policy action in [−1, 1] → clamped and rate-limited (vx, vy, wz) in m/s and rad/s."""
+        target = np.asarray(action, np.float64) * self.scale
+        target[:2] = np.clip(target[:2], -self.max_speed, self.max_speed)
+        target[2] = np.clip(target[2], -self.max_yaw, self.max_yaw)
+        step = np.array([self.safety.max_accel, self.safety.max_accel, self.safety.max_yaw_accel]) * self.dt
+        self.cmd = self.cmd + np.clip(target - self.cmd, -step, step)
+        return self.cmd.copy()
+
+    def observation(self, frame: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        img = _resize(frame, self.size)
+        if not self.frames:
+            self.frames.extend([img] * self.stack)  # the env also starts with the first frame repeated
+        else:
+            self.frames.append(img)
+        rgb = np.concatenate(list(self.frames), axis=0)[None]
+        return np.ascontiguousarray(rgb), state[None]
+
+    def _check(self, now: float, t_start: float, frame: Any, pose: Any) -> str | None:
+        s = self.safety
+        if frame is None or now - frame[1] > s.stale_s:
+            return "video_lost"
+        if pose is None or now - pose[1] > s.stale_s:
+            return "pose_lost"
+        x, y = float(pose[0][0]), float(pose[0][1])
+        xmin, xmax, ymin, ymax = s.geofence
+        if not (xmin <= x <= xmax and ymin <= y <= ymax):
+            return "geofence"
+        if math.hypot(x - self.goal[0], y - self.goal[1]) <= s.goal_radius:
+            return "arrived"
+        if now - t_start > s.max_time_s:
+            return "timeout"
+        return None
+
+    # ---------------------------------------------------------------- the flight
+    def fly(self) -> FlightResult:
+        """Take off, fly until a rule ends the flight, land (always), and return how it ended."""
+        fh = open(self.log_path, "w", newline="") if self.log_path else None
+        writer = csv.writer(fh) if fh else None
+        if writer:
+            writer.writerow(self.LOG_FIELDS)
+            fh.flush()
+        reason, error, tick, poses = "error", "", 0, []
+        t_start = self.clock()
+        last_pose = None
+        try:
+            self.drone.takeoff()
+            t_start = self.clock()
+            next_tick = t_start
+            while True:
+                now = self.clock()
+                frame, pose = self.video.read(), self.pose.read()
+                last_pose = pose if pose is not None else last_pose
+                stop = self._check(now, t_start, frame, pose)
+                if stop is not None:
+                    reason = stop
+                    self._log(writer, fh, now - t_start, tick, pose, frame, now, None, 0.0, stop)
+                    break
+                t0 = time.perf_counter()
+                state = self.estimator.update(pose[0], pose[1])
+                rgb, st = self.observation(frame[0], state)
+                action = self.policy.run(rgb, st)[0]
+                cmd = self.command(action)
+                self.drone.send_velocity(*cmd.tolist())
+                latency = (time.perf_counter() - t0) * 1e3
+                poses.append(np.asarray(pose[0][:3], float).tolist())
+                self._log(writer, fh, now - t_start, tick, pose, frame, now, cmd, latency, "")
+                tick += 1
+                next_tick += self.dt
+                self.sleep(max(0.0, next_tick - self.clock()))
+        except KeyboardInterrupt:
+            reason = "interrupted"
+        except Exception as e:  # any failure: land first, report after
+            reason, error = "error", f"{type(e).__name__}: {e}"
+        finally:
+            try:
+                self.drone.send_velocity(0.0, 0.0, 0.0)
+            finally:
+                self.drone.land()
+                if writer:
+                    self._log(
+                        writer, fh, self.clock() - t_start, tick, last_pose, None, self.clock(), None, 0.0, "land"
+                    )
+                if fh:
+                    fh.close()
+        d = math.inf
+        if last_pose is not None:
+            d = math.hypot(float(last_pose[0][0]) - self.goal[0], float(last_pose[0][1]) - self.goal[1])
+        return FlightResult(reason, reason == "arrived", tick, self.clock() - t_start, self.log_path, d, error, poses)
+
+    def _log(self, writer: Any, fh: Any, t: float, tick: int, pose: Any, frame: Any, now: float, cmd: Any,
+             latency: float, event: str) -> None:  # fmt: skip
+        if writer is None:
+            return
+        p = pose[0] if pose is not None else [math.nan] * 6
+        d = math.hypot(float(p[0]) - self.goal[0], float(p[1]) - self.goal[1]) if pose is not None else math.nan
+        c = cmd if cmd is not None else [math.nan] * 3
+        writer.writerow(
+            [
+                f"{t:.4f}",
+                tick,
+                *(f"{float(v):.4f}" for v in (p[0], p[1], p[2], p[5])),
+                f"{now - pose[1]:.4f}" if pose is not None else "",
+                f"{now - frame[1]:.4f}" if frame is not None else "",
+                *(f"{float(v):.4f}" for v in c),
+                f"{latency:.3f}",
+                f"{d:.4f}",
+                event,
+            ]
+        )
+        fh.flush()

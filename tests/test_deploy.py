@@ -1,0 +1,230 @@
+"""Deployment: ONNX export and parity, the onnxruntime policy in evaluation, the control loop's safety rules on
+the simulated drone, and the loop through the real djitellopy client against the loopback fake Tello."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from omcrl.config import load_config, save_config
+from omcrl.deploy import ExportError, ModelSpecError, OnnxPolicy, export_onnx
+from omcrl.deploy.loop import ControlLoop, Safety
+from omcrl.deploy.sim import SimulatedDrone
+from omcrl.eval import evaluate
+from omcrl.models.actor_critic import ActorCritic
+from omcrl.models.features import make_oracle_features, make_pixel_features
+from omcrl.rl import load_policy
+from omcrl.rl.policy import policy_payload
+
+torch.set_num_threads(1)
+EMPTY = [{"kind": "box", "position": (7.5, 7.5), "size": (0.2, 0.2, 0.2)}]  # one far-away box: an empty room
+
+
+def _cfg(tmp_path):
+    return load_config("smoke", overrides=[f"results_dir={tmp_path}", "env.image_size=32", "env.max_steps=80"])
+
+
+def _space(cfg):
+    from omcrl.envs import make_env
+
+    env = make_env("box", seed=0, config=cfg.env)
+    space = env.observation_space
+    env.close()
+    return space
+
+
+def goal_seeker(tmp_path, cfg, name="seeker"):
+    """A pixel policy whose actor is a saturating P-controller on Δp_goal (its encoder is random and ignored):
+    it flies straight to the goal, so flights through the loop have a known good outcome."""
+    torch.manual_seed(0)
+    space = _space(cfg)
+    feats = make_pixel_features(space, cfg.pretrain.crop_to, cfg.pretrain.feature_dim)
+    agent = ActorCritic(feats, 3, 16, layer_norm=False)
+    gx = feats.feature_dim + 9
+    with torch.no_grad():
+        for layer in (agent.actor[1], agent.actor[3], agent.actor[5]):
+            layer.weight.zero_()
+            layer.bias.zero_()
+        agent.actor[1].weight[0, gx] = agent.actor[1].weight[1, gx + 1] = 0.5
+        agent.actor[3].weight[0, 0] = agent.actor[3].weight[1, 1] = 1.0
+        agent.actor[5].weight[0, 0] = agent.actor[5].weight[1, 1] = 3.0
+    run = tmp_path / name
+    run.mkdir()
+    shapes = {k: list(s.shape) for k, s in space.spaces.items()}
+    torch.save(policy_payload(agent, shapes, 0, meta={"method": name}), run / "final.pt")
+    save_config(cfg, run)
+    return run
+
+
+@pytest.fixture(scope="module")
+def seeker(tmp_path_factory):
+    """(config, run folder, exported ONNX file) of the goal seeker, exported once for the module."""
+    root = tmp_path_factory.mktemp("deploy")
+    cfg = _cfg(root)
+    run = goal_seeker(root, cfg)
+    return cfg, run, export_onnx(run)
+
+
+def test_export_parity_metadata_and_refusals(tmp_path, seeker):
+    cfg, run, path = seeker
+    pol, ref = OnnxPolicy(path), load_policy(run / "final.pt")
+    assert pol.spec["image_size"] == 32 and pol.spec["frame_stack"] == cfg.env.frame_stack
+    assert pol.spec["action_scale"] == {"max_speed": cfg.env.max_speed, "max_yaw_rate": cfg.env.max_yaw_rate}
+    rng = np.random.default_rng(0)
+    diff = 0.0
+    for _ in range(200):
+        obs = {
+            "rgb": rng.integers(0, 256, (cfg.env.frame_stack, 3, 32, 32), dtype=np.uint8),
+            "state": (rng.normal(size=12) * 3).astype(np.float32),
+        }
+        diff = max(diff, float(np.abs(pol.act(obs) - ref.act(obs)).max()))
+    assert diff <= 1e-4
+    pol.check(32, cfg.env.frame_stack)
+    with pytest.raises(ModelSpecError, match="image_size configured 64, model 32"):
+        pol.check(64, cfg.env.frame_stack)
+    # The oracle needs privileged inputs: refused with a reason.
+    space = _space(cfg)
+    oracle = ActorCritic(make_oracle_features(space, 16, cfg.env.far), 3, 16)
+    (tmp_path / "oracle").mkdir()
+    torch.save(
+        policy_payload(oracle, {k: list(s.shape) for k, s in space.spaces.items()}, 0), tmp_path / "oracle/final.pt"
+    )
+    save_config(cfg, tmp_path / "oracle")
+    with pytest.raises(ExportError, match="privileged"):
+        export_onnx(tmp_path / "oracle")
+    with pytest.raises(FileNotFoundError, match="final.pt"):
+        export_onnx(tmp_path / "nothing")
+
+
+def test_exported_policy_flies_evaluate_like_the_torch_policy(seeker):
+    cfg, run, path = seeker
+    onnx_pol, torch_pol = OnnxPolicy(path), load_policy(run / "final.pt")
+    kw = {"config": cfg.env}
+    a = evaluate(onnx_pol, "box", 4, 0, seed_offset=cfg.eval.seed_offset, **kw)
+    b = evaluate(torch_pol, "box", 4, 0, seed_offset=cfg.eval.seed_offset, **kw)
+    assert list(a.success) == list(b.success) and a.success.sum() >= 1
+    np.testing.assert_allclose(a.final_distance, b.final_distance, atol=1e-3)
+
+
+def _flight(tmp_path, seeker, goal=(3.0, 0.0), safety=None, **drone_kw):
+    cfg, _, path = seeker
+    pol = OnnxPolicy(path)
+    drone = SimulatedDrone(cfg.env, layout=EMPTY, start=(0.0, 0.0, 0.0), goal=goal, **drone_kw)
+    cam, mocap = drone.camera(), drone.mocap()
+    loop = ControlLoop(pol, drone, cam, mocap, goal, safety=safety, log_path=tmp_path / "flight.csv", camera=(32, 3))
+    return loop, drone, cam, mocap
+
+
+def test_simulated_flight_arrives_and_logs(tmp_path, seeker):
+    loop, drone, _, _ = _flight(tmp_path, seeker)
+    try:
+        res = loop.fly()
+    finally:
+        drone.close()
+    assert res.reason == "arrived" and res.success and res.final_distance <= 0.5
+    assert not drone.flying and drone.landed_at is not None and not drone.crashed
+    rows = (tmp_path / "flight.csv").read_text().splitlines()
+    assert rows[0].startswith("t,tick,x,y") and rows[-1].endswith(",land") and len(rows) == res.ticks + 3
+    lat = [float(r.split(",")[11]) for r in rows[1:-2]]
+    assert max(lat) < 50.0  # ms per decision, far below the 100 ms control period
+
+
+@pytest.mark.parametrize("what", ["video", "pose"])
+def test_lost_stream_lands_within_half_a_second(tmp_path, seeker, what):
+    loop, drone, cam, mocap = _flight(tmp_path, seeker, goal=(6.0, 0.0))
+    cut = time.monotonic() + 1.0
+    (cam if what == "video" else mocap).cut(at=cut)
+    try:
+        res = loop.fly()
+    finally:
+        drone.close()
+    assert res.reason == f"{what}_lost"
+    assert 0.0 <= drone.landed_at - cut <= 0.5 + loop.dt  # stale after 0.5 s, seen at the next tick
+
+
+def test_geofence_and_model_mismatch(tmp_path, seeker):
+    loop, drone, _, _ = _flight(tmp_path, seeker, goal=(5.0, 0.0), safety=Safety(geofence=(-1.0, 1.5, -1.0, 1.0)))
+    try:
+        res = loop.fly()
+    finally:
+        drone.close()
+    assert res.reason == "geofence" and 1.5 < drone.pose[0] < 1.8
+    # A model that does not match the camera is refused before takeoff.
+    with pytest.raises(ModelSpecError, match="frame_stack configured 4"):
+        ControlLoop(loop.policy, drone, None, None, (1.0, 0.0), camera=(32, 4))
+
+
+def test_sigint_lands(tmp_path, seeker):
+    loop, drone, _, _ = _flight(tmp_path, seeker, goal=(6.0, 0.0))
+    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        res = loop.fly()
+    finally:
+        timer.cancel()
+        drone.close()
+    assert res.reason == "interrupted" and drone.landed_at is not None and res.ticks >= 5
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+def test_djitellopy_against_the_loopback_fake_tello(tmp_path, seeker):
+    from omcrl.deploy.tello import FakeTello, TelloDrone
+
+    cfg, _, path = seeker
+    pol = OnnxPolicy(path)
+    for goal, cut_video in (((3.0, 0.0), False), ((6.0, 0.0), True)):
+        sim = SimulatedDrone(cfg.env, layout=EMPTY, start=(0.0, 0.0, 0.0), goal=goal)
+        fake = FakeTello(sim, speed_at_100=cfg.env.max_speed, yaw_rate_at_100=cfg.env.max_yaw_rate)
+        tello = TelloDrone("127.0.0.1", fake.command_port, cfg.env.max_speed, cfg.env.max_yaw_rate)
+        try:
+            tello.connect()
+            video = tello.video()
+            deadline = time.monotonic() + 10.0
+            while video.read() is None and time.monotonic() < deadline:  # the decoder needs a keyframe
+                time.sleep(0.05)
+            assert video.read() is not None, "no H.264 frame decoded from the fake Tello"
+            loop = ControlLoop(pol, tello, video, sim.mocap(), goal, log_path=tmp_path / "tello.csv", camera=(32, 3))
+            cut = None
+            if cut_video:
+                cut = time.monotonic() + 1.0
+                threading.Timer(1.0, fake.cut_video).start()
+            res = loop.fly()
+            assert "takeoff" in fake.received and fake.received[-1] == "land"
+            assert any(c.startswith("rc ") for c in fake.received)
+            if cut_video:
+                assert res.reason == "video_lost" and sim.landed_at - cut <= 0.5 + loop.dt + 0.15
+            else:
+                assert res.reason == "arrived" and res.final_distance <= 0.5
+        finally:
+            tello.close()
+            fake.close()
+            sim.close()
+
+
+def test_cli_export(tmp_path, seeker, repo_root):
+    import subprocess
+    import sys
+
+    _, run, _ = seeker
+    out = tmp_path / "cli.onnx"
+    r = subprocess.run(
+        [sys.executable, "-m", "omcrl", "export", "--policy", str(run), "--out", str(out)],
+        cwd=repo_root,
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert OnnxPolicy(out).spec["method"] == "seeker"
+    r = subprocess.run(
+        [sys.executable, "-m", "omcrl", "export", "--policy", str(tmp_path / "missing")],
+        cwd=repo_root,
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 1 and "does not exist" in r.stderr and "Traceback" not in r.stderr
