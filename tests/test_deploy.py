@@ -174,14 +174,23 @@ def test_sigint_lands(tmp_path, seeker):
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
 def test_djitellopy_against_the_loopback_fake_tello(tmp_path, seeker):
+    """Every rule through the real djitellopy client: arrival, video cut, pose cut, geofence, Ctrl-C."""
     from omcrl.deploy.tello import FakeTello, TelloDrone
 
     cfg, _, path = seeker
     pol = OnnxPolicy(path)
-    for goal, cut_video in (((3.0, 0.0), False), ((6.0, 0.0), True)):
+    scenarios = {
+        "arrived": ((3.0, 0.0), None),
+        "video_lost": ((6.0, 0.0), "video"),
+        "pose_lost": ((6.0, 0.0), "pose"),
+        "geofence": ((6.0, 0.0), "fence"),
+        "interrupted": ((6.0, 0.0), "sigint"),
+    }
+    for expected, (goal, event) in scenarios.items():
         sim = SimulatedDrone(cfg.env, layout=EMPTY, start=(0.0, 0.0, 0.0), goal=goal)
         fake = FakeTello(sim, speed_at_100=cfg.env.max_speed, yaw_rate_at_100=cfg.env.max_yaw_rate)
         tello = TelloDrone("127.0.0.1", fake.command_port, cfg.env.max_speed, cfg.env.max_yaw_rate)
+        timer = None
         try:
             tello.connect()
             video = tello.video()
@@ -189,19 +198,28 @@ def test_djitellopy_against_the_loopback_fake_tello(tmp_path, seeker):
             while video.read() is None and time.monotonic() < deadline:  # the decoder needs a keyframe
                 time.sleep(0.05)
             assert video.read() is not None, "no H.264 frame decoded from the fake Tello"
-            loop = ControlLoop(pol, tello, video, sim.mocap(), goal, log_path=tmp_path / "tello.csv", camera=(32, 3))
-            cut = None
-            if cut_video:
-                cut = time.monotonic() + 1.0
-                threading.Timer(1.0, fake.cut_video).start()
+            mocap = sim.mocap()
+            fence = (-1.0, 1.5, -1.0, 1.0) if event == "fence" else (-8.0, 8.0, -8.0, 8.0)
+            loop = ControlLoop(pol, tello, video, mocap, goal, safety=Safety(geofence=fence), camera=(32, 3))
+            cut = time.monotonic() + 1.0
+            action = {"video": fake.cut_video, "pose": mocap.cut, "sigint": lambda: os.kill(os.getpid(), signal.SIGINT)}
+            if event in action:
+                timer = threading.Timer(1.0, action[event])
+                timer.start()
             res = loop.fly()
+            assert res.reason == expected, (expected, res)
             assert "takeoff" in fake.received and fake.received[-1] == "land"
             assert any(c.startswith("rc ") for c in fake.received)
-            if cut_video:
-                assert res.reason == "video_lost" and sim.landed_at - cut <= 0.5 + loop.dt + 0.15
-            else:
-                assert res.reason == "arrived" and res.final_distance <= 0.5
+            if event in ("video", "pose"):
+                # stale after 0.5 s, seen at the next tick; the land command then crosses the loopback
+                assert sim.landed_at - cut <= 0.5 + loop.dt + 0.15, sim.landed_at - cut
+            if expected == "arrived":
+                assert res.final_distance <= 0.5
+            if event == "fence":
+                assert 1.5 < sim.pose[0] < 1.9
         finally:
+            if timer is not None:
+                timer.cancel()
             tello.close()
             fake.close()
             sim.close()
