@@ -87,6 +87,24 @@ class Run:
             record = {"stage": self.stage, "method": self.method, "seed": self.seed, "key": self.key}
             atomic_write_text(self.dir / RUN_FILE, json.dumps({**record, "identity": self.identity}, indent=1))
 
+    def record(self, **fields: Any) -> None:
+        """Add fields to ``run.json`` (e.g. the digest of the finished artifact), atomically."""
+        rec = read_identity(self.dir) or {}
+        rec.update(fields)
+        atomic_write_text(self.dir / RUN_FILE, json.dumps(rec, indent=1))
+
+    def verified(self, artifact: Path, field: str = "artifact_digest") -> bool | None:
+        """Does ``artifact`` match the digest recorded in ``run.json`` when it was written?
+
+        True / False; None when no digest was recorded (a run written before digests were kept).
+        """
+        from omcrl.utils.io import file_digest
+
+        want = (read_identity(self.dir) or {}).get(field)
+        if want is None:
+            return None
+        return file_digest(artifact) == want
+
     def check(self) -> None:
         """Raise RunConfigMismatch when the folder exists with a ``run.json`` of another key."""
         found = read_identity(self.dir)

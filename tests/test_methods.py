@@ -140,6 +140,18 @@ def test_finished_runs_are_reused_and_never_overwritten_by_another_config(grid):
         rec.write_text(saved)
 
 
+def test_corrupt_finished_policy_is_not_trusted(grid):
+    # A final.pt changed after it was written is moved aside and the run trained again (same result).
+    cfg, r = grid["cfg"], grid["results"]["ppo"]
+    good = file_digest(r.final_path)
+    r.final_path.write_bytes(r.final_path.read_bytes()[:1000])
+    with pytest.warns(UserWarning, match="does not match the digest"):
+        again = train_method(cfg, "ppo", progress=False)
+    assert not again.skipped and (r.run_dir / "final.pt.corrupt").exists()
+    assert file_digest(again.final_path) == good  # same seed, same config: bit-identical retraining
+    assert train_method(cfg, "ppo", progress=False).skipped
+
+
 def test_prerequisites_and_bad_names_fail_before_training(grid, tmp_path):
     cfg = _cfg(tmp_path)
     with pytest.raises(ConfigError, match="known methods"):

@@ -204,6 +204,12 @@ def test_run_outputs_cache_and_artifact(data, tmp_path):
     mtime = r.encoder_path.stat().st_mtime_ns
     again = run(cfg, data, progress=False)
     assert again.skipped and r.encoder_path.stat().st_mtime_ns == mtime
+    # A corrupted finished encoder is not trusted: it is rebuilt (here from the final checkpoint), with a warning.
+    good = r.encoder_path.read_bytes()
+    r.encoder_path.write_bytes(good[: len(good) // 2])
+    with pytest.warns(UserWarning, match="does not match the digest"):
+        fixed = run(cfg, data, progress=False)
+    assert not fixed.skipped and r.encoder_path.read_bytes() == good
 
 
 def test_interrupted_run_resumes_to_identical_result(data, tmp_path):

@@ -38,6 +38,8 @@ from typing import Any
 import h5py
 import numpy as np
 
+from omcrl.utils.io import current_umask
+
 FORMAT_VERSION = 1
 SOURCES = ("pilot", "random", "policy")
 FIELDS = {  # name -> (dtype, shape after the time axis; "img" = image side)
@@ -143,6 +145,7 @@ class DatasetWriter:
             self._h5.flush()
         else:
             fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp")
+            os.fchmod(fd, 0o666 & ~current_umask())  # the finished file gets the umask's permissions, not 0600
             os.close(fd)
             self._tmp = Path(tmp)
             self._h5 = h5py.File(self._tmp, "w")

@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from omcrl.models.encoder import PixelEncoder, Projection
-from omcrl.utils.io import atomic_save_torch
+from omcrl.utils.io import atomic_save_torch, load_torch
 
 ARTIFACT_KIND = "omcrl-encoder"
 ARTIFACT_FORMAT = 1
@@ -130,10 +130,17 @@ def load_encoder(path: str | Path, image_size: int | None = None, frame_stack: i
     p = Path(path)
     if not p.is_file():
         raise EncoderError(f"encoder {p}: file does not exist")
-    try:
-        obj = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise EncoderError(f"encoder {p}: not a readable encoder artifact ({type(e).__name__}: {e})") from None
+    return encoder_from_artifact(load_torch(p, "encoder artifact", EncoderError), str(p), image_size, frame_stack)
+
+
+def encoder_from_artifact(
+    obj: Any, source: str, image_size: int | None = None, frame_stack: int | None = None
+) -> FrozenEncoder:
+    """A frozen encoder from an artifact dict (as saved by :func:`save_encoder` or embedded in a policy file).
+
+    ``source`` names where the dict came from in error messages; sizes are checked as in :func:`load_encoder`.
+    """
+    p = source
     if not isinstance(obj, dict) or obj.get("kind") != ARTIFACT_KIND:
         raise EncoderError(f"encoder {p}: not an omcrl encoder artifact (missing kind={ARTIFACT_KIND!r})")
     if obj.get("format") != ARTIFACT_FORMAT:
@@ -155,3 +162,15 @@ def load_encoder(path: str | Path, image_size: int | None = None, frame_stack: i
     except RuntimeError as e:
         raise EncoderError(f"encoder {p}: weights do not match the stored configuration ({e})") from None
     return enc.freeze()
+
+
+def encoder_artifact(enc: FrozenEncoder) -> dict:
+    """The artifact dict of a frozen encoder (plain tensors + JSON meta), e.g. to embed it in a policy file."""
+    plain = lambda m: {k: v.detach().cpu().clone() for k, v in m.state_dict().items()}  # noqa: E731
+    return {
+        "kind": ARTIFACT_KIND,
+        "format": ARTIFACT_FORMAT,
+        "meta": json.dumps(enc.meta, sort_keys=True),
+        "f": plain(enc.f),
+        "phi": plain(enc.phi) if enc.meta.get("use_projection") else {},
+    }

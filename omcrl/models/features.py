@@ -301,7 +301,17 @@ def _oracle_from_spec(spec: dict) -> OracleFeatures:
 
 
 def _student_from_spec(spec: dict) -> StudentFeatures:
-    enc = load_frozen_encoder(spec["encoder_path"], spec["image_size"], spec["frame_stack"])
+    if "encoder_artifact" in spec:  # embedded in the policy file: self-contained, no path to resolve
+        from omcrl.models.artifact import encoder_from_artifact
+
+        try:
+            enc = encoder_from_artifact(
+                spec["encoder_artifact"], spec["encoder_path"] + " (embedded)", spec["image_size"], spec["frame_stack"]
+            )
+        except Exception as e:
+            raise CheckpointError(f"embedded encoder of a policy file: {e}") from e
+    else:  # policy files written before encoders were embedded
+        enc = load_frozen_encoder(spec["encoder_path"], spec["image_size"], spec["frame_stack"])
     return StudentFeatures(enc, spec["enc_dim"], spec["encoder_path"], spec["image_size"], spec["frame_stack"])
 
 

@@ -19,6 +19,7 @@ import dataclasses
 import io
 import json
 import logging
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +32,7 @@ from omcrl.data.sampler import SequenceSampler
 from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
 from omcrl.runs import Run, make_run
-from omcrl.utils.io import atomic_save_torch, atomic_write_text
+from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
 from omcrl.utils.runtime import set_threads
 
 log = logging.getLogger(__name__)
@@ -166,7 +167,16 @@ def run(
     full_hash, compat_hash = _hashes(cfg, fp)
     if done_path.exists() and enc_path.exists():
         done = json.loads(done_path.read_text())
-        if done.get("hash") == full_hash:
+        digest = done.get("encoder_digest")
+        if done.get("hash") == full_hash and digest is not None and file_digest(enc_path) != digest:
+            # A finished encoder that changed since it was written is not trusted: rebuild it (from the final
+            # checkpoint when there is one, else by training again).
+            log.warning("pretrain %s: %s does not match its recorded digest; rebuilding it", name, enc_path)
+            warnings.warn(
+                f"{enc_path} does not match the digest recorded when it was written; rebuilding it", stacklevel=2
+            )
+            done_path.unlink()
+        elif done.get("hash") == full_hash:
             log.info("pretrain %s: finished run with the same config found in %s, skipping", name, out)
             ds.close()
             return PretrainResult(
@@ -188,7 +198,7 @@ def run(
     gen = torch.Generator().manual_seed(cfg.seed + 1)
     start, rows = 0, []
     if ck_path.exists():
-        state = torch.load(ck_path, map_location="cpu", weights_only=True)
+        state = load_torch(ck_path, "pretraining checkpoint")
         if state.get("compat") == compat_hash and state["step"] <= p.iterations:
             learner.load_state_dict(state["learner"])
             opt.load_state_dict(state["optim"])
@@ -267,6 +277,7 @@ def run(
                 "final_loss": loss_val,
                 "dataset": str(path),
                 "dataset_fingerprint": fp,
+                "encoder_digest": file_digest(enc_path),
             },
             indent=1,
         ),

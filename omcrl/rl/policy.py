@@ -1,9 +1,10 @@
 """Saving, loading and running trained PPO policies with the common evaluation interface.
 
-A policy file (``final.pt``) holds ``{"format", "spec", "model", "step", "meta"}``; ``spec`` is enough to
-rebuild the network (feature kind and sizes, the env observation shapes it was trained on, hidden width). A
-frozen pretrained encoder is *not* copied into the file: ``spec["features"]["encoder_path"]`` points to it; an
-end-to-end pixel encoder's weights are part of ``model``.
+A policy file (``final.pt``) holds ``{"format", "spec", "model", "step", "meta"}`` and, for a policy on a frozen
+pretrained encoder, ``"encoder"`` (the encoder artifact itself), so the file is self-contained; ``spec`` is enough
+to rebuild the network (feature kind and sizes, the env observation shapes it was trained on, hidden width).
+``spec["features"]["encoder_path"]`` records where the encoder came from. An end-to-end pixel encoder's weights
+are part of ``model``.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from omcrl.models.features import (
     make_student_features,
     space_shapes,
 )
+from omcrl.utils.io import load_torch
 
 __all__ = [
     "FORMAT",
@@ -75,24 +77,28 @@ class Policy:
 
 
 def policy_payload(agent: ActorCritic, obs_shapes: dict, step: int, meta: dict | None = None) -> dict:
-    return {
+    """The policy file's content. A frozen pretrained encoder is embedded (``"encoder"``), so the file is
+    self-contained: it loads from any folder, and after the encoder's own file is moved or deleted."""
+    payload = {
         "format": FORMAT,
         "spec": {**agent.spec(), "obs_shapes": obs_shapes},
         "model": agent.state_dict(),
         "step": int(step),
         "meta": dict(meta or {}),
     }
+    if agent.features.kind == "student":
+        from omcrl.models.artifact import encoder_artifact
+
+        payload["encoder"] = encoder_artifact(agent.features.encoder)
+    return payload
 
 
 def read_payload(path: str | Path, what: str = "policy") -> dict:
     p = Path(path)
     if not p.exists():
         raise CheckpointError(f"{what} checkpoint {p} does not exist")
-    try:
-        # Policy files hold only tensors and plain containers: never unpickle arbitrary objects from them.
-        payload = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise CheckpointError(f"{what} checkpoint {p} cannot be read: {e}") from e
+    # Policy files hold only tensors and plain containers: never unpickle arbitrary objects from them.
+    payload = load_torch(p, f"{what} checkpoint", CheckpointError)
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{what} checkpoint {p} is not an omcrl policy file (format {FORMAT!r})")
     return payload
@@ -113,8 +119,11 @@ def load_policy(path: str | Path, name: str = "", expect_kind: str | None = None
                 f"checkpoint {path} was trained on observation shapes that differ from the env: "
                 + ", ".join(f"{k}: checkpoint {a} vs env {b}" for k, (a, b) in bad.items())
             )
+    feats = spec["features"]
+    if "encoder" in payload:
+        feats = {**feats, "encoder_artifact": payload["encoder"]}
     agent = ActorCritic(
-        build_features(spec["features"]),
+        build_features(feats),
         spec["act_dim"],
         spec["hidden"],
         layer_norm=spec.get("layer_norm", True),

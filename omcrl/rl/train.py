@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -29,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from omcrl.config import Config, save_config
 from omcrl.models.actor_critic import ActorCritic
@@ -48,7 +48,7 @@ from omcrl.rl.policy import (
 from omcrl.rl.ppo import PPO, ExtraLoss, NonFiniteLossError
 from omcrl.rl.rollout import Runner
 from omcrl.runs import MetricsLog, Run, RunConfigMismatch, make_run, rng_state, set_rng_state
-from omcrl.utils.io import atomic_save_torch, file_digest
+from omcrl.utils.io import atomic_save_torch, file_digest, load_torch
 from omcrl.utils.runtime import seed_everything, set_threads
 
 __all__ = [
@@ -182,10 +182,19 @@ def train(
     if not overwrite:
         run.check()
     if final_path.exists() and not overwrite:
-        step = int(torch.load(final_path, map_location="cpu", weights_only=True)["step"])
-        return Result(run, final_path, step, True)
+        if run.verified(final_path) is not False:
+            step = int(load_torch(final_path, "policy file", CheckpointError)["step"])
+            return Result(run, final_path, step, True)
+        # A finished artifact that changed since it was written is not trusted: keep it aside, train again.
+        aside = final_path.with_name("final.pt.corrupt")
+        final_path.replace(aside)
+        warnings.warn(
+            f"{final_path} does not match the digest recorded when it was written (moved to {aside.name}); "
+            "training this run again",
+            stacklevel=2,
+        )
 
-    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True) if ckpt_path.exists() else None
+    ckpt = load_torch(ckpt_path, "checkpoint", CheckpointError) if ckpt_path.exists() else None
     if ckpt is None:
         seed_everything(cfg.seed)
 
@@ -275,6 +284,7 @@ def train(
         )
         payload["key"] = run.key
         atomic_save_torch(payload, final_path)
+        run.record(artifact_digest=file_digest(final_path))
         ckpt_path.unlink(missing_ok=True)  # finished: final.pt is the artifact, the resumable state is obsolete
     finally:
         if writer is not None:

@@ -14,6 +14,8 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     p.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
     try:
+        # mkstemp creates 0600; a finished artifact gets the permissions the user's umask gives any new file.
+        os.fchmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
@@ -22,6 +24,13 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def current_umask() -> int:
+    """The process umask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
@@ -52,3 +61,30 @@ def file_digest(path: str | Path, length: int = 16) -> str:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()[:length]
+
+
+class UnsafeFileError(RuntimeError):
+    """A torch file cannot be read as tensors and plain containers (corrupt, or it holds other objects)."""
+
+
+def load_torch(path: str | Path, what: str = "checkpoint", error: type[Exception] = UnsafeFileError) -> Any:
+    """``torch.load`` with ``weights_only=True``; every failure raises ``error`` naming the file.
+
+    The kit never unpickles arbitrary objects from a file a user can be handed: a file that needs more than
+    tensors and plain containers is refused, and the message does not suggest turning that protection off.
+    """
+    import torch
+
+    p = Path(path)
+    if not p.is_file():
+        raise error(f"{what} {p} does not exist")
+    try:
+        return torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as e:
+        kind = type(e).__name__
+        why = (
+            "it holds objects other than tensors and plain containers, which the kit refuses to unpickle"
+            if "Unpickl" in kind or "weights_only" in str(e)
+            else "it is truncated or not a torch file"
+        )
+        raise error(f"{what} {p}: not a readable {what}: {why} ({kind}); delete it or restore a good copy") from None
