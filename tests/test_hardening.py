@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import stat
 
+import numpy as np
 import pytest
 import torch
 
@@ -91,3 +92,96 @@ def test_policy_file_is_self_contained(tmp_path, monkeypatch):
     other.mkdir()
     monkeypatch.chdir(other)
     np.testing.assert_array_equal(load_policy(tmp_path / "final.pt").act(obs), want)
+
+
+# ---------------------------------------------------------------- the env among its peers
+def test_env_follows_gymnasium_conventions():
+    import gymnasium as gym
+    import numpy as np
+    from gymnasium.utils.env_checker import check_env
+
+    from omcrl.config import ConfigError
+    from omcrl.envs import GYM_IDS, make_env
+
+    for scene, gym_id in GYM_IDS.items():
+        env = gym.make(gym_id, image_size=32, max_steps=20)
+        assert env.unwrapped.scene == scene
+        check_env(env.unwrapped, skip_render_check=False)
+        env.close()
+    # render_mode is validated; render() without one returns None as gymnasium prescribes.
+    with pytest.raises(ConfigError, match="render_mode"):
+        make_env("box", image_size=32, render_mode="human")
+    env = make_env("box", image_size=32, render_mode=None)
+    env.reset(seed=0)
+    assert env.render() is None
+    # Actions must be (3,): (1, 3) and (3, 1) hide batching mistakes.
+    for bad in (np.zeros((1, 3)), np.zeros((3, 1))):
+        with pytest.raises(ValueError, match=r"expected shape \(3,\)"):
+            env.step(bad)
+    env.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        env.step(np.zeros(3))
+
+
+def test_vector_env_closed_and_dropped():
+    import gc
+
+    import numpy as np
+
+    from omcrl.envs import make_vec_env
+
+    venv = make_vec_env("box", 2, seed=0, image_size=32)
+    venv.reset(seed=0)
+    procs = list(venv._procs)
+    venv.close()
+    with pytest.raises(RuntimeError, match="closed vector env"):
+        venv.step(np.zeros((2, 3), np.float32))
+    # Dropped without close(): its worker must not outlive it.
+    venv = make_vec_env("box", 2, seed=0, image_size=32)
+    procs = list(venv._procs)
+    del venv
+    gc.collect()
+    for p in procs:
+        p.join(timeout=5)
+        assert not p.is_alive()
+
+
+def test_stable_baselines3_trains_on_the_wrapped_env():
+    import warnings
+
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_checker import check_env
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    from omcrl.envs import SB3Wrapper, make_env
+
+    env = SB3Wrapper(make_env("box", seed=0, image_size=48, max_steps=40))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # SB3's checker must have nothing to say
+        check_env(env, warn=True)
+    model = PPO("MultiInputPolicy", env, n_steps=128, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    model.learn(total_timesteps=256)
+    from stable_baselines3.common.monitor import Monitor
+
+    mean, std = evaluate_policy(model, Monitor(env), n_eval_episodes=2)
+    assert np.isfinite(mean)
+    env.close()
+
+
+def test_texture_cache_location_errors_and_fallback(tmp_path, monkeypatch):
+    # Before: OMCRL_CACHE pointing at a file crashed deep inside PyBullet's texture loading.
+    from omcrl.envs import textures
+
+    f = tmp_path / "a_file"
+    f.write_text("x")
+    monkeypatch.setenv("OMCRL_CACHE", str(f))
+    with pytest.raises(NotADirectoryError, match="OMCRL_CACHE"):
+        textures.cache_dir()
+    monkeypatch.setenv("OMCRL_CACHE", str(tmp_path / "cache"))
+    assert textures.cache_dir() == tmp_path / "cache" / "textures" / "v1"
+    assert os.path.exists(textures.texture_file("wood"))
+    # No usable home folder: the cache falls back to the temporary folder instead of failing.
+    monkeypatch.delenv("OMCRL_CACHE")
+    monkeypatch.setenv("HOME", str(f))
+    d = textures.cache_dir()
+    assert d.is_dir() and "omcrl-cache-" in str(d)

@@ -120,6 +120,10 @@ class NavEnv(gym.Env):
         self.disturbance = Disturbance.from_any(disturbance)
         self.layout = layout_to_primitives(layout) if layout is not None else None
         self._init_seed = seed
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ConfigError(
+                f"render_mode: got {render_mode!r}, allowed values are {[None, *self.metadata['render_modes']]}"
+            )
         self.render_mode = render_mode
         L, S = cfg.frame_stack, cfg.image_size
         self.dt = 1.0 / cfg.control_hz
@@ -235,6 +239,8 @@ class NavEnv(gym.Env):
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        if self._client < 0:
+            raise RuntimeError("NavEnv.reset called on a closed env")
         if seed is None and not self._has_episode and self._init_seed is not None:
             seed = self._init_seed
         super().reset(seed=seed)
@@ -437,11 +443,13 @@ class NavEnv(gym.Env):
         return arr
 
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+        if self._client < 0:
+            raise RuntimeError("NavEnv.step called on a closed env")
         if not self._has_episode:
             raise RuntimeError("NavEnv.step called before reset()")
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (3,):
+        if np.shape(action) != (3,):  # (1, 3) or (3, 1) would hide a batching mistake
             raise ValueError(f"action: expected shape (3,), got {np.shape(action)}")
+        a = np.asarray(action, dtype=np.float64)
         ax, ay, az = a.tolist()
         if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
             raise ValueError(f"action contains NaN or inf: {[ax, ay, az]}")
@@ -590,8 +598,12 @@ class NavEnv(gym.Env):
             rgb = _adjust(rgb, d.brightness, d.hue)
         return rgb.transpose(2, 0, 1), np.minimum(depth, c.far)
 
-    def render(self) -> np.ndarray:
-        """The newest camera frame as (H, W, 3) uint8."""
+    def render(self) -> np.ndarray | None:
+        """The newest camera frame as (H, W, 3) uint8 with ``render_mode="rgb_array"``; None (and gymnasium's
+        warning) without a render mode."""
+        if self.render_mode is None:
+            gym.logger.warn("NavEnv.render() called without a render_mode; make the env with render_mode='rgb_array'")
+            return None
         return self._rgb[-1].transpose(1, 2, 0).copy()
 
     @property

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -39,8 +40,32 @@ _VERSION = "v1"
 
 
 def cache_dir() -> Path:
-    root = Path(os.environ.get("OMCRL_CACHE", Path.home() / ".cache" / "omcrl"))
-    return root / "textures" / _VERSION
+    """The texture cache folder, created if needed: ``$OMCRL_CACHE/textures/v1``, else
+    ``~/.cache/omcrl/textures/v1``, else (no usable home) ``<tmp>/omcrl-cache-<uid>/textures/v1``.
+
+    An ``OMCRL_CACHE`` that is not a usable folder is an error naming the variable; an unusable default falls
+    back to the temporary folder (the textures are regenerated on demand, so nothing is lost).
+    """
+    env = os.environ.get("OMCRL_CACHE")
+    if env:
+        d = Path(env) / "textures" / _VERSION
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise NotADirectoryError(
+                f"OMCRL_CACHE={env!r} cannot hold the texture cache ({e.strerror}); point it at a writable folder "
+                "or unset it"
+            ) from None
+        return d
+    for root in (Path.home() / ".cache" / "omcrl", Path(tempfile.gettempdir()) / f"omcrl-cache-{os.getuid()}"):
+        d = root / "textures" / _VERSION
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(d, os.W_OK):
+            return d
+    raise NotADirectoryError("no writable folder for the texture cache: set OMCRL_CACHE to one")
 
 
 def _rng(name: str) -> np.random.Generator:

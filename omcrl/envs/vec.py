@@ -263,7 +263,12 @@ class SplitVectorEnv(gym.vector.VectorEnv):
         return out
 
     # ------------------------------------------------------------------ gym API
+    def _check_open(self, what: str) -> None:
+        if self.closed:
+            raise RuntimeError(f"SplitVectorEnv.{what} called on a closed vector env")
+
     def reset(self, *, seed: int | list | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        self._check_open("reset")
         n = self.num_envs
         if seed is None:
             seed = [None] * n
@@ -279,6 +284,7 @@ class SplitVectorEnv(gym.vector.VectorEnv):
         return obs, infos
 
     def step(self, actions: np.ndarray) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, dict]:
+        self._check_open("step")
         actions = np.asarray(actions)
         if actions.shape != self._act.shape:
             raise ValueError(f"step: actions of shape {actions.shape}, expected {self._act.shape} (n_envs, action)")
@@ -324,6 +330,14 @@ class SplitVectorEnv(gym.vector.VectorEnv):
         for i, info in enumerate(remote, start=1):
             infos = self._add_info(infos, info, i)
         return obs, infos, self._scal
+
+    def __del__(self) -> None:
+        # Like gymnasium's AsyncVectorEnv: a vector env dropped without close() must not leave workers behind.
+        try:
+            if not getattr(self, "closed", True):
+                self.close()
+        except Exception:  # pragma: no cover - best effort at interpreter shutdown
+            pass
 
     def close_extras(self, **kwargs: Any) -> None:
         self.local.close()
