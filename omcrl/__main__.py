@@ -105,6 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("--method", default=None, help="method for 'train' and 'pretrain' (see below)")
     ap.add_argument("--seed", type=int, default=None, help="training seed (sets the config field 'seed')")
+    ap.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     ap.add_argument("--policy", default=None, help="for 'export': a run folder or its final.pt")
     ap.add_argument("--out", default=None, help="for 'export': the ONNX file (default: policy.onnx beside final.pt)")
     ap.add_argument("stage", help="stage to run (see below)")
@@ -124,6 +125,30 @@ def build_parser() -> argparse.ArgumentParser:
         help="YAML file applied after the preset and before --set (e.g. a run's config.yaml)",
     )
     return ap
+
+
+def _expected_errors() -> tuple[type[BaseException], ...]:
+    """Errors whose message says all a user needs: printed as one line, exit code 1."""
+    from omcrl.data.dataset import DatasetError
+    from omcrl.deploy.runtime import ModelSpecError
+    from omcrl.models.artifact import EncoderError
+    from omcrl.notebooks import NotebookError
+    from omcrl.rl.ppo import NonFiniteLossError
+    from omcrl.utils.io import UnsafeFileError
+
+    return (
+        CheckpointError,
+        RunConfigMismatch,
+        FileNotFoundError,
+        NotADirectoryError,
+        ExportError,
+        DatasetError,
+        EncoderError,
+        ModelSpecError,
+        UnsafeFileError,
+        NotebookError,
+        NonFiniteLossError,
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -160,22 +185,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             result = func(cfg)
     except ConfigError as e:
+        if args.debug:
+            raise
         print(f"error: {e}", file=sys.stderr)
         return 2
-    except (CheckpointError, RunConfigMismatch, FileNotFoundError, ExportError) as e:
-        # Expected failures (a prerequisite missing, a run of another configuration): one line, no traceback.
-        print(f"error: {e}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print(f"\ninterrupted: stage {args.stage}", file=sys.stderr)
         return 130
-    except Exception as e:
-        from omcrl.notebooks import NotebookError
-
-        if isinstance(e, NotebookError):
-            print(f"error: {e}", file=sys.stderr)
-            return 1
-        raise
+    except _expected_errors() as e:
+        # Expected failures (a prerequisite missing, a corrupt or foreign file, a run of another configuration):
+        # one line naming the file and the problem; the traceback only with --debug.
+        if args.debug:
+            raise
+        print(f"error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+        return 1
     if args.stage != "config":
         if result is not None:
             print(result)

@@ -205,6 +205,21 @@ class Config:
 
 
 # ---------------------------------------------------------------- validation
+def show(value: Any) -> str:
+    """``repr`` with numpy scalars and arrays as plain Python numbers (numpy 2 prints ``np.float64(3.0)``)."""
+
+    def plain(v: Any) -> Any:
+        if hasattr(v, "tolist") and type(v).__module__ == "numpy":
+            return v.tolist()
+        if isinstance(v, (list, tuple)):
+            return type(v)(plain(x) for x in v)
+        if isinstance(v, dict):
+            return {k: plain(x) for k, x in v.items()}
+        return v
+
+    return repr(plain(value))
+
+
 def _check_value(path: str, f: dataclasses.Field, value: Any) -> Any:
     """Coerce ``value`` to the field's type and check its bounds; raise ConfigError naming ``path``."""
     md = f.metadata
@@ -227,14 +242,16 @@ def _check_value(path: str, f: dataclasses.Field, value: Any) -> Any:
             if isinstance(value, bool):
                 raise ValueError
             value = float(value)
-            if math.isnan(value):
+            if not math.isfinite(value):
                 raise ValueError
         elif tp is str:
             if not isinstance(value, str):
                 raise ValueError
         elif origin is tuple:
+            if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+                raise ValueError
             value = tuple(float(v) for v in value)
-            if len(value) != 2 or value[0] > value[1]:
+            if not all(math.isfinite(v) for v in value):
                 raise ValueError
         elif tp is list or origin is list:
             if isinstance(value, str):
@@ -244,17 +261,22 @@ def _check_value(path: str, f: dataclasses.Field, value: Any) -> Any:
             if not isinstance(value, dict):
                 raise ValueError
     except (TypeError, ValueError):
-        raise ConfigError(f"config field '{path}': got {value!r}, expected {_type_name(tp)}") from None
+        raise ConfigError(f"config field '{path}': got {show(value)}, expected {_type_name(tp)}") from None
+    if origin is tuple and value[0] > value[1]:
+        raise ConfigError(f"config field '{path}': got {show(value)}, expected (min, max) with min <= max")
     lo, hi, choices = md.get("lo"), md.get("hi"), md.get("choices")
     if choices is not None and value not in choices:
-        raise ConfigError(f"config field '{path}': got {value!r}, allowed values are {list(choices)}")
+        raise ConfigError(f"config field '{path}': got {show(value)}, allowed values are {list(choices)}")
     if (lo is not None and value < lo) or (hi is not None and value > hi):
-        raise ConfigError(f"config field '{path}': got {value!r}, allowed range is [{lo}, {hi}]")
+        raise ConfigError(f"config field '{path}': got {show(value)}, allowed range is [{lo}, {hi}]")
     return value
 
 
 def _type_name(tp: Any) -> str:
-    return getattr(tp, "__name__", str(tp))
+    if typing.get_origin(tp) is tuple:
+        return "a pair of finite numbers (min, max)"
+    name = getattr(tp, "__name__", str(tp))
+    return "a finite number" if name == "float" else name
 
 
 def _resolve_type(name: str) -> Any:
@@ -297,9 +319,11 @@ def validate(cfg: Config) -> Config:
                 setattr(obj, f.name, _check_value(f"{prefix}{f.name}", f, v))
 
     walk(cfg, "")
+    if not cfg.eval.scenes:
+        raise ConfigError("config field 'eval.scenes': got [], expected at least one of box, furniture, barrier, tree")
     for scene in cfg.eval.scenes:
         if scene not in ("box", "furniture", "barrier", "tree"):
-            raise ConfigError(f"config field 'eval.scenes': unknown scene {scene!r}")
+            raise ConfigError(f"config field 'eval.scenes': unknown scene {show(scene)}")
     try:
         seeds = [int(v) for v in cfg.seeds]
         if not seeds or any(v < 0 or v != float(w) for v, w in zip(seeds, cfg.seeds)) or len(set(seeds)) < len(seeds):
@@ -310,12 +334,28 @@ def validate(cfg: Config) -> Config:
         ) from None
     cfg.seeds = seeds
     mix = cfg.data.mix
-    if set(mix) - {"pilot", "random", "policy"} or any(float(v) < 0 for v in mix.values()):
+    try:
+        weights = {k: float(v) for k, v in mix.items()}
+        if isinstance(mix, dict) and any(isinstance(v, bool) for v in mix.values()):
+            raise ValueError
+    except (TypeError, ValueError):
+        weights = None
+    if (
+        weights is None
+        or set(mix) - {"pilot", "random", "policy"}
+        or any(not math.isfinite(v) or v < 0 for v in weights.values())
+    ):
         raise ConfigError(
-            f"config field 'data.mix': got {mix!r}, expected non-negative weights for 'pilot', 'random', 'policy'"
+            f"config field 'data.mix': got {show(mix)}, expected non-negative numbers for 'pilot', 'random', 'policy'"
         )
-    if sum(float(v) for v in mix.values()) <= 0:
-        raise ConfigError(f"config field 'data.mix': got {mix!r}, weights must not all be zero")
+    if sum(weights.values()) <= 0:
+        raise ConfigError(f"config field 'data.mix': got {show(mix)}, weights must not all be zero")
+    try:
+        cfg.data.file.format(preset=cfg.preset)
+    except (KeyError, IndexError, ValueError) as e:
+        raise ConfigError(
+            f"config field 'data.file': got {show(cfg.data.file)}, the only placeholder allowed is {{preset}} ({e!r})"
+        ) from None
     if cfg.pretrain.crop_to > cfg.pretrain.crop_from:
         raise ConfigError(
             f"config field 'pretrain.crop_to': got {cfg.pretrain.crop_to}, must be <= "
@@ -325,13 +365,25 @@ def validate(cfg: Config) -> Config:
         raise ConfigError(
             f"config field 'rl.minibatch': got {cfg.rl.minibatch}, must be <= rl.buffer_size ({cfg.rl.buffer_size})"
         )
-    lo, hi = cfg.env.goal_distance
-    if lo <= cfg.env.goal_radius or hi > 2.0 * math.sqrt(2.0) * cfg.env.arena_half:
-        raise ConfigError(
-            f"config field 'env.goal_distance': got {(lo, hi)}, must lie in "
-            f"({cfg.env.goal_radius}, {2 * math.sqrt(2) * cfg.env.arena_half:.1f}] m"
-        )
+    validate_env(cfg.env)
     return cfg
+
+
+def validate_env(env: EnvConfig, prefix: str = "env.") -> EnvConfig:
+    """Cross-field rules of the env config (the env checks them too, so a direct ``make_env`` call fails early).
+
+    Start and goal are drawn ``goal_distance`` apart inside the arena with clearance from its edge; a minimum
+    distance beyond 80% of the arena's side can rarely or never be placed, and fails at reset otherwise.
+    """
+    lo, hi = env.goal_distance
+    reach = 0.8 * 2.0 * env.arena_half
+    if lo <= env.goal_radius or lo > reach or hi > 2.0 * math.sqrt(2.0) * env.arena_half:
+        raise ConfigError(
+            f"config field '{prefix}goal_distance': got {show((lo, hi))}, the minimum must lie in "
+            f"({env.goal_radius}, {reach:.1f}] m and the maximum be <= {2 * math.sqrt(2) * env.arena_half:.1f} m "
+            f"(arena_half {env.arena_half} m)"
+        )
+    return env
 
 
 # ---------------------------------------------------------------- loading
@@ -340,7 +392,12 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if "=" not in text:
         raise ConfigError(f"override {text!r}: expected 'section.field=value'")
     key, raw = text.split("=", 1)
-    return key.strip().split("."), yaml.safe_load(raw) if raw.strip() else ""
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError as e:
+        first = str(e).splitlines()[0]
+        raise ConfigError(f"override {text!r}: the value is not valid YAML ({first})") from None
+    return key.strip().split("."), value
 
 
 def load_config(
@@ -373,14 +430,24 @@ def load_config(
                 cur = cur.setdefault(k, {})
             cur[keys[-1]] = val
             _apply(cfg, nested)
+    if cfg.preset != preset:
+        # The preset names the results folder: relabelling smoke budgets as paper results must not happen.
+        raise ConfigError(
+            f"config field 'preset': got {cfg.preset!r} from a config file or override, but the preset is {preset!r}; "
+            f"choose the preset with --preset {cfg.preset}"
+        )
     return validate(cfg)
 
 
 def _read_yaml(p: Path) -> dict:
     if not p.exists():
         raise ConfigError(f"config file {p} does not exist")
+    if not p.is_file():
+        raise ConfigError(f"config file {p} is not a file")
     try:
-        data = yaml.safe_load(p.read_text()) or {}
+        data = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
+    except UnicodeDecodeError:
+        raise ConfigError(f"config file {p} is not a text file (expected YAML)") from None
     except yaml.YAMLError as e:
         raise ConfigError(f"config file {p} is not valid YAML: {e}") from None
     if not isinstance(data, dict):

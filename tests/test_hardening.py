@@ -185,3 +185,80 @@ def test_texture_cache_location_errors_and_fallback(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(f))
     d = textures.cache_dir()
     assert d.is_dir() and "omcrl-cache-" in str(d)
+
+
+# ---------------------------------------------------------------- errors a user can read
+@pytest.mark.parametrize(
+    ("override", "match"),
+    [
+        ("env.goal_distance=[3,", r"'env.goal_distance=\[3,'.*not valid YAML"),
+        ("data.mix={pilot: abc}", r"'data.mix'.*non-negative numbers"),
+        ("data.file=data/{foo}.h5", r"'data.file'.*only placeholder allowed is \{preset\}"),
+        ("eval.scenes=[]", r"'eval.scenes'.*at least one"),
+        ("env.goal_reward=.inf", r"'env.goal_reward'.*finite number"),
+        ("env.goal_distance=[6,3]", r"'env.goal_distance'.*min <= max"),
+        ("env.goal_distance=[30,40]", r"'env.goal_distance'.*arena_half"),
+        ("preset=paper", r"'preset'.*--preset paper"),
+    ],
+)
+def test_config_values_that_escaped_validation(override, match):
+    from omcrl.config import ConfigError
+
+    with pytest.raises(ConfigError, match=match):
+        load_config("smoke", overrides=[override])
+
+
+def test_config_file_must_be_yaml_text(tmp_path):
+    from omcrl.config import ConfigError
+
+    (tmp_path / "bin.yaml").write_bytes(bytes(range(256)))
+    with pytest.raises(ConfigError, match="not a text file"):
+        load_config("smoke", path=tmp_path / "bin.yaml")
+    with pytest.raises(ConfigError, match="not a file"):
+        load_config("smoke", path=tmp_path)
+
+
+def test_env_options_are_validated_when_the_env_is_built():
+    from omcrl.config import ConfigError
+    from omcrl.envs import make_env
+
+    with pytest.raises(ConfigError, match=r"goal_distance.*\(30.0, 40.0\)"):
+        make_env("box", image_size=32, goal_distance=(30, 40))  # before: failed at reset, unnamed
+    sphere = {"kind": "sphere", "position": (2, 2), "size": ()}
+    with pytest.raises(ConfigError, match=r"layout\[0\] sphere: size needs \(radius,\)"):
+        make_env("box", image_size=32, layout=[sphere])
+    with pytest.raises(ConfigError, match=r"layout\[0\] sphere"):
+        make_env("box", image_size=32, layout=[{**sphere, "size": (0.3, 9.0)}])  # extra values were dropped
+    for bad, field in (({"hue": "red"}, "hue"), ({"switch_step": 2.5}, "switch_step"), ({"ambient": 3}, "ambient")):
+        with pytest.raises(ConfigError, match=f"disturbance.{field}"):
+            make_env("box", image_size=32, disturbance=bad)
+
+
+def test_messages_show_plain_numbers():
+    from omcrl.config import ConfigError
+
+    with pytest.raises(ConfigError) as e:
+        load_config("smoke", overrides={"env": {"max_speed": np.float64(99.0)}})
+    assert "np.float64" not in str(e.value) and "99.0" in str(e.value)
+
+
+def test_cli_prints_one_line_for_expected_failures(tmp_path, repo_root):
+    # Before: a corrupt checkpoint printed a long traceback that ended by suggesting weights_only=False.
+    import subprocess
+    import sys
+
+    from omcrl.rl.train import oracle_run
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    run = oracle_run(cfg)
+    run.dir.mkdir(parents=True)
+    (run.dir / "checkpoint.pt").write_bytes(b"not a torch file")
+    cmd = [sys.executable, "-m", "omcrl", "oracle", "--preset", "smoke", "--set", f"results_dir={tmp_path}"]
+    r = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
+    lines = [x for x in r.stderr.splitlines() if x.startswith("error")]
+    assert r.returncode == 1 and len(lines) == 1 and "checkpoint.pt" in lines[0]
+    assert "Traceback" not in r.stderr and "weights_only=False" not in r.stderr
+    r = subprocess.run([*cmd, "--debug"], cwd=repo_root, capture_output=True, text=True)
+    assert r.returncode != 0 and "Traceback" in r.stderr
+    r = subprocess.run([*cmd[:4], "--set", "env.goal_distance=[3,"], cwd=repo_root, capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "not valid YAML" in r.stderr

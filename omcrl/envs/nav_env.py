@@ -33,7 +33,7 @@ import numpy as np
 import pybullet as pb
 from gymnasium import spaces
 
-from omcrl.config import ConfigError, EnvConfig, _check_value
+from omcrl.config import ConfigError, EnvConfig, _check_value, show, validate_env
 from omcrl.envs.geometry import Geometry, Primitive
 from omcrl.envs.scenes import SCENES, decor, generate_scene, layout_to_primitives
 from omcrl.envs.textures import texture_file
@@ -84,8 +84,40 @@ class Disturbance:
         out = cls(**d)
         if out.obstacle_colors not in (None, "random"):
             raise ConfigError(f"disturbance.obstacle_colors: got {out.obstacle_colors!r}, expected None or 'random'")
-        if out.brightness < 0:
-            raise ConfigError(f"disturbance.brightness: got {out.brightness}, expected >= 0")
+        if out.obstacle_texture is not None:
+            from omcrl.envs.textures import TEXTURE_KINDS
+
+            if out.obstacle_texture not in TEXTURE_KINDS:
+                raise ConfigError(
+                    f"disturbance.obstacle_texture: got {show(out.obstacle_texture)}, expected None or one of "
+                    f"{list(TEXTURE_KINDS)}"
+                )
+
+        def number(name: str, lo: float | None = None, hi: float | None = None, integer: bool = False) -> None:
+            v = getattr(out, name)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            ok = ok and (not integer or float(v).is_integer())
+            ok = ok and (lo is None or v >= lo) and (hi is None or v <= hi)
+            if not ok:
+                rng = f" in [{lo}, {hi}]" if hi is not None else (f" >= {lo}" if lo is not None else "")
+                raise ConfigError(
+                    f"disturbance.{name}: got {show(v)}, expected a{'n integer' if integer else ' number'}{rng}"
+                )
+
+        for name in ("ambient", "diffuse", "specular"):
+            if getattr(out, name) is not None:
+                number(name, 0.0, 1.0)
+        number("switch_ambient", 0.0, 1.0)
+        number("switch_diffuse", 0.0, 1.0)
+        number("brightness", 0.0)
+        number("hue", -360.0, 360.0)
+        number("seed", 0, integer=True)
+        if out.switch_step is not None:
+            number("switch_step", 0, integer=True)
+        if out.light_direction is not None:
+            ld = out.light_direction
+            if not (isinstance(ld, (list, tuple)) and len(ld) == 3 and all(isinstance(v, (int, float)) for v in ld)):
+                raise ConfigError(f"disturbance.light_direction: got {show(ld)}, expected three numbers (x, y, z)")
         return out
 
 
@@ -115,10 +147,14 @@ class NavEnv(gym.Env):
             if k not in by_name:
                 raise ConfigError(f"env option '{k}' does not exist; known: {sorted(by_name)}")
             setattr(cfg, k, _check_value(f"env.{k}", by_name[k], v))
+        validate_env(cfg)
         self.cfg = cfg
         self.scene = cfg.scene
         self.disturbance = Disturbance.from_any(disturbance)
-        self.layout = layout_to_primitives(layout) if layout is not None else None
+        try:
+            self.layout = layout_to_primitives(layout) if layout is not None else None
+        except ValueError as e:
+            raise ConfigError(f"env option 'layout': {e}") from None
         self._init_seed = seed
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ConfigError(

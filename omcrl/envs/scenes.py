@@ -436,6 +436,8 @@ def layout_to_primitives(layout: Sequence[dict]) -> list[Primitive]:
             half = (size[0], size[0], size[1] / 2)
             height = size[1]
         elif kind == "sphere":
+            if len(size) != 1:
+                raise ValueError(f"layout[{i}] sphere: size needs (radius,), got {size}")
             half = (size[0],) * 3
             height = 2 * size[0]
         else:
@@ -444,9 +446,16 @@ def layout_to_primitives(layout: Sequence[dict]) -> list[Primitive]:
             pos.append(height / 2)
         if len(pos) != 3:
             raise ValueError(f"layout[{i}]: position needs (x, y) or (x, y, z), got {pos}")
-        if min(half) <= 0:
-            raise ValueError(f"layout[{i}]: sizes must be positive, got {size}")
+        if min(half) <= 0 or not all(math.isfinite(v) for v in (*size, *pos)):
+            raise ValueError(
+                f"layout[{i}]: sizes must be positive and positions finite, got size {size}, position {pos}"
+            )
+        unknown = set(item) - {"kind", "position", "size", "yaw", "color", "texture"}
+        if unknown:
+            raise ValueError(f"layout[{i}]: unknown fields {sorted(unknown)}")
         color = tuple(float(c) for c in item.get("color", (0.7, 0.7, 0.7)))
+        if len(color) not in (3, 4) or not all(0.0 <= c <= 1.0 for c in color):
+            raise ValueError(f"layout[{i}]: color needs 3 or 4 values in [0, 1], got {color}")
         rgba = (*color[:3], color[3] if len(color) > 3 else 1.0)
         out.append(
             Primitive(
