@@ -47,17 +47,59 @@ def test_roundtrip_and_metadata(tmp_path):
         assert h5["ep_000000/rgb"].chunks == (1, 3, 16, 16) and h5["ep_000000/rgb"].compression
 
 
-def test_new_file_appears_only_when_complete(tmp_path):
+def test_new_file_keeps_finished_episodes_and_leaves_no_temporary(tmp_path):
+    # A new file is valid from its first moment and holds every finished episode (a kill loses nothing
+    # finished); a writer that fails before finishing any episode leaves nothing behind.
     p = tmp_path / "d.h5"
     with DatasetWriter(p, 8, 2, {}) as w:
+        assert p.exists()
         w.add_episode(**_episode(4, 8), scene="box", seed=0, source="pilot")
-        assert not p.exists()  # still under a temporary name
-    assert p.exists()
     q = tmp_path / "e.h5"
     with pytest.raises(RuntimeError, match="boom"), DatasetWriter(q, 8, 2, {}) as w:
         w.add_episode(**_episode(4, 8), scene="box", seed=0, source="pilot")
         raise RuntimeError("boom")
-    assert list(tmp_path.iterdir()) == [p]  # no half file, no temp left
+    with open_dataset(q) as ds:
+        assert len(ds) == 1  # the finished episode survived the failure
+    r = tmp_path / "f.h5"
+    with pytest.raises(RuntimeError, match="boom"), DatasetWriter(r, 8, 2, {}):
+        raise RuntimeError("boom")
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["d.h5", "e.h5"]  # no empty file, no temp left
+
+
+def test_killed_new_collection_keeps_its_episodes_and_stale_temporaries_go(tmp_path):
+    # Before: a new file lived under a temporary name until close, so kill -9 lost every episode and left a
+    # hidden .tmp file that was never removed.
+    import subprocess
+    import sys
+    import textwrap
+
+    p = tmp_path / "d.h5"
+    code = textwrap.dedent(
+        f"""
+        import os, numpy as np
+        from omcrl.data.dataset import DatasetWriter
+        w = DatasetWriter({str(p)!r}, 8, 2, {{}})
+        for i in range(3):
+            T = 4
+            w.add_episode(rgb=np.full((T, 3, 8, 8), i, np.uint8), depth=np.zeros((T, 8, 8), np.float32),
+                          state=np.zeros((T, 12), np.float32), privileged=np.zeros((T, 6), np.float32),
+                          action=np.zeros((T, 3), np.float32), reward=np.zeros(T, np.float32),
+                          done=np.zeros(T, bool), scene="box", seed=i, source="pilot")
+        g = w._h5.create_group("ep_000003")  # half of a fourth episode, then the process dies
+        g.create_dataset("rgb", data=np.zeros((2, 3, 8, 8), np.uint8))
+        w._h5.flush()
+        os._exit(9)
+        """
+    )
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 9
+    (tmp_path / ".d.h5.stale.tmp").write_bytes(b"left by a killed writer")
+    with open_dataset(p) as ds:
+        assert len(ds) == 3
+    with DatasetWriter(p, 8, 2, {}) as w:
+        assert w.add_episode(**_episode(4, 8, value=9), scene="box", seed=3, source="pilot") == 3
+    with open_dataset(p) as ds:
+        assert ds.episode_lengths.tolist() == [4, 4, 4, 4] and (ds.read(3, "rgb") == 9).all()
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["d.h5"]
 
 
 def test_append_keeps_earlier_episodes_and_drops_half_written(tmp_path):

@@ -262,3 +262,49 @@ def test_cli_prints_one_line_for_expected_failures(tmp_path, repo_root):
     assert r.returncode != 0 and "Traceback" in r.stderr
     r = subprocess.run([*cmd[:4], "--set", "env.goal_distance=[3,"], cwd=repo_root, capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "not valid YAML" in r.stderr
+
+
+# ---------------------------------------------------------------- a full disk
+_DISK_FULL = r"""
+import json, subprocess, sys
+from omcrl.config import load_config
+from omcrl.data import collect
+from omcrl.data.dataset import DatasetError, open_dataset
+
+mnt = sys.argv[1]
+subprocess.run(["mount", "-t", "tmpfs", "-o", "size=700k", "tmpfs", mnt], check=True)
+cfg = load_config("smoke", overrides=[f"data.file={mnt}/box.h5", "data.episodes=12", f"results_dir={mnt}"])
+out = {}
+try:
+    collect.run(cfg, progress=False)
+    out["error"] = None
+except DatasetError as e:
+    out["error"] = str(e)
+with open_dataset(f"{mnt}/box.h5") as ds:
+    out["kept"] = len(ds)
+subprocess.run(["mount", "-o", "remount,size=30m", mnt], check=True)
+r = collect.run(cfg, progress=False)
+out["after"], out["added"] = r.episodes, r.added
+print(json.dumps(out))
+"""
+
+
+def test_full_disk_keeps_complete_episodes_and_the_rerun_appends(tmp_path, repo_root):
+    # Before: ENOSPC during an append left a file that collect could no longer open ("addr overflow").
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    if shutil.which("unshare") is None or subprocess.run(["unshare", "-m", "true"]).returncode != 0:
+        pytest.skip("no private mount namespace here (needs unshare and root) for a size-limited tmpfs")
+    r = subprocess.run(
+        ["unshare", "-m", sys.executable, "-c", _DISK_FULL, str(mnt)], cwd=repo_root, capture_output=True, text=True
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["error"] is not None and "disk is full" in out["error"] and "box.h5" in out["error"], out
+    assert out["kept"] >= 1
+    assert out["after"] == 12 and out["added"] == 12 - out["kept"]

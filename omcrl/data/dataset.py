@@ -27,9 +27,11 @@ the process died has an index ``>= n_episodes``; readers ignore it and the next 
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import hashlib
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -101,12 +103,18 @@ class EpisodeBuffer:
 class DatasetWriter:
     """Write episodes to an HDF5 trajectory file (new, or appended to an existing compatible one).
 
+    Every finished episode is durable: it is flushed and only then counted (the file attribute ``n_episodes``
+    is written last), so a kill at any moment leaves a valid file with all finished episodes, which a rerun
+    appends to. A new file is first created as an empty, valid file (under a temporary name, then renamed),
+    so the path never holds a half-initialised file. Groups of an episode that was being written when the
+    process died (index >= ``n_episodes``) are removed on the next open by copying the complete episodes into
+    a fresh file (never by editing the damaged one in place, whose free-space records may be inconsistent
+    after a full disk). A full disk raises :class:`DatasetError` naming the file; the file keeps its complete
+    episodes.
+
     Parameters
     ----------
-    path : target file. If it does not exist it is written to a temporary file in the same folder and renamed
-        on :meth:`close`; if the ``with`` block raises, the temporary file is deleted and
-        ``path`` never appears.
-        If it exists, episodes are appended in place (``"a"`` mode) without touching earlier episodes.
+    path : target file.
     image_size : square image side H = W (px).
     frame_stack : L the data is meant to be used with (stored as metadata; stacks are rebuilt at read time).
     env_config : the environment configuration (JSON-able dict), stored as metadata.
@@ -116,48 +124,61 @@ class DatasetWriter:
     def __init__(
         self, path: str | Path, image_size: int, frame_stack: int, env_config: dict, compression: str = "lzf"
     ) -> None:
-        import omcrl
-
         self.path = Path(path)
         self.image_size = int(image_size)
         self.frame_stack = int(frame_stack)
         self.compression = compression
-        self._tmp: Path | None = None
+        self._h5: h5py.File | None = None
+        self._broken = False
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        if self.path.exists():
-            try:
-                self._h5 = h5py.File(self.path, "a")
-            except OSError as e:
-                raise DatasetError(f"dataset {self.path}: cannot open for appending ({e})") from None
-            for key, want in (("image_size", self.image_size), ("frame_stack", self.frame_stack)):
-                got = int(self._h5.attrs.get(key, -1))
-                if got != want:
-                    self._h5.close()
-                    raise DatasetError(
-                        f"dataset {self.path}: cannot append, field '{key}' is {got} in the "
-                        f"file but the writer was given {want}"
-                    )
-            self.n_episodes = int(self._h5.attrs.get("n_episodes", 0))
-            # Remove episodes a crashed writer left half-written (their index is >= n_episodes).
-            for key in list(self._h5.keys()):
-                if key.startswith("ep_") and int(key[3:]) >= self.n_episodes:
-                    del self._h5[key]
-            self._h5.flush()
-        else:
-            fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp")
-            os.fchmod(fd, 0o666 & ~current_umask())  # the finished file gets the umask's permissions, not 0600
-            os.close(fd)
-            self._tmp = Path(tmp)
-            self._h5 = h5py.File(self._tmp, "w")
-            a = self._h5.attrs
-            a["format_version"] = FORMAT_VERSION
-            a["image_size"] = self.image_size
-            a["frame_stack"] = self.frame_stack
-            a["env_config"] = json.dumps(env_config, sort_keys=True, default=str)
-            a["kit_version"] = omcrl.__version__
-            a["created"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
-            a["n_episodes"] = 0
-            self.n_episodes = 0
+        _remove_stale_temporaries(self.path)
+        self.created = not self.path.exists()
+        if self.created:
+            self._create(env_config)
+        self._open_for_append()
+
+    def _create(self, env_config: dict) -> None:
+        """An empty valid file under a temporary name, renamed into place."""
+        import omcrl
+
+        fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp")
+        os.fchmod(fd, 0o666 & ~current_umask())  # the finished file gets the umask's permissions, not 0600
+        os.close(fd)
+        try:
+            with h5py.File(tmp, "w") as h5:
+                a = h5.attrs
+                a["format_version"] = FORMAT_VERSION
+                a["image_size"] = self.image_size
+                a["frame_stack"] = self.frame_stack
+                a["env_config"] = json.dumps(env_config, sort_keys=True, default=str)
+                a["kit_version"] = omcrl.__version__
+                a["created"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+                a["n_episodes"] = 0
+            os.replace(tmp, self.path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    def _open_for_append(self) -> None:
+        try:
+            h5 = h5py.File(self.path, "a")
+        except OSError as e:
+            raise DatasetError(f"dataset {self.path}: cannot open for appending ({e})") from None
+        for key, want in (("image_size", self.image_size), ("frame_stack", self.frame_stack)):
+            got = int(h5.attrs.get(key, -1))
+            if got != want:
+                h5.close()
+                raise DatasetError(
+                    f"dataset {self.path}: cannot append, field '{key}' is {got} in the "
+                    f"file but the writer was given {want}"
+                )
+        self.n_episodes = int(h5.attrs.get("n_episodes", 0))
+        stray = [k for k in h5.keys() if k.startswith("ep_") and int(k[3:]) >= self.n_episodes]
+        if stray:  # an episode a killed writer left half-written
+            h5.close()
+            _keep_complete(self.path, self.n_episodes)
+            h5 = h5py.File(self.path, "a")
+        self._h5 = h5
 
     def add_episode(
         self,
@@ -198,35 +219,58 @@ class DatasetWriter:
             if arr.shape != want:
                 raise ValueError(f"episode field '{name}': got shape {arr.shape}, expected {want}")
             arrays[name] = arr.astype(FIELDS[name][0], copy=False)
+        if self._broken:
+            raise DatasetError(f"dataset {self.path}: the writer failed earlier; run collect again to append")
         idx = self.n_episodes
-        g = self._h5.create_group(episode_key(idx))
-        for name, arr in arrays.items():
-            if name in ("rgb", "depth"):
-                # One chunk per frame: a sequence read decompresses only the frames it needs.
-                g.create_dataset(name, data=arr, chunks=(1, *arr.shape[1:]), compression=self.compression)
-            else:
-                g.create_dataset(name, data=arr)
-        g.attrs["scene"] = str(scene)
-        g.attrs["seed"] = int(seed)
-        g.attrs["source"] = source
-        g.attrs["steps"] = n
-        self._h5.flush()
+        # Refuse before HDF5 meets a full disk: a write that fails inside HDF5 leaves its library state broken
+        # (the file on disk keeps its complete episodes either way). Raw sizes over-estimate compressed ones.
+        need = sum(a.nbytes for a in arrays.values()) + 256 * 1024
+        free = shutil.disk_usage(self.path.parent).free
+        if free < need:
+            raise DatasetError(
+                f"dataset {self.path}: the disk is full ({free / 2**20:.1f} MiB free, episode {idx} needs up to "
+                f"{need / 2**20:.1f} MiB); the file keeps its {idx} complete episodes (free some space and run "
+                "collect again to append from there)"
+            )
+        try:
+            g = self._h5.create_group(episode_key(idx))
+            for name, arr in arrays.items():
+                if name in ("rgb", "depth"):
+                    # One chunk per frame: a sequence read decompresses only the frames it needs.
+                    g.create_dataset(name, data=arr, chunks=(1, *arr.shape[1:]), compression=self.compression)
+                else:
+                    g.create_dataset(name, data=arr)
+            g.attrs["scene"] = str(scene)
+            g.attrs["seed"] = int(seed)
+            g.attrs["source"] = source
+            g.attrs["steps"] = n
+            self._h5.flush()
+            self._h5.attrs["n_episodes"] = idx + 1  # last: marks the episode complete
+            self._h5.flush()
+        except (OSError, RuntimeError, ValueError) as e:
+            self._broken = True
+            full = getattr(e, "errno", None) == errno.ENOSPC or "No space left" in str(e)
+            why = "the disk is full" if full else f"writing failed ({type(e).__name__}: {e})"
+            raise DatasetError(
+                f"dataset {self.path}: {why} while writing episode {idx}; the file keeps its {idx} complete "
+                "episodes (free some space and run collect again to append from there)"
+            ) from None
         self.n_episodes = idx + 1
-        self._h5.attrs["n_episodes"] = self.n_episodes  # last: marks the episode complete
-        self._h5.flush()
         return idx
 
     def close(self, discard: bool = False) -> None:
-        """Close the file; a new file is renamed into place (or deleted when ``discard``)."""
+        """Close the file. Finished episodes stay; ``discard`` removes a file this writer created and that holds
+        no finished episode."""
         if self._h5 is None:
             return
-        self._h5.close()
-        self._h5 = None
-        if self._tmp is not None:
-            if discard:
-                self._tmp.unlink(missing_ok=True)
-            else:
-                os.replace(self._tmp, self.path)
+        h5, self._h5 = self._h5, None
+        try:
+            h5.close()
+        except Exception:  # after a full disk closing may fail too; the complete episodes are already on disk
+            if not self._broken:
+                raise
+        if discard and self.created and self.n_episodes == 0:
+            self.path.unlink(missing_ok=True)
 
     def __enter__(self) -> DatasetWriter:
         return self
@@ -234,12 +278,35 @@ class DatasetWriter:
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         self.close(discard=exc_type is not None)
 
-    def __del__(self) -> None:  # an abandoned new file never appears under its final name
+    def __del__(self) -> None:
         try:
             if getattr(self, "_h5", None) is not None:
                 self.close(discard=True)
         except Exception:
             pass
+
+
+def _remove_stale_temporaries(path: Path) -> None:
+    """Delete ``.<name>.*.tmp`` files a killed writer of ``path`` left behind (empty skeletons or old copies)."""
+    for tmp in path.parent.glob(f".{path.name}.*.tmp"):
+        tmp.unlink(missing_ok=True)
+
+
+def _keep_complete(path: Path, n: int) -> None:
+    """Replace ``path`` by a fresh copy holding its attributes and its first ``n`` (complete) episodes."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.fchmod(fd, 0o666 & ~current_umask())
+    os.close(fd)
+    try:
+        with h5py.File(path, "r") as src, h5py.File(tmp, "w") as dst:
+            for k, v in src.attrs.items():
+                dst.attrs[k] = v
+            for i in range(n):
+                src.copy(src[episode_key(i)], dst, name=episode_key(i))
+        os.replace(tmp, path)
+    except OSError as e:
+        Path(tmp).unlink(missing_ok=True)
+        raise DatasetError(f"dataset {path}: cannot recover its {n} complete episodes ({e})") from None
 
 
 # ---------------------------------------------------------------- reading
