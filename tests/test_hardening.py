@@ -308,3 +308,24 @@ def test_full_disk_keeps_complete_episodes_and_the_rerun_appends(tmp_path, repo_
     assert out["error"] is not None and "disk is full" in out["error"] and "box.h5" in out["error"], out
     assert out["kept"] >= 1
     assert out["after"] == 12 and out["added"] == 12 - out["kept"]
+
+
+def test_hybrid_apf_plans_away_from_the_arena_edge():
+    # Before: bound to the env it left the arena in barrier on held-out seeds 1000015 and 1000018 (steps 126, 128).
+    from omcrl.envs import make_env
+    from omcrl.planners import HybridAPF
+
+    cfg = load_config("quick").env
+    env = make_env("barrier", seed=0, config=cfg)
+    pilot = HybridAPF(cfg).bind(env)
+    try:
+        for seed in (1000015, 1000018):
+            obs, info = env.reset(seed=seed)
+            pilot.reset(info)
+            done = False
+            while not done:
+                obs, _, term, trunc, info = env.step(pilot.act(obs, info))
+                done = term or trunc
+            assert not info["metrics"]["out_of_arena"], seed
+    finally:
+        env.close()

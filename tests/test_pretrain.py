@@ -272,3 +272,27 @@ def test_probe_pipeline_and_random_encoder(data, tmp_path):
     assert min(out["distance"], out["bearing_sin"], out["bearing_cos"]) > 0.9  # targets align with frames
     rand = probe(random_encoder(_cfg(tmp_path), seed=0), ds, n_samples=120, seed=0)
     assert all(np.isfinite(rand[k]) for k in ("distance", "bearing_sin", "bearing_cos"))
+
+
+def test_finished_run_skips_without_its_dataset_and_lost_metrics_are_reported(data, tmp_path):
+    # Before: skipping a finished run opened the dataset (missing file -> error), and a metrics.csv deleted
+    # before a resume silently lost the history and wrote NaN into done.json.
+    import json
+    import shutil
+
+    moved = tmp_path / "copy.h5"
+    shutil.copy(data, moved)
+    cfg = _cfg(tmp_path)
+    first = run(cfg, moved, progress=False)
+    moved.unlink()
+    again = run(cfg, moved, progress=False)
+    assert again.skipped and again.encoder_path == first.encoder_path
+    # Resume with metrics.csv gone: a warning says what is lost; done.json stays valid JSON.
+    cfg_b = _cfg(tmp_path / "b")
+    part = run(cfg_b, data, progress=False, stop_after=4)
+    (part.run_dir / "metrics.csv").unlink()
+    with pytest.warns(UserWarning, match="history is lost"):
+        done = run(cfg_b, data, progress=False)
+    assert done.iterations == 6
+    record = json.loads((done.run_dir / "done.json").read_text())  # strict JSON: no NaN
+    assert record["final_loss"] is None or np.isfinite(record["final_loss"])

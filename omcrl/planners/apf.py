@@ -21,6 +21,14 @@ from omcrl.config import EnvConfig
 from omcrl.planners.grid import OccupancyGrid, shortest_path
 
 
+def edge_mask(grid: OccupancyGrid, clearance: float) -> np.ndarray:
+    """(G, G) bool: cells whose centre lies within ``clearance`` m of the arena's edge (the grid's border)."""
+    x = grid.to_world(np.arange(grid.size)[:, None].repeat(2, 1))[:, 0]
+    half = -grid.origin
+    near = np.abs(x) > half - clearance
+    return near[:, None] | near[None, :]
+
+
 class HybridAPF:
     """Policy ``act(obs, info) -> action`` (float32 (3,) in [-1, 1]) for one :class:`~omcrl.envs.NavEnv`.
 
@@ -73,8 +81,10 @@ class HybridAPF:
         path = np.asarray(info.get("path", np.zeros((0, 2))), np.float64)
         grid: OccupancyGrid | None = getattr(self._env, "grid", None)
         if grid is not None:
-            # Plan with a margin, so the potential field is not fighting a path that grazes obstacles.
-            safe = OccupancyGrid(grid.origin, grid.res, grid.dist, grid.dist <= self.cfg.drone_radius + self.margin)
+            # Plan with a margin, so the potential field is not fighting a path that grazes obstacles, and with
+            # the arena edge as an obstacle: leaving the arena ends the episode like a collision.
+            clear = self.cfg.drone_radius + self.margin
+            safe = OccupancyGrid(grid.origin, grid.res, grid.dist, (grid.dist <= clear) | edge_mask(grid, clear))
             if safe.free(pose[:2]) and safe.free(goal):
                 p, length = shortest_path(safe, pose[:2], goal)
                 if math.isfinite(length):
@@ -201,7 +211,10 @@ class PerceptiveHybridAPF(HybridAPF):
 
         origin, res, _ = self._grid_shape()
         dist = distance_transform_edt(~self.known).astype(np.float32) * res
-        self._grid = OccupancyGrid(origin, res, dist, dist <= self.cfg.drone_radius + self.margin)
+        clear = self.cfg.drone_radius + self.margin
+        grid = OccupancyGrid(origin, res, dist, dist <= clear)
+        grid.occ |= edge_mask(grid, clear)
+        self._grid = grid
         path = np.zeros((0, 2))
         if self._grid.free(pos) and self._grid.free(goal):
             path, length = shortest_path(self._grid, pos, goal)

@@ -19,6 +19,7 @@ import dataclasses
 import io
 import json
 import logging
+import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -155,8 +156,6 @@ def run(
     p = cfg.pretrain
     set_threads(p.num_threads)
     path = Path(dataset_path) if dataset_path is not None else default_dataset_path(cfg)
-    ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
-    fp = ds.fingerprint
     name = method_name(p)
     run_rec = pretrain_run(cfg)
     run_rec.check()
@@ -164,9 +163,17 @@ def run(
     enc_path, metrics_path, ck_path, done_path = (
         out / n for n in ("encoder.pt", "metrics.csv", "checkpoint.pt", "done.json")
     )
+    done = json.loads(done_path.read_text()) if done_path.exists() and enc_path.exists() else None
+    if done is not None and not path.exists():
+        # A finished run needs its dataset only to notice re-collected data; without the file, the fingerprint
+        # recorded at the end of training stands in for it.
+        fp = str(done.get("dataset_fingerprint", ""))
+        ds = None
+    else:
+        ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
+        fp = ds.fingerprint
     full_hash, compat_hash = _hashes(cfg, fp)
-    if done_path.exists() and enc_path.exists():
-        done = json.loads(done_path.read_text())
+    if done is not None:
         digest = done.get("encoder_digest")
         if done.get("hash") == full_hash and digest is not None and file_digest(enc_path) != digest:
             # A finished encoder that changed since it was written is not trusted: rebuild it (from the final
@@ -178,10 +185,16 @@ def run(
             done_path.unlink()
         elif done.get("hash") == full_hash:
             log.info("pretrain %s: finished run with the same config found in %s, skipping", name, out)
-            ds.close()
+            if ds is not None:
+                ds.close()
+            loss = done["final_loss"]
             return PretrainResult(
-                name, out, enc_path, metrics_path, done["iterations"], done["final_loss"], fp, skipped=True
+                name, out, enc_path, metrics_path, done["iterations"], math.nan if loss is None else loss, fp, True
             )
+    if ds is None:  # the finished run cannot be reused and there is no dataset to train again from
+        ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
+        fp = ds.fingerprint
+        full_hash, compat_hash = _hashes(cfg, fp)
     run_rec.claim()
     save_config(cfg, out)
 
@@ -207,6 +220,14 @@ def run(
             torch.set_rng_state(state["torch_rng"])
             start = int(state["step"])
             rows = _read_metrics(metrics_path, start)
+            logged = {step for step, _, _ in rows}
+            if len(logged) < start:
+                msg = (
+                    f"{metrics_path}: {start - len(logged)} of the {start} iterations before the resume point have "
+                    "no metrics (the file was deleted or cut); their history is lost, training goes on"
+                )
+                log.warning("pretrain %s: %s", name, msg)
+                warnings.warn(msg, stacklevel=2)
             log.info("pretrain %s: resuming from iteration %d", name, start)
         else:
             log.warning("pretrain %s: checkpoint in %s is from a different config; starting over", name, out)
@@ -274,7 +295,7 @@ def run(
             {
                 "hash": full_hash,
                 "iterations": p.iterations,
-                "final_loss": loss_val,
+                "final_loss": loss_val if math.isfinite(loss_val) else None,  # JSON has no NaN
                 "dataset": str(path),
                 "dataset_fingerprint": fp,
                 "encoder_digest": file_digest(enc_path),
