@@ -329,3 +329,23 @@ def test_hybrid_apf_plans_away_from_the_arena_edge():
             assert not info["metrics"]["out_of_arena"], seed
     finally:
         env.close()
+
+
+@pytest.mark.slow
+def test_kill_minus_nine_at_random_moments_of_every_stage(tmp_path, repo_root):
+    """scripts/kill_test.py with 10 kills per stage: every rerun finishes and keeps each stage's promise."""
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "kills.json"
+    cmd = [sys.executable, "scripts/kill_test.py", "--kills", "10", "--work", str(tmp_path / "w"), "--json", str(out)]
+    r = subprocess.run(cmd, cwd=repo_root, capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    rows = json.loads(out.read_text())
+    assert [x["stage"] for x in rows] == ["collect", "pretrain", "oracle", "student", "evaluate"]
+    for x in rows:
+        assert x["promise_held"], x
+        assert x["kills"] >= 1, x  # at least one kill landed mid-run
+    assert next(x for x in rows if x["stage"] == "pretrain")["bit_identical"]
+    assert next(x for x in rows if x["stage"] == "evaluate")["bit_identical"]
