@@ -6,9 +6,10 @@
 For each stage, with the smoke preset (RL stages at 2,048 env steps, checkpoints every 256):
 
 1. reference: the stage runs once, uninterrupted, in ``<work>/ref``;
-2. killed: the same stage starts in ``<work>/kill`` and gets SIGKILL at a random moment of its run (uniform over
-   10-95% of the reference's wall time, after its start-up), ``--kills`` times or until a run finishes first;
-   then it is run to completion;
+2. killed: the same stage starts in ``<work>/kill`` and gets SIGKILL at a random moment of the work it has
+   left (start-up, then uniform over 10-90% of the reference's working time times the share of the work not
+   yet durable, read from the run's own files), ``--kills`` times or until a run finishes first; then it is
+   run to completion;
 3. compare: what the stage promises.
 
 What each stage promises after kills:
@@ -43,7 +44,7 @@ RL = ["rl.total_steps=2048", "rl.checkpoint_every=256"]
 
 
 def _overrides(base: Path) -> list[str]:
-    sets = [f"results_dir={base}/results", f"data.file={base}/data/box.h5", "data.episodes=12", *RL]
+    sets = [f"results_dir={base}/results", f"data.file={base}/data/box.h5", "data.episodes=40", *RL]
     return [x for s in sets for x in ("--set", s)]
 
 
@@ -109,6 +110,45 @@ def _outcome(stage: str, base: Path) -> dict:
     return {"table": _digest(res / "tables" / "table1.csv")}
 
 
+def _startup_seconds() -> float:
+    """Wall time of a stage that does nothing (interpreter, imports, config): kills before it hit no work."""
+    t0 = time.perf_counter()
+    subprocess.run([*_cmd("config", Path("/tmp")), "--set", "results_dir=/tmp"], cwd=ROOT, capture_output=True)
+    return time.perf_counter() - t0
+
+
+def _fraction_left(stage: str, base: Path, ref: Path) -> float:
+    """Share of the stage's work not yet durable in ``base`` (from its own files: episodes, checkpoints, caches)."""
+    import torch
+
+    res = base / "results" / "smoke"
+    if stage == "collect":
+        from omcrl.data import open_dataset
+
+        f = base / "data" / "box.h5"
+        if not f.exists():
+            return 1.0
+        with open_dataset(f) as ds:
+            return 1.0 - len(ds) / 40
+    if stage in ("pretrain", "oracle", "student"):
+        pattern = {"pretrain": "runs/pretrain/omc-*/seed0", "oracle": "runs/rl/oracle-*/seed0"}.get(
+            stage, "runs/rl/ours-*/seed0"
+        )
+        runs = sorted(res.glob(pattern))
+        if not runs:
+            return 1.0
+        if (runs[0] / ("done.json" if stage == "pretrain" else "final.pt")).exists():
+            return 0.0
+        ck = runs[0] / "checkpoint.pt"
+        if not ck.exists():
+            return 1.0
+        total = 20 if stage == "pretrain" else 2048  # smoke iterations / RL steps
+        return 1.0 - int(torch.load(ck, weights_only=True)["step"]) / total
+    want = len(list((ref / "results" / "smoke" / "eval").glob("*/seed0/*.csv")))
+    have = len(list((res / "eval").glob("*/seed0/*.csv")))
+    return 1.0 - have / max(want, 1)
+
+
 PREREQS = {"collect": [], "pretrain": ["collect"], "oracle": [], "student": ["collect", "pretrain", "oracle"]}
 PREREQS["evaluate"] = ["collect", "pretrain", "oracle", "student"]
 
@@ -135,21 +175,25 @@ def kill_test(stages: list[str], kills: int, seed: int, work: Path) -> list[dict
             for d in (kill / "results" / "smoke" / "runs").glob(under_test or "__none__"):
                 shutil.rmtree(d)
         landed = 0
+        startup = _startup_seconds()
         for _ in range(kills):
-            if _kill_at(stage, kill, rng.uniform(0.1, 0.95) * wall):
+            # A random moment of the work that is left: each resume starts further on, so the window shrinks.
+            left = _fraction_left(stage, kill, ref)
+            if left <= 0:
+                break
+            if _kill_at(stage, kill, startup + rng.uniform(0.1, 0.9) * max(wall - startup, 0.5) * left):
                 landed += 1
             else:
                 break
         _run(stage, kill)
         got = _outcome(stage, kill)
         same = got == want
-        promise = {
-            "collect": got["episodes"] == want["episodes"],
-            "pretrain": same,
-            "oracle": got["step"] == want.get("step"),
-            "student": got["step"] == want.get("step"),
-            "evaluate": same,
-        }[stage]
+        if stage == "collect":
+            promise = got["episodes"] == want["episodes"]
+        elif stage in ("oracle", "student"):
+            promise = got["step"] == want["step"]
+        else:  # pretrain, evaluate: bit-identical
+            promise = same
         rows.append(
             {
                 "stage": stage,

@@ -113,7 +113,8 @@ def test_env_follows_gymnasium_conventions():
         make_env("box", image_size=32, render_mode="human")
     env = make_env("box", image_size=32, render_mode=None)
     env.reset(seed=0)
-    assert env.render() is None
+    with pytest.warns(UserWarning, match="render_mode"):
+        assert env.render() is None
     # Actions must be (3,): (1, 3) and (3, 1) hide batching mistakes.
     for bad in (np.zeros((1, 3)), np.zeros((3, 1))):
         with pytest.raises(ValueError, match=r"expected shape \(3,\)"):

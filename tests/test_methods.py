@@ -209,3 +209,12 @@ def test_every_visuomotor_method_exports_to_onnx_with_parity(grid, tmp_path):
             continue
         pol, ref = OnnxPolicy(export_onnx(r.run_dir, tmp_path / f"{m}.onnx")), load_policy(r.final_path)
         assert max(np.abs(pol.act(o) - ref.act(o)).max() for o in obs) <= 1e-4, m
+
+
+def test_pretraining_identity_ignores_where_the_data_lives(grid, tmp_path):
+    from omcrl.pretrain import pretrain_run
+
+    cfg = grid["cfg"]
+    moved = _cfg(grid["root"], f"data.file={tmp_path}/elsewhere.h5")
+    assert pretrain_run(moved).dir == pretrain_run(cfg).dir
+    assert pretrain_run(_cfg(grid["root"], "data.episodes=7")).dir != pretrain_run(cfg).dir

@@ -85,13 +85,17 @@ def pretrain_run(cfg: Config) -> Run:
     """The :class:`omcrl.runs.Run` of this pretraining configuration.
 
     Its identity is everything that changes the encoder: the pretraining fields (less ``checkpoint_every`` and
-    ``num_threads``), the data collection settings, the frame stack and the image size; the dataset's content
-    fingerprint is checked separately (``done.json``), so re-collected data retrains the same run.
+    ``num_threads``), the data collection settings (less the file's path), the frame stack and the image size;
+    the dataset's content fingerprint is checked separately (``done.json``), so re-collected data retrains the
+    same run.
     """
     p = {k: v for k, v in dataclasses.asdict(cfg.pretrain).items() if k not in ("checkpoint_every", "num_threads")}
+    # The data file's path is not identity (moving the data must not orphan the run); its content is checked
+    # against the fingerprint recorded in done.json.
+    data = {k: v for k, v in dataclasses.asdict(cfg.data).items() if k != "file"}
     ident = {
         "pretrain": p,
-        "data": dataclasses.asdict(cfg.data),
+        "data": data,
         "frame_stack": cfg.env.frame_stack,
         "image_size": cfg.env.image_size,
     }

@@ -453,19 +453,9 @@ def train_student(
     ='none'`` also trains without the KL term. Encoder and oracle are checked against the env before any
     training step.
     """
-    make_guide = _guide_maker(cfg, oracle_path, planner_factory)
     if not Path(encoder_path).exists():
         raise CheckpointError(f"encoder checkpoint {encoder_path} does not exist (run the pretraining stage first)")
-    return train(
-        cfg,
-        run=policy_run(cfg, name, encoder_path, oracle_path, planner_factory, custom_env=make_env is not None),
-        make_env=make_env or _default_make_env(cfg),
-        build_features=lambda space: make_student_features(encoder_path, space),
-        make_guide=make_guide,
-        overwrite=overwrite,
-        progress=progress,
-        meta={"encoder": str(encoder_path), "oracle": str(oracle_path or "")},
-    )
+    return _train_visuomotor(cfg, encoder_path, oracle_path, name, planner_factory, make_env, overwrite, progress)
 
 
 def train_pixel(
@@ -484,15 +474,33 @@ def train_pixel(
     f sees the centre ``pretrain.crop_to`` px of the env's frames (what the frozen encoders see) and has
     ``pretrain.feature_dim`` outputs, so both fields are part of the run's identity.
     """
-    make_guide = _guide_maker(cfg, oracle_path, planner_factory)
-    crop, dim = cfg.pretrain.crop_to, cfg.pretrain.feature_dim
+    return _train_visuomotor(cfg, None, oracle_path, name, planner_factory, make_env, overwrite, progress)
+
+
+def _train_visuomotor(
+    cfg: Config,
+    encoder_path: str | Path | None,
+    oracle_path: str | Path | None,
+    name: str,
+    planner_factory: Callable[[], Any] | None,
+    make_env: Callable[[int], Any] | None,
+    overwrite: bool,
+    progress: bool,
+) -> Result:
+    """The one trainer behind :func:`train_student` (frozen encoder) and :func:`train_pixel` (``encoder_path``
+    None: end to end)."""
+    if encoder_path is not None:
+        build = lambda space: make_student_features(encoder_path, space)  # noqa: E731
+    else:
+        crop, dim = cfg.pretrain.crop_to, cfg.pretrain.feature_dim
+        build = lambda space: make_pixel_features(space, crop, dim)  # noqa: E731
     return train(
         cfg,
-        run=policy_run(cfg, name, None, oracle_path, planner_factory, custom_env=make_env is not None),
+        run=policy_run(cfg, name, encoder_path, oracle_path, planner_factory, custom_env=make_env is not None),
         make_env=make_env or _default_make_env(cfg),
-        build_features=lambda space: make_pixel_features(space, crop, dim),
-        make_guide=make_guide,
+        build_features=build,
+        make_guide=_guide_maker(cfg, oracle_path, planner_factory),
         overwrite=overwrite,
         progress=progress,
-        meta={"oracle": str(oracle_path or "")},
+        meta={"encoder": str(encoder_path or ""), "oracle": str(oracle_path or "")},
     )
