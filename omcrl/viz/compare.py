@@ -79,7 +79,8 @@ def plot_learning_curves(
             if not len(x):
                 continue
             style = "--" if method == "oracle" else "-"
-            ax.plot(x, y, style, color=f"C{i}", label=f"{labels.get(method, method)} ({len(seeds)} seeds)")
+            n = len(seeds)
+            ax.plot(x, y, style, color=f"C{i}", label=f"{labels.get(method, method)} ({n} seed{'s' if n > 1 else ''})")
             ax.fill_between(x, lo, hi, color=f"C{i}", alpha=0.18, lw=0)
         ax.set(xlabel="env steps", title=title)
         if metric == "success_rate":

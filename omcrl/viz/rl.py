@@ -162,7 +162,8 @@ def plot_trajectories(
         xy = np.asarray(r["trajectory"], float)
         if len(xy) == 0:
             continue
-        c = f"C{(i + 2) % 10}"  # C0/C1 are taken by the map's start and path
+        # Blue and orange are the map's start and shortest path: methods take the other tab20 colours.
+        c = plt.cm.tab20((4 + i) % 20)
         ax.plot(xy[:, 0], xy[:, 1], color=c, label=r["method"])
         end = "green" if r["success"] else ("red" if r["collision"] else "grey")
         ax.plot(*xy[-1], "x", color=end, ms=7, mew=2)
