@@ -3,7 +3,7 @@
 #
 #   ./reproduce.sh --test    run the test suite (pytest; slow tests excluded, notebook smoke runs included)
 #   ./reproduce.sh --smoke   run the notebook chain with the tiny CI preset (minutes)
-#   ./reproduce.sh --quick   run the notebook chain with the laptop preset (about 80 minutes on 2 CPU cores)
+#   ./reproduce.sh --quick   run the notebook chain with the laptop preset (hours on 2 CPU cores; see the README)
 #   ./reproduce.sh --paper   run the notebook chain at the paper's scale (needs a GPU; hours to days)
 #
 # Each mode first creates .venv (Python 3.11) and installs the kit when .venv is missing, when

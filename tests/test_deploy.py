@@ -161,15 +161,15 @@ def test_geofence_and_model_mismatch(tmp_path, seeker):
 
 
 def test_sigint_lands(tmp_path, seeker):
-    loop, drone, _, _ = _flight(tmp_path, seeker, goal=(6.0, 0.0))
-    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    loop, drone, _, _ = _flight(tmp_path, seeker, goal=(7.0, 0.0))
+    timer = threading.Timer(0.8, lambda: os.kill(os.getpid(), signal.SIGINT))
     timer.start()
     try:
         res = loop.fly()
     finally:
         timer.cancel()
         drone.close()
-    assert res.reason == "interrupted" and drone.landed_at is not None and res.ticks >= 5
+    assert res.reason == "interrupted" and drone.landed_at is not None and res.ticks >= 3, res
 
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
@@ -186,10 +186,12 @@ def test_djitellopy_against_the_loopback_fake_tello(tmp_path, seeker):
         "geofence": ((6.0, 0.0), "fence"),
         "interrupted": ((6.0, 0.0), "sigint"),
     }
-    for expected, (goal, event) in scenarios.items():
+    for k, (expected, (goal, event)) in enumerate(scenarios.items()):
         sim = SimulatedDrone(cfg.env, layout=EMPTY, start=(0.0, 0.0, 0.0), goal=goal)
         fake = FakeTello(sim, speed_at_100=cfg.env.max_speed, yaw_rate_at_100=cfg.env.max_yaw_rate)
-        tello = TelloDrone("127.0.0.1", fake.command_port, cfg.env.max_speed, cfg.env.max_yaw_rate)
+        # A video port per session, asked for with the SDK's port command (djitellopy keeps the last one).
+        port = 11200 + k
+        tello = TelloDrone("127.0.0.1", fake.command_port, cfg.env.max_speed, cfg.env.max_yaw_rate, video_port=port)
         timer = None
         try:
             tello.connect()
@@ -208,7 +210,7 @@ def test_djitellopy_against_the_loopback_fake_tello(tmp_path, seeker):
                 timer.start()
             res = loop.fly()
             assert res.reason == expected, (expected, res)
-            assert "takeoff" in fake.received and fake.received[-1] == "land"
+            assert "takeoff" in fake.received and fake.received[-1] == "land" and fake.video_port == port
             assert any(c.startswith("rc ") for c in fake.received)
             if event in ("video", "pose"):
                 # stale after 0.5 s, seen at the next tick; the land command then crosses the loopback

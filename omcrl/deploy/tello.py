@@ -31,6 +31,10 @@ class TelloDrone:
     command_port : its SDK command port (8889). The loopback test double listens on another port because
         djitellopy binds the client's reply socket to 8889 on every address.
     speed_at_100, yaw_rate_at_100 : m/s and rad/s that an rc value of 100 gives (calibrate on the drone).
+    verbose : djitellopy's INFO log of every command.
+    video_port : where the video stream should arrive (11111, the drone's default; another port is asked for
+        with the SDK's ``port`` command). djitellopy's video reader keeps its port until a frame arrives after
+        ``close``, so a second session in the same process should use another port.
     """
 
     def __init__(
@@ -40,6 +44,7 @@ class TelloDrone:
         speed_at_100: float = 1.0,
         yaw_rate_at_100: float = math.radians(100.0),
         verbose: bool = False,
+        video_port: int = 11111,
     ) -> None:
         import logging
 
@@ -47,15 +52,19 @@ class TelloDrone:
 
         # djitellopy logs every command at INFO (10 lines a second in flight); the flight log has them all.
         Tello.LOGGER.setLevel(logging.INFO if verbose else logging.WARNING)
-        self.tello = Tello(host=host)
+        self.tello = Tello(host=host, vs_udp=int(video_port))
         if command_port != Tello.CONTROL_UDP_PORT:
             self.tello.address = (host, int(command_port))
+        self.video_port = int(video_port)
         self.speed_at_100, self.yaw_at_100 = float(speed_at_100), float(yaw_rate_at_100)
         self._video: TelloVideo | None = None
 
     def connect(self, video: bool = True) -> None:
         """Enter SDK mode (waits for the first state packet) and start the video stream."""
         self.tello.connect()
+        if self.video_port != 11111:
+            # SDK 2.0's "port" command: the drone sends its video to this port (djitellopy's change_vs_udp).
+            self.tello.change_vs_udp(self.video_port)
         if video:
             self.tello.streamon()
 
@@ -158,9 +167,10 @@ class FakeTello:
     """TEST DOUBLE of a DJI Tello on 127.0.0.1, speaking the SDK's text protocol, flown by a simulated drone.
 
     It answers SDK commands on ``command_port`` (``command``, ``takeoff``, ``land``, ``streamon``, ``streamoff``,
-    ``rc a b c d`` (no reply, as the real drone), anything else ``ok``), sends state packets to the client's
-    port 8890 at ``state_hz`` and, after ``streamon``, the simulated camera as an H.264 stream (PyAV, libx264)
-    in 1,460-byte UDP datagrams to the client's video port 11111, as the drone does. :meth:`cut_video` stops
+    ``port <state> <video>``, ``rc a b c d`` (no reply, as the real drone), anything else ``ok``), sends state
+    packets to the client's port 8890 at ``state_hz`` and, after ``streamon``, the simulated camera as an H.264
+    stream (PyAV, libx264) in 1,460-byte UDP datagrams to the client's video port (11111 unless the ``port``
+    command changed it), as the drone does. :meth:`cut_video` stops
     the video (the loop must land). Only for tests and demos on a machine without a drone.
     """
 
@@ -216,6 +226,8 @@ class FakeTello:
                 self.drone.takeoff()
             elif cmd == "land":
                 self.drone.land()
+            elif cmd.startswith("port "):
+                self.video_port = int(cmd.split()[2])
             elif cmd == "streamon":
                 self._video_on.set()
             elif cmd == "streamoff":
