@@ -102,7 +102,7 @@ def _outcome(stage: str, base: Path) -> dict:
         return {"weights": h.hexdigest()[:16]}
     if stage in ("oracle", "student"):
         name = "oracle" if stage == "oracle" else "ours"
-        final = torch.load(_one(f"runs/rl/{name}-*/seed0/final.pt", res), weights_only=True)
+        final = torch.load(_one(f"runs/rl/{name}-[0-9a-f]*/seed0/final.pt", res), weights_only=True)
         h = hashlib.sha256()
         for k in sorted(final["model"]):
             h.update(final["model"][k].numpy().tobytes())
@@ -125,7 +125,7 @@ def _fraction_left(stage: str, base: Path, ref: Path) -> float:
             return 1.0 - len(ds) / 40
     if stage in ("pretrain", "oracle", "student"):
         pattern = {"pretrain": "runs/pretrain/omc-*/seed0", "oracle": "runs/rl/oracle-*/seed0"}.get(
-            stage, "runs/rl/ours-*/seed0"
+            stage, "runs/rl/ours-[0-9a-f]*/seed0"
         )
         runs = sorted(res.glob(pattern))
         if not runs:
@@ -167,7 +167,7 @@ def kill_test(stages: list[str], kills: int, seed: int, work: Path) -> list[dict
             if PREREQS[stage]:
                 shutil.copytree(ref / "data", kill / "data")
                 shutil.copytree(ref / "results" / "smoke" / "runs", kill / "results" / "smoke" / "runs")
-                under_test = {"pretrain": "pretrain/*", "student": "rl/ours-*"}.get(stage)
+                under_test = {"pretrain": "pretrain/*", "student": "rl/ours-[0-9a-f]*"}.get(stage)
                 for d in (kill / "results" / "smoke" / "runs").glob(under_test or "__none__"):
                     shutil.rmtree(d)
             while landed < kills:

@@ -54,7 +54,8 @@ def measure(run: Path, seconds: float, blocks: int = 10) -> list[dict]:
     from omcrl.rl import load_policy
 
     torch.set_num_threads(1)
-    onnx_pol = OnnxPolicy(export_onnx(run, Path(run) / "bench.onnx"), threads=1)
+    with tempfile.TemporaryDirectory() as tmp:  # never write into the user's run folder
+        onnx_pol = OnnxPolicy(export_onnx(run, Path(tmp) / "bench.onnx"), threads=1)
     torch_pol = load_policy(Path(run) / "final.pt")
     s = onnx_pol.spec
     rng = np.random.default_rng(0)
