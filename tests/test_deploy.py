@@ -248,3 +248,58 @@ def test_cli_export(tmp_path, seeker, repo_root):
         text=True,
     )
     assert r.returncode == 1 and "does not exist" in r.stderr and "Traceback" not in r.stderr
+
+
+class _Policy:
+    """A stand-in with an exported model's interface, for the loop's own rules (no network involved)."""
+
+    spec = {"image_size": 8, "frame_stack": 2, "action_scale": {"max_speed": 1.5, "max_yaw_rate": 1.5},
+            "control_hz": 50.0, "state_layout": list(range(12))}  # fmt: skip
+
+    def check(self, image_size, frame_stack):
+        pass
+
+    def run(self, rgb, state):
+        return np.ones((1, 3), np.float32)  # full speed ahead, left and turning
+
+
+class _Drone:
+    def __init__(self, fail_after=None):
+        self.sent, self.landed, self.fail_after = [], 0, fail_after
+
+    def takeoff(self):
+        pass
+
+    def send_velocity(self, vx, vy, wz):
+        if self.fail_after is not None and len(self.sent) >= self.fail_after and (vx, vy, wz) != (0.0, 0.0, 0.0):
+            raise OSError("radio link lost")
+        self.sent.append((vx, vy, wz))
+
+    def land(self):
+        self.landed += 1
+
+
+class _Source:
+    def __init__(self, value):
+        self.value = value
+
+    def read(self):
+        return self.value, time.monotonic()
+
+
+def test_commands_are_clamped_and_rate_limited_and_an_exception_lands():
+    frame = _Source(np.zeros((8, 8, 3), np.uint8))
+    pose = _Source(np.zeros(6))
+    safety = Safety(max_speed=0.5, max_yaw_rate=0.8, max_accel=1.0, max_yaw_accel=2.0, max_time_s=0.3)
+    drone = _Drone()
+    res = ControlLoop(_Policy(), drone, frame, pose, (5.0, 0.0), safety=safety).fly()
+    assert res.reason == "timeout" and drone.landed == 1
+    cmds = np.array(drone.sent[:-1])  # the last one is the stop before landing
+    assert cmds[:, :2].max() <= 0.5 + 1e-9 and cmds[:, 2].max() <= 0.8 + 1e-9  # clamped
+    steps = np.abs(np.diff(np.vstack([np.zeros(3), cmds]), axis=0))
+    assert steps[:, :2].max() <= 1.0 / 50 + 1e-9 and steps[:, 2].max() <= 2.0 / 50 + 1e-9  # rate-limited
+    assert drone.sent[-1] == (0.0, 0.0, 0.0)
+    # Any exception in flight: the drone is stopped and landed, and the error is reported.
+    drone = _Drone(fail_after=3)
+    res = ControlLoop(_Policy(), drone, frame, pose, (5.0, 0.0), safety=safety).fly()
+    assert res.reason == "error" and "radio link lost" in res.error and drone.landed == 1
