@@ -161,6 +161,17 @@ def test_geofence_and_model_mismatch(tmp_path, seeker):
 
 
 def test_sigint_lands(tmp_path, seeker):
+    # Also when SIGINT was inherited as ignored (a program started in the background by a non-interactive
+    # shell): the flight installs Python's handler for its duration and restores the previous one after.
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        _sigint_flight(tmp_path, seeker)
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _sigint_flight(tmp_path, seeker):
     loop, drone, _, _ = _flight(tmp_path, seeker, goal=(7.0, 0.0))
     timer = threading.Timer(0.8, lambda: os.kill(os.getpid(), signal.SIGINT))
     timer.start()

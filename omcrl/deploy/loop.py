@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import csv
 import math
+import signal
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -233,6 +235,11 @@ class ControlLoop:
         reason, error, tick, poses = "error", "", 0, []
         t_start = self.clock()
         last_pose = None
+        # Ctrl-C must land the drone however the program was started: a process launched in the background by a
+        # non-interactive shell inherits SIGINT as ignored, and Python then never raises KeyboardInterrupt.
+        previous = None
+        if threading.current_thread() is threading.main_thread():
+            previous = signal.signal(signal.SIGINT, signal.default_int_handler)
         try:
             self.drone.takeoff()
             t_start = self.clock()
@@ -267,6 +274,8 @@ class ControlLoop:
                 self.drone.send_velocity(0.0, 0.0, 0.0)
             finally:
                 self.drone.land()
+                if previous is not None:
+                    signal.signal(signal.SIGINT, previous)
                 if writer:
                     self._log(
                         writer, fh, self.clock() - t_start, tick, last_pose, None, self.clock(), None, 0.0, "land"
