@@ -72,7 +72,7 @@ class Safety:
 @dataclass
 class FlightResult:
     """How a flight ended: ``reason`` is arrived | video_lost | pose_lost | geofence | timeout | error |
-    interrupted; ``landed_after_s`` is the time from the cause being detectable to the land command."""
+    interrupted; ``final_distance`` (m) from the last pose to the goal; ``poses`` the (x, y, z) of every tick."""
 
     reason: str
     success: bool

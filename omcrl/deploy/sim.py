@@ -55,10 +55,8 @@ class SimulatedDrone:
         self.flying = False
         self.crashed = False
         self.landed_at: float | None = None
-        self.commands = 0
         self._set(obs, info)
         self._stop = threading.Event()
-        self.trajectory: list[tuple[float, float]] = [tuple(info["pose"][:2])]
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
@@ -80,7 +78,6 @@ class SimulatedDrone:
                     action = np.clip(self._cmd / scale, -1.0, 1.0)
                 obs, _, term, _, info = self.env.step(action)
                 self._set(obs, info)
-                self.trajectory.append(tuple(info["pose"][:2]))
                 m = info.get("metrics", {})
                 if term and (m.get("collision") or m.get("out_of_arena")):
                     self.crashed, self.flying = True, False
@@ -102,7 +99,6 @@ class SimulatedDrone:
             raise ValueError(f"non-finite velocity command {(vx, vy, wz)}")
         with self._lock:
             self._cmd[:] = (vx, vy, wz)
-        self.commands += 1
 
     def land(self) -> None:
         self.flying = False

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -11,14 +10,11 @@ import numpy as np
 
 
 def read_metrics(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """``metrics.csv`` (rows ``step,metric,value``) → ``{metric: (steps int64 (n,), values float64 (n,))}``."""
-    cols: dict[str, tuple[list[int], list[float]]] = {}
-    with Path(path).open() as fh:
-        for r in csv.DictReader(fh):
-            s, v = cols.setdefault(r["metric"], ([], []))
-            s.append(int(r["step"]))
-            v.append(float(r["value"]))
-    return {k: (np.asarray(s, np.int64), np.asarray(v, np.float64)) for k, (s, v) in cols.items()}
+    """``metrics.csv`` (or its run folder) → ``{metric: (steps (n,), values float64 (n,))}``; the kit's one
+    reader, :func:`omcrl.runs.metric_series`, under the name the plotting code uses."""
+    from omcrl.runs import metric_series
+
+    return metric_series(path)
 
 
 def smooth(values: np.ndarray, window: int) -> np.ndarray:
