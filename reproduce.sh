@@ -5,12 +5,16 @@
 #   ./reproduce.sh --smoke   run the notebook chain with the tiny CI preset (minutes)
 #   ./reproduce.sh --quick   run the notebook chain with the laptop preset (hours on 2 CPU cores; see the README)
 #   ./reproduce.sh --paper   run the notebook chain at the paper's scale (needs a GPU; hours to days)
+#   ./reproduce.sh --lab     install JupyterLab (the 'lab' extra) and open the notebooks in it
 #
+# A chain mode names its preset; --preset among its extra arguments is refused (use --quick, not
+# --smoke --preset quick). Each chain ends by printing results/<preset>/summary.md.
 # Each mode first creates .venv (Python 3.11) and installs the kit when .venv is missing, when
 # pyproject.toml changed since the last install, or when `import omcrl, torch, pybullet` fails.
 # Extra arguments go to pytest (--test) or to `python -m omcrl notebooks` (other modes), e.g.
 #   ./reproduce.sh --test -k config         ./reproduce.sh --quick --set rl.total_steps=50000
-# Environment: PYTHON=/path/to/python3.11 to choose the interpreter for a new .venv.
+# Environment: PYTHON=/path/to/python3.11 to choose the interpreter for a new .venv;
+# TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu for the CPU-only torch build (see the README).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -18,7 +22,7 @@ VENV="$ROOT/.venv"
 STAMP="$VENV/.omcrl-install-stamp"
 
 say() { printf '[reproduce] %s\n' "$*"; }
-die() { printf '[reproduce] error: %s\n' "$*" >&2; exit "${2:-1}"; }
+die() { printf '[reproduce] error: %s\n' "$1" >&2; exit "${2:-1}"; }
 
 usage() {
   awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "${BASH_SOURCE[0]}"
@@ -26,7 +30,7 @@ usage() {
 
 mode="${1:-}"
 case "$mode" in
-  --test | --smoke | --quick | --paper) shift ;;
+  --test | --smoke | --quick | --paper | --lab) shift ;;
   -h | --help) usage; exit 0 ;;
   "") usage >&2; exit 2 ;;
   *) printf '[reproduce] error: unknown mode %s\n\n' "$mode" >&2; usage >&2; exit 2 ;;
@@ -83,14 +87,27 @@ ensure_venv() {
   say "installing the kit into .venv ($reason)"
   rm -f "$STAMP"
   # torch first, pinned, so that nothing later pulls a CUDA build of several GB.
-  say "pip install torch==2.13.0"
-  "$VENV/bin/python" -m pip install --quiet torch==2.13.0
+  # TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu picks the CPU build on a machine where PyPI's default
+  # is the CUDA one (standard Linux x86-64: several GB of nvidia-* wheels).
+  if [[ -n "${TORCH_INDEX_URL:-}" ]]; then
+    say "pip install torch==2.13.0 --index-url $TORCH_INDEX_URL"
+    "$VENV/bin/python" -m pip install --quiet torch==2.13.0 --index-url "$TORCH_INDEX_URL"
+  else
+    say "pip install torch==2.13.0"
+    "$VENV/bin/python" -m pip install --quiet torch==2.13.0
+  fi
   say "pip install -e '.[dev]'"
   "$VENV/bin/python" -m pip install --quiet -e "$ROOT[dev]"
   import_check || die "the install finished but 'import omcrl, torch, pybullet' fails in .venv"
   echo "$want" >"$STAMP"
   say "install done"
 }
+
+for arg in "$@"; do
+  if [[ "$mode" != --test && ( "$arg" == --preset || "$arg" == --preset=* ) ]]; then
+    die "$mode already chooses the preset; drop '$arg' (e.g. ./reproduce.sh --quick, not --smoke --preset quick)" 2
+  fi
+done
 
 ensure_venv
 
@@ -108,6 +125,14 @@ case "$mode" in
     set -e
     say "pytest exit code $rc"
     exit "$rc"
+    ;;
+  --lab)
+    if ! "$PY" -c 'import jupyterlab' 2>/dev/null; then
+      say "pip install -e '.[dev,lab]' (JupyterLab)"
+      "$PY" -m pip install --quiet -e "$ROOT[dev,lab]"
+    fi
+    say "opening JupyterLab in notebooks/ (results and data resolve from $ROOT whatever the working directory)"
+    exec "$VENV/bin/jupyter" lab --notebook-dir="$ROOT/notebooks" "$@"
     ;;
   --smoke | --quick | --paper)
     preset="${mode#--}"

@@ -43,6 +43,7 @@ STAGES: dict[str, tuple[str, str]] = {
     "train": ("omcrl.rl.methods:train_stage", "train one method of the comparison: --method NAME [--seed K]"),
     "evaluate": ("omcrl.eval:run", "evaluate the policies of --seed (or cfg.seed) and write a quick table"),
     "tables": ("omcrl.eval.table1:run", "evaluate every method at cfg.seeds and write Table I with CIs"),
+    "summary": ("omcrl.summary:run", "write and print results/<preset>/summary.md from what the stages left"),
     "export": ("omcrl.deploy.export:export_stage", "export a visuomotor policy to ONNX: --policy RUN [--out FILE]"),
 }
 # Stages that take --method.
@@ -92,38 +93,70 @@ def _methods_help() -> str:
     return "\n".join(f"  {n:<22} {s.description}" for n, s in METHODS.items())
 
 
+# Stages that need no preset (they act on a file named on the command line).
+NO_PRESET_STAGES = ("export",)
+PRESET_HELP = (
+    "configuration preset, required: smoke (minutes; checks the plumbing, numbers mean nothing), quick (a laptop "
+    "CPU, hours), paper (the paper's scale, a GPU machine)"
+)
+
+
+def _stage_epilog(name: str) -> str:
+    if name in METHOD_STAGES:
+        return f"methods (--method):\n{_methods_help()}"
+    return ""
+
+
 def build_parser() -> argparse.ArgumentParser:
-    stages = "\n".join(f"  {n:<10} {d}" for n, (_, d) in STAGES.items())
+    """The CLI: one sub-command per stage, each with its own ``--help``."""
     ap = argparse.ArgumentParser(
         prog="python -m omcrl",
-        description="Run one stage of the OMC-RL reproduction kit.",
-        epilog=f"stages:\n{stages}\n\nmethods (--method):\n{_methods_help()}\n\nexamples:\n"
+        description="Run one stage of the OMC-RL reproduction kit. `python -m omcrl <stage> --help` for a stage.",
+        epilog=f"methods (--method):\n{_methods_help()}\n\nexamples:\n"
         "  python -m omcrl pretrain --method curl --preset quick\n"
         "  python -m omcrl train --method curl --preset quick --seed 1\n"
-        "  python -m omcrl tables --preset quick --set seeds=[0,1,2]",
+        "  python -m omcrl tables --preset quick --set seeds=[0,1,2]\n"
+        "  python -m omcrl summary --preset quick",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--method", default=None, help="method for 'train' and 'pretrain' (see below)")
-    ap.add_argument("--seed", type=int, default=None, help="training seed (sets the config field 'seed')")
-    ap.add_argument("--debug", action="store_true", help="show the full traceback of an error")
-    ap.add_argument("--policy", default=None, help="for 'export': a run folder or its final.pt")
-    ap.add_argument("--out", default=None, help="for 'export': the ONNX file (default: policy.onnx beside final.pt)")
-    ap.add_argument("stage", help="stage to run (see below)")
-    ap.add_argument("--preset", default="quick", choices=PRESETS, help="configuration preset (default: quick)")
-    ap.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="FIELD=VALUE",
-        help="override one config field, e.g. --set env.image_size=48 (repeatable)",
-    )
-    ap.add_argument(
-        "--config",
-        metavar="FILE",
-        default=None,
-        help="YAML file applied after the preset and before --set (e.g. a run's config.yaml)",
-    )
+    sub = ap.add_subparsers(dest="stage", metavar="stage", title="stages")
+    for name, (_, desc) in STAGES.items():
+        sp = sub.add_parser(
+            name,
+            help=desc,
+            description=f"python -m omcrl {name}: {desc}.",
+            epilog=_stage_epilog(name),
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        if name in NO_PRESET_STAGES:
+            sp.add_argument("--preset", default="smoke", choices=PRESETS, help=argparse.SUPPRESS)
+        else:
+            sp.add_argument("--preset", required=True, choices=PRESETS, help=PRESET_HELP)
+        sp.add_argument(
+            "--set",
+            dest="overrides",
+            action="append",
+            default=[],
+            metavar="FIELD=VALUE",
+            help="override one config field, e.g. --set env.image_size=48 (repeatable)",
+        )
+        sp.add_argument(
+            "--config",
+            metavar="FILE",
+            default=None,
+            help="YAML file applied after the preset and before --set (e.g. a run's config.yaml)",
+        )
+        sp.add_argument("--seed", type=int, default=None, help="training seed (sets the config field 'seed')")
+        sp.add_argument("--debug", action="store_true", help="show the full traceback of an error")
+        # --method is accepted everywhere so that a misplaced one gets a message naming the stages it fits.
+        sp.add_argument(
+            "--method",
+            default=None,
+            help="method of the comparison (see below)" if name in METHOD_STAGES else argparse.SUPPRESS,
+        )
+        if name == "export":
+            sp.add_argument("--policy", default=None, help="a run folder or its final.pt (required)")
+            sp.add_argument("--out", default=None, help="the ONNX file (default: policy.onnx beside final.pt)")
     return ap
 
 
@@ -153,10 +186,15 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = build_parser()
-    args = ap.parse_args(argv)
-    if args.stage not in STAGES:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    first = next((a for a in argv if not a.startswith("-")), None)
+    if first is not None and first not in STAGES:
         ap.print_usage(sys.stderr)
-        print(f"error: unknown stage {args.stage!r}; stages: {', '.join(STAGES)}", file=sys.stderr)
+        print(f"error: unknown stage {first!r}; stages: {', '.join(STAGES)}", file=sys.stderr)
+        return 2
+    args = ap.parse_args(argv)
+    if args.stage is None:
+        ap.print_help(sys.stderr)
         return 2
     if args.method is not None and args.stage not in METHOD_STAGES:
         print(f"error: --method applies to the stages {list(METHOD_STAGES)}, not {args.stage!r}", file=sys.stderr)
@@ -199,7 +237,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
         return 1
-    if args.stage != "config":
+    if args.stage not in ("config", "summary"):
         if result is not None:
             print(result)
         print(

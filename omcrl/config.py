@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import typing
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -24,6 +25,29 @@ import yaml
 
 PRESETS = ("smoke", "quick", "paper")
 PRESET_DIR = Path(__file__).parent / "presets"
+ROOT_ENV = "OMCRL_ROOT"
+
+
+def project_root() -> Path:
+    """The folder that relative ``results_dir`` and ``data.file`` paths are taken from.
+
+    ``$OMCRL_ROOT`` when set; else the repository this package was installed from (editable install or a
+    checkout: the folder holding ``pyproject.toml`` beside ``omcrl/``); else the current directory. So a
+    notebook run from ``notebooks/`` and the CLI run from the repository root read and write the same files.
+    """
+    env = os.environ.get(ROOT_ENV)
+    if env:
+        return Path(env).expanduser().resolve()
+    repo = Path(__file__).resolve().parent.parent
+    if (repo / "pyproject.toml").is_file():
+        return repo
+    return Path.cwd().resolve()
+
+
+def resolve_path(path: str | Path) -> Path:
+    """``path`` if absolute, else ``project_root() / path``."""
+    p = Path(path).expanduser()
+    return p if p.is_absolute() else project_root() / p
 
 
 class ConfigError(ValueError):
@@ -188,9 +212,20 @@ class Config:
     eval: EvalConfig = field(default_factory=EvalConfig)
 
     @property
+    def results_root(self) -> Path:
+        """``results_dir`` as an absolute path (a relative one is taken from :func:`project_root`)."""
+        return resolve_path(self.results_dir)
+
+    @property
     def run_root(self) -> Path:
-        """``results/<preset>``."""
-        return Path(self.results_dir) / self.preset
+        """``<project root>/results/<preset>`` (absolute; see :func:`project_root`)."""
+        return self.results_root / self.preset
+
+    @property
+    def data_path(self) -> Path:
+        """The pretraining data file: ``data.file`` with ``{preset}`` substituted, absolute (see
+        :func:`project_root`)."""
+        return resolve_path(self.data.file.format(preset=self.preset))
 
     def with_seed(self, seed: int) -> Config:
         """A copy of this config for one training seed (``seed`` set, everything else equal)."""

@@ -32,6 +32,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+from omcrl.utils.progress import STATUS_FILE_ENV, format_duration
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 NOTEBOOK_DIR = REPO_ROOT / "notebooks"
 NATIVE_KERNEL = "python3"
@@ -280,10 +282,12 @@ def run_notebook(
         raise ConfigError(f"preset: got {preset!r}, allowed values are {list(PRESETS)}")
     src = notebook_path(name_or_path)
     name = src.stem
+    from omcrl.config import resolve_path
+
     workdir = Path(cwd) if cwd is not None else REPO_ROOT
     root = Path(results_dir)
     if not root.is_absolute():
-        root = workdir / root
+        root = workdir / root if cwd is not None else resolve_path(root)
     out = root / preset / "executed" / f"{name}.ipynb"
     out.parent.mkdir(parents=True, exist_ok=True)
 
@@ -317,6 +321,9 @@ def run_notebook(
                 cwd=str(workdir),
                 progress_bar=False,
                 execution_timeout=timeout,
+                # The kernel's own start-up warnings (e.g. "running over TCP without encryption", which is
+                # how every local kernel runs) are noise on the console of a headless run.
+                extra_arguments=["--IPKernelApp.log_level=ERROR"],
             )
         except PapermillExecutionError as err:
             msg, cell = _error_message(name, nb, err, out)
@@ -353,11 +360,71 @@ def run_chain(
         t0 = time.perf_counter()
         if verbose:
             print(f"[notebooks] {n} (preset {preset}) ...", flush=True)
-        out = run_notebook(n, preset, parameters=parameters, results_dir=results_dir, overrides=overrides, cwd=cwd)
+        with _console_feed(n if verbose else None):
+            out = run_notebook(n, preset, parameters=parameters, results_dir=results_dir, overrides=overrides, cwd=cwd)
+        wall = time.perf_counter() - t0
+        _record_wall_time(out.parent, n, wall)
         if verbose:
-            print(f"[notebooks] {n} done in {time.perf_counter() - t0:.0f} s -> {out}", flush=True)
+            print(f"[notebooks] {n} done in {format_duration(wall)} -> {out}", flush=True)
         done.append(out)
     return done
+
+
+@contextlib.contextmanager
+def _console_feed(name: str | None, poll_s: float = 1.0) -> Iterator[None]:
+    """While a notebook runs, print the status lines its loops append to ``OMCRL_STATUS_FILE`` on the console.
+
+    The kernel's output goes into the executed notebook, not to the terminal; this feed is what keeps a long
+    headless run from looking hung. ``name=None``: no feed.
+    """
+    if name is None:
+        yield
+        return
+    import threading
+
+    fd, path = tempfile.mkstemp(prefix="omcrl-status-", suffix=".log")
+    os.close(fd)
+    stop = threading.Event()
+
+    def pump() -> None:
+        with open(path, encoding="utf-8") as fh:
+            while True:
+                line = fh.readline()
+                if line:
+                    print(f"[notebooks] {name} | {line.rstrip()}", flush=True)
+                    continue
+                if stop.is_set():
+                    return
+                stop.wait(poll_s)
+
+    saved = os.environ.get(STATUS_FILE_ENV)
+    os.environ[STATUS_FILE_ENV] = path
+    thread = threading.Thread(target=pump, name="omcrl-status", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        if saved is None:
+            os.environ.pop(STATUS_FILE_ENV, None)
+        else:
+            os.environ[STATUS_FILE_ENV] = saved
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+
+
+def _record_wall_time(executed_dir: Path, name: str, wall_s: float) -> None:
+    """Keep each notebook's last wall time in ``executed/wall_times.json`` (read by the summary)."""
+    from omcrl.utils.io import atomic_write_text
+
+    path = executed_dir / "wall_times.json"
+    try:
+        times = json.loads(path.read_text()) if path.exists() else {}
+    except (OSError, ValueError):
+        times = {}
+    times[name] = round(wall_s, 1)
+    atomic_write_text(path, json.dumps(dict(sorted(times.items())), indent=1) + "\n")
 
 
 def overrides_from_config(cfg: Any) -> list[str]:
@@ -377,10 +444,16 @@ def overrides_from_config(cfg: Any) -> list[str]:
     return list(diff(cfg.to_dict(), base, ""))
 
 
-def run(cfg: Any) -> list[Path]:
-    """CLI stage ``notebooks``: run the whole chain for ``cfg.preset``, passing on every non-default field."""
+def run(cfg: Any) -> None:
+    """CLI stage ``notebooks``: run the whole chain for ``cfg.preset``, passing on every non-default field, then
+    write and print the summary (:mod:`omcrl.summary`)."""
+    from omcrl.summary import write_summary
+
     overrides = [o for o in overrides_from_config(cfg) if not o.startswith("results_dir=")]
-    return run_chain(cfg.preset, results_dir=cfg.results_dir, overrides=overrides)
+    run_chain(cfg.preset, results_dir=cfg.results_root, overrides=overrides)
+    path = write_summary(cfg)
+    print(path.read_text(encoding="utf-8"))
+    print(f"[notebooks] summary: {path}", flush=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -9,7 +9,7 @@ import sys
 import pytest
 import yaml
 
-from omcrl.config import PRESETS, Config, ConfigError, load_config, save_config
+from omcrl.config import PRESETS, Config, ConfigError, load_config, project_root, save_config
 
 
 @pytest.mark.parametrize("preset", PRESETS)
@@ -17,7 +17,7 @@ def test_presets_load(preset):
     cfg = load_config(preset)
     assert isinstance(cfg, Config)
     assert cfg.preset == preset
-    assert cfg.run_root.as_posix() == f"results/{preset}"
+    assert cfg.run_root == project_root() / "results" / preset
     assert cfg.pretrain.crop_to <= cfg.pretrain.crop_from
     assert cfg.rl.minibatch <= cfg.rl.buffer_size
 

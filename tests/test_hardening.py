@@ -261,7 +261,7 @@ def test_cli_prints_one_line_for_expected_failures(tmp_path, repo_root):
     assert "Traceback" not in r.stderr and "weights_only=False" not in r.stderr
     r = subprocess.run([*cmd, "--debug"], cwd=repo_root, capture_output=True, text=True)
     assert r.returncode != 0 and "Traceback" in r.stderr
-    r = subprocess.run([*cmd[:4], "--set", "env.goal_distance=[3,"], cwd=repo_root, capture_output=True, text=True)
+    r = subprocess.run([*cmd[:6], "--set", "env.goal_distance=[3,"], cwd=repo_root, capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "not valid YAML" in r.stderr
 
 

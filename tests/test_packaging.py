@@ -31,7 +31,10 @@ def parse_pins(specs: list[str], where: str) -> dict[str, str]:
 
 def pyproject_pins(root: Path) -> dict[str, str]:
     data = tomllib.loads((root / "pyproject.toml").read_text())
-    specs = list(data["project"]["dependencies"]) + list(data["project"]["optional-dependencies"]["dev"])
+    # environment.yml installs every extra (deploy, lab, dev), so every extra's pins must agree with it.
+    specs = list(data["project"]["dependencies"])
+    for extra in data["project"]["optional-dependencies"].values():
+        specs += [s for s in extra if s not in specs]
     return parse_pins(specs, "pyproject.toml")
 
 

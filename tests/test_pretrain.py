@@ -198,6 +198,13 @@ def test_run_outputs_cache_and_artifact(data, tmp_path):
     assert list(df.columns) == ["step", "metric", "value"]
     assert set(df.metric) >= {"loss", "accuracy", "lr_encoder", "lr_transformer"}
     assert sorted(df.query("metric == 'loss'").step) == list(range(1, 7))
+    # TensorBoard events as for RL: one scalar per metric and iteration.
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    ev = EventAccumulator(str(r.run_dir / "tb"))
+    ev.Reload()
+    assert [e.step for e in ev.Scalars("loss")] == list(range(1, 7))
+    assert set(ev.Tags()["scalars"]) >= {"loss", "accuracy", "lr_encoder", "lr_transformer"}
     enc = load_encoder(r.encoder_path, image_size=20, frame_stack=3)
     assert enc.meta["dataset_fingerprint"] == open_dataset(data).fingerprint
     assert enc(torch.zeros(2, 9, 20, 20, dtype=torch.uint8)).shape == (2, 16)

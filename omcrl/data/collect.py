@@ -44,10 +44,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from omcrl.config import Config, ConfigError
 from omcrl.data.dataset import SOURCES, DatasetError, DatasetWriter, EpisodeBuffer, open_dataset
+from omcrl.utils.progress import Progress
 
 log = logging.getLogger(__name__)
 
@@ -92,8 +92,8 @@ class CollectResult:
 
 
 def dataset_path(cfg: Config) -> Path:
-    """``cfg.data.file`` with ``{preset}`` substituted (relative to the current directory)."""
-    return Path(cfg.data.file.format(preset=cfg.preset))
+    """``cfg.data.file`` with ``{preset}`` substituted (:attr:`omcrl.config.Config.data_path`)."""
+    return cfg.data_path
 
 
 def assign_sources(mix: dict[str, float], n: int, seed: int) -> list[str]:
@@ -249,7 +249,7 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
         detour_prob, random_corr, max_steps, file), ``cfg.env`` (image_size must equal
         ``cfg.pretrain.crop_from``; frame_stack) and ``cfg.seed``.
     policy : ``policy(obs, info) -> action (3,)`` for the ``"policy"`` share of the mix (single-env obs/info).
-    progress : show a tqdm bar over episodes.
+    progress : show progress over episodes (:class:`omcrl.utils.progress.Progress`).
 
     Returns
     -------
@@ -307,7 +307,7 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
         episode_of[j], buffers[j], seeds[j] = started, EpisodeBuffer(), int(info.get("layout_seed", -1))
         started += 1
 
-    bar = tqdm(total=n_new, disable=not progress, desc=f"collect {d.scene}", unit="ep")
+    bar = Progress(n_new, f"collect/{d.scene}", unit="ep", enabled=progress)
     try:
         with DatasetWriter(path, cfg.env.image_size, cfg.env.frame_stack, dataclasses.asdict(env_cfg)) as w:
             obs, infos = vec.reset(seed=env_seed)

@@ -16,7 +16,7 @@ Observation (dict)
 Action: float32 (3,) in [-1, 1], scaled to (vx, vy, ωz) by ``max_speed`` and ``max_yaw_rate``; values outside
 are clipped, NaN is an error.
 
-Reward (see ARCHITECTURE and docs/DEVIATIONS.md): ``-1/H_max`` per step, plus the progress term
+Reward (see docs/ARCHITECTURE.md and docs/DEVIATIONS.md): ``-1/H_max`` per step, plus the progress term
 ``progress_scale·(d_{t-1} - d_t)`` (default, potential-based) or the paper's literal ``progress_scale·(d_init -
 d_t)``, plus ``goal_reward`` on success or ``collision_penalty`` on a collision or leaving the arena.
 """

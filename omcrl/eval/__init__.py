@@ -4,13 +4,22 @@
 ``<run_root>/runs`` plus Hybrid APF in all evaluation scenes, tables under ``<run_root>/tables``.
 """
 
-from omcrl.eval.metrics import METRICS, episode_values, format_table, summarize, summary_table
+from omcrl.eval.metrics import (
+    GLOSSARY,
+    METRICS,
+    episode_values,
+    format_table,
+    glossary_markdown,
+    summarize,
+    summary_table,
+)
 from omcrl.eval.runner import eval_seeds, evaluate, start_episode
 from omcrl.eval.stage import EvalResult, evaluate_methods, find_policies, run, to_markdown, write_tables
 from omcrl.eval.stats import aggregate, compare_sr, mean_ci
 from omcrl.eval.table1 import Table1Result, evaluate_grid, paper_table1, write_table1
 
 __all__ = [
+    "GLOSSARY",
     "METRICS",
     "EvalResult",
     "Table1Result",
@@ -23,6 +32,7 @@ __all__ = [
     "evaluate_methods",
     "find_policies",
     "format_table",
+    "glossary_markdown",
     "mean_ci",
     "paper_table1",
     "run",

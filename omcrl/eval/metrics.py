@@ -14,6 +14,44 @@ import numpy as np
 import pandas as pd
 
 METRICS = ("NE", "OS", "SR", "SPL", "CR", "TTS")
+# metric -> (name, definition, unit, better); the one glossary the README, tables and summary print.
+GLOSSARY: dict[str, tuple[str, str, str, str]] = {
+    "NE": ("navigation error", "distance from the drone to the goal when the episode ends", "m", "lower"),
+    "OS": (
+        "oracle success",
+        "episodes that came within 0.5 m of the goal at any time (an upper bound on SR; not the oracle policy)",
+        "%",
+        "higher",
+    ),
+    "SR": (
+        "success rate",
+        "episodes that reached the goal (within env.goal_radius, 0.3 m) without a collision",
+        "%",
+        "higher",
+    ),
+    "SPL": (
+        "success weighted by path length",
+        "mean over episodes of S·ℓ/max(d, ℓ): S success, ℓ shortest feasible path, d path flown",
+        "0-1",
+        "higher",
+    ),
+    "CR": ("collision rate", "episodes that ended in a collision", "%", "lower"),
+    "TTS": (
+        "time to success",
+        "control steps (10 Hz) of the successful episodes; '–' when none succeeded",
+        "steps",
+        "lower",
+    ),
+}
+
+
+def glossary_markdown() -> str:
+    """The metrics glossary as a Markdown table (metric, name, definition, unit, better)."""
+    rows = ["| metric | name | definition | unit | better |", "|---|---|---|---|---|"]
+    rows += [f"| {k} | {n} | {d} | {u} | {b} |" for k, (n, d, u, b) in GLOSSARY.items()]
+    return "\n".join(rows)
+
+
 REQUIRED = (
     "final_distance",
     "min_distance",

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from omcrl.eval.metrics import REQUIRED
+from omcrl.utils.progress import track
 
 # Per-episode fields kept from ``info["metrics"]``: what summarize() needs plus where the episode came from.
 METRIC_FIELDS = (*REQUIRED, "out_of_arena", "scene", "seed")
@@ -86,11 +87,7 @@ def evaluate(
     method = method if method is not None else getattr(policy, "name", type(policy).__name__)
     checkpoint = checkpoint if checkpoint is not None else getattr(policy, "checkpoint", "")
     rows = []
-    it = range(episodes)
-    if progress:
-        from tqdm.auto import tqdm
-
-        it = tqdm(it, desc=f"eval {method}/{scene}")
+    it = track(range(episodes), episodes, desc=f"eval/{method}/{scene}", unit="ep", enabled=progress)
     try:
         for i in it:
             obs, info = env.reset(seed=seeds[i])

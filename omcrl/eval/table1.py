@@ -20,7 +20,6 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -30,6 +29,7 @@ from omcrl.eval.metrics import METRICS
 from omcrl.eval.stage import evaluate_methods
 from omcrl.eval.stats import aggregate, compare_sr
 from omcrl.utils.io import atomic_write_text
+from omcrl.utils.progress import track
 
 PAPER_TABLE1 = Path(__file__).with_name("paper_table1.csv")
 # Direction of "better" per metric (for bold).
@@ -98,12 +98,7 @@ def evaluate_grid(
     seeds = list(seeds if seeds is not None else cfg.seeds)
     sources, missing = method_sources(cfg, methods, seeds)
     frames = []
-    it: Any = sources.items()
-    if progress:
-        from tqdm.auto import tqdm
-
-        it = tqdm(list(it), desc="evaluate", unit="run")
-    for (m, s), src in it:
+    for (m, s), src in track(list(sources.items()), desc="evaluate", unit="run", enabled=progress):
         frames.append(evaluate_methods(cfg.with_seed(s), {m: src}, scenes, episodes))
     df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     return df, missing

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from tqdm.auto import tqdm
 
 from omcrl.config import Config, PretrainConfig, config_hash, save_config
 from omcrl.data.dataset import open_dataset
@@ -34,6 +33,7 @@ from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
 from omcrl.runs import Run, make_run
 from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
+from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import set_threads
 
 log = logging.getLogger(__name__)
@@ -113,8 +113,8 @@ def encoder_path(cfg: Config) -> Path:
 
 
 def default_dataset_path(cfg: Config) -> Path:
-    """``cfg.data.file`` with ``{preset}`` substituted."""
-    return Path(cfg.data.file.format(preset=cfg.preset))
+    """``cfg.data.file`` with ``{preset}`` substituted (:attr:`omcrl.config.Config.data_path`)."""
+    return cfg.data_path
 
 
 def _hashes(cfg: Config, fingerprint: str) -> tuple[str, str]:
@@ -154,7 +154,7 @@ def run(
     cfg : resolved configuration (``cfg.env.frame_stack`` is L; ``cfg.pretrain.crop_from`` must equal the
         dataset's image size).
     dataset_path : HDF5 trajectory file; default ``cfg.data.file`` with ``{preset}`` substituted.
-    progress : show a tqdm bar.
+    progress : show progress (:class:`omcrl.utils.progress.Progress`).
     stop_after : stop after this iteration without finishing (simulates an interruption; for tests).
     """
     p = cfg.pretrain
@@ -255,15 +255,14 @@ def run(
         _write_metrics(metrics_path, rows)
 
     learner.train()
-    bar = tqdm(
-        range(start + 1, p.iterations + 1),
-        initial=start,
-        total=p.iterations,
-        disable=not progress,
-        desc=f"pretrain {name}",
-    )
+    bar = Progress(p.iterations, f"pretrain/{name} seed{cfg.seed}", unit="it", initial=start, enabled=progress)
+    # TensorBoard events as for RL (``tensorboard --logdir results/<preset>/runs``); a resume drops the events
+    # past the checkpoint, as metrics.csv does.
+    from torch.utils.tensorboard import SummaryWriter
+
+    tb = SummaryWriter(str(out / "tb"), purge_step=start + 1 if start else None)
     loss_val = float("nan")
-    for it in bar:
+    for it in range(start + 1, p.iterations + 1):
         lrs = {"lr_encoder": p.lr_encoder}
         for g in opt.param_groups:
             if g["name"] == "transformer":
@@ -281,14 +280,18 @@ def run(
         learner.momentum_update()
         loss_val = metrics["loss"]
         rows.extend((it, k, v) for k, v in {**metrics, **lrs}.items())
-        bar.set_postfix(loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
+        for k, v in {**metrics, **lrs}.items():
+            tb.add_scalar(k, v, it)
+        bar.update(1, loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
         if it % p.checkpoint_every == 0 or it == p.iterations:
             checkpoint(it)
         if stop_after is not None and it >= stop_after and it < p.iterations:
             bar.close()
+            tb.close()
             ds.close()
             return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp)
     bar.close()
+    tb.close()
     if start >= p.iterations:  # resumed from a final checkpoint whose artifact was not written
         loss_val = next((v for s, m, v in reversed(rows) if m == "loss"), float("nan"))
     save_encoder(enc_path, learner.f, learner.phi, cfg, fp)

@@ -49,6 +49,7 @@ from omcrl.rl.ppo import PPO, ExtraLoss, NonFiniteLossError
 from omcrl.rl.rollout import Runner
 from omcrl.runs import MetricsLog, Run, RunConfigMismatch, make_run, rng_state, set_rng_state
 from omcrl.utils.io import atomic_save_torch, file_digest, load_torch
+from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import seed_everything, set_threads
 
 __all__ = [
@@ -223,7 +224,7 @@ def train(
         shapes = space_shapes(obs_space)
         runner = Runner(env, agent, guide, seed=cfg.seed * 1000 + 100 * resumes)
         recent: deque = deque(maxlen=50)
-        bar = _progress(progress, final_step, step, f"{run.stage}/{run.method}")
+        bar = Progress(final_step, f"{run.stage}/{run.method} seed{cfg.seed}", initial=step, enabled=progress)
         last_ckpt = step
         while update < n_updates:
             alpha = alpha_from_config(step, rl) if guide is not None else 0.0
@@ -251,14 +252,13 @@ def train(
                 if succ:
                     row["success_rate"] = float(np.mean(succ))
             writer.log(step, row)
-            if bar is not None:
-                rs = [float(e["success"]) for e in recent if "success" in e]
-                bar.update(per_update)
-                bar.set_postfix(
-                    sps=f"{row['steps_per_s']:.0f}",
-                    sr=f"{np.mean(rs):.2f}" if rs else "-",
-                    ret=f"{np.mean([e['return'] for e in recent]):.2f}" if recent else "-",
-                )
+            rs = [float(e["success"]) for e in recent if "success" in e]
+            bar.update(
+                per_update,
+                sr=f"{np.mean(rs):.2f}" if rs else "-",  # over the last 50 episodes
+                ret=f"{np.mean([e['return'] for e in recent]):.2f}" if recent else "-",
+                steps_per_s=f"{row['steps_per_s']:.0f}",
+            )
             if step // rl.checkpoint_every > last_ckpt // rl.checkpoint_every and update < n_updates:
                 atomic_save_torch(
                     {
@@ -274,8 +274,7 @@ def train(
                     ckpt_path,
                 )
                 last_ckpt = step
-        if bar is not None:
-            bar.close()
+        bar.close()
         payload = policy_payload(
             agent,
             shapes,
@@ -291,14 +290,6 @@ def train(
             writer.close()
         env.close()
     return Result(run, final_path, step, False)
-
-
-def _progress(enabled: bool, total: int, initial: int, desc: str) -> Any:
-    if not enabled:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, initial=initial, desc=desc, unit="step", dynamic_ncols=True)
 
 
 # ---------------------------------------------------------------- trainers

@@ -67,7 +67,7 @@ def plot_curves(
                 ax.axhline(chance[label], color=color, ls="--", lw=0.8)
     for ax, name in zip(axes[0], metrics):
         title = "masked top-1 accuracy (dashed: chance)" if name == "accuracy" else name
-        ax.set(xlabel="iteration", title=title)
+        ax.set(xlabel="iteration", title=title, ylabel=_YLABELS.get(name, name))
         if name == "loss":
             ax.set_yscale("log")
         ax.legend(fontsize=8)
@@ -75,11 +75,22 @@ def plot_curves(
     return fig
 
 
-def plot_probe(
-    rows: Sequence[Mapping], targets: Sequence[str] = ("distance", "bearing_sin", "bearing_cos")
-) -> plt.Figure:
-    """Grouped bars of held-out R² per probe target, one group per encoder (``rows[i]["encoder"]``)."""
-    fig, ax = plt.subplots(figsize=(6, 3))
+_YLABELS = {"loss": "InfoNCE loss (log scale)", "accuracy": "fraction of masked queries"}
+# Keys of a probe row that are not probe targets.
+_PROBE_META = ("encoder", "n_train", "n_test", "mean_r2")
+
+
+def plot_probe(rows: Sequence[Mapping], targets: Sequence[str] | None = None) -> plt.Figure:
+    """Grouped bars of held-out R² per probe target, one bar per encoder (``rows[i]["encoder"]``).
+
+    ``targets`` defaults to every target the rows hold (distance and bearing of the nearest obstacle, depth
+    ahead, depth balance, ...), followed by their mean.
+    """
+    if targets is None:
+        targets = [k for k in rows[0] if k not in _PROBE_META] if rows else []
+        if rows and "mean_r2" in rows[0]:
+            targets = [*targets, "mean_r2"]
+    fig, ax = plt.subplots(figsize=(1.3 * len(targets) + 2.5, 3.2))
     x = np.arange(len(targets))
     w = 0.8 / max(1, len(rows))
     for i, r in enumerate(rows):

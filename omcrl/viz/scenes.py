@@ -60,8 +60,12 @@ def draw_map(ax: plt.Axes, snap: dict[str, Any]) -> None:
 def scene_gallery(
     scenes: tuple[str, ...] = SCENES, seed: int = 0, env_config: EnvConfig | None = None, image_size: int = 128
 ) -> tuple[plt.Figure, list[dict[str, Any]]]:
-    """One column per scene: map (row 1), FPV RGB (row 2) and depth in metres (row 3) at the start pose."""
-    snaps = [scene_snapshot(s, seed, env_config, image_size) for s in scenes]
+    """One column per scene: map (row 1), FPV RGB (row 2) and depth in metres (row 3) at the start pose.
+
+    Scene ``j`` is reset with seed ``seed + j``: one seed for all would draw the same start and goal in every
+    scene, and the gallery is meant to show each scene's own episode.
+    """
+    snaps = [scene_snapshot(s, seed + j, env_config, image_size) for j, s in enumerate(scenes)]
     fig, axes = plt.subplots(3, len(scenes), figsize=(4.2 * len(scenes), 12), squeeze=False)
     for j, snap in enumerate(snaps):
         draw_map(axes[0, j], snap)

@@ -1,0 +1,346 @@
+"""The results summary of a preset: ``results/<preset>/summary.md``.
+
+Written at the end of the notebook chain (``./reproduce.sh --quick``) and by ``python -m omcrl summary --preset
+P``. It reads what the stages left in ``results/<preset>/`` (``tables/*.json``, ``tables/table1.csv``, the
+notebooks' wall times, ``figures/``) and says plainly what is missing; it never runs or trains anything, so it is
+cheap to regenerate at any point of a run.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from omcrl.config import Config, project_root
+from omcrl.eval.metrics import glossary_markdown
+
+SMOKE_NOTE = (
+    "**Smoke preset: these numbers only check the plumbing.** Every learned method trained a few hundred env "
+    "steps and is evaluated on a handful of episodes, so success rates near 0 and wide intervals are expected. "
+    "For numbers that mean something run the `quick` preset (`./reproduce.sh --quick`, a few hours on a laptop "
+    "CPU; `docs/results-quick.md` has a reference run), or `paper` on a GPU machine."
+)
+
+
+def preset_banner(preset: str) -> str:
+    """What a preset's numbers mean, for the top of every notebook; empty for ``quick`` and ``paper``."""
+    if preset != "smoke":
+        return ""
+    return (
+        "smoke preset: every stage runs at a tiny scale (a few hundred env steps, a handful of episodes), so the "
+        "numbers below only check the plumbing. For results that mean something run the quick preset "
+        "(./reproduce.sh --quick, a few hours on a laptop CPU; reference numbers in docs/results-quick.md)."
+    )
+
+
+NOTEBOOK_TITLES = {
+    "00_scenes": "scenes",
+    "01_collect_data": "data collection",
+    "02_pretrain_encoder": "encoder pretraining (OMC, CURL)",
+    "03_train_oracle": "oracle",
+    "04_train_student": "student (ours, ours-noOT)",
+    "05_train_baselines": "baselines (ppo, npe, npe-ot, curl, curl-phi)",
+    "06_ablations": "ablations",
+    "07_tables": "Table I",
+    "08_interpretability": "interpretability",
+    "09_deploy_tello": "deployment",
+}
+
+
+def _read_json(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def _commit() -> str:
+    """``<short sha>`` of the project checkout, ``+ local changes`` when dirty; ``unknown`` outside git."""
+    root = project_root()
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return (sha + (" + local changes" if dirty else "")) if sha else "unknown"
+
+
+def _machine() -> str:
+    import platform
+
+    from omcrl.bench import machine_info
+
+    info = machine_info()
+    mem = ""
+    try:
+        kb = next(int(ln.split()[1]) for ln in open("/proc/meminfo") if ln.startswith("MemTotal"))
+        mem = f", {kb / 2**20:.0f} GiB RAM"
+    except (OSError, StopIteration, ValueError):
+        pass
+    import torch
+
+    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "no GPU"
+    return (
+        f"{platform.system()} {platform.machine()}, {info['cpu_count']} CPU cores{mem}, {gpu}; "
+        f"Python {info['python']}, torch {torch.__version__}"
+    )
+
+
+def _fmt(v: Any, digits: int = 3) -> str:
+    if v is None or (isinstance(v, float) and v != v):
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+def _md_table(rows: list[dict]) -> str:
+    if not rows:
+        return ""
+    cols = list(rows[0])
+    out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    out += ["| " + " | ".join(_fmt(r.get(c)) for c in cols) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def table1_long(csv_path: Path, metrics: tuple[str, ...] = ("SR", "SPL", "CR", "NE")) -> pd.DataFrame:
+    """Table I in long, readable form: one row per scene and method, ``mean [lo, hi]`` per metric.
+
+    Parameters
+    ----------
+    csv_path : ``tables/table1.csv`` (columns method, scene, metric, mean, lo, hi, seeds, episodes).
+    metrics : which metrics to show, in this order.
+    """
+    df = pd.read_csv(csv_path)
+    df = df[df["metric"].isin(metrics)]
+    rows = []
+    # Scenes, then methods, in the order the table file lists them (training scene first, ours early).
+    order = {k: i for i, k in enumerate(dict.fromkeys(df["scene"]))}
+    m_order = {k: i for i, k in enumerate(dict.fromkeys(df["method"]))}
+    keys = sorted(df.groupby(["scene", "method"], sort=False).groups, key=lambda k: (order[k[0]], m_order[k[1]]))
+    groups = df.groupby(["scene", "method"], sort=False)
+    for scene, method in keys:
+        g = groups.get_group((scene, method))
+        row: dict[str, Any] = {"scene": scene, "method": method}
+        for m in metrics:
+            r = g[g["metric"] == m]
+            if r.empty:
+                continue
+            r = r.iloc[0]
+            d = 2 if m in ("SPL", "NE") else 1
+            row[m] = "–" if pd.isna(r["mean"]) else f"{r['mean']:.{d}f} [{r['lo']:.{d}f}, {r['hi']:.{d}f}]"
+        row["seeds × episodes"] = f"{int(g['seeds'].iloc[0])} × {int(g['episodes'].iloc[0])}"
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def summary_text(cfg: Config) -> str:
+    """The Markdown text of ``results/<preset>/summary.md`` for ``cfg.preset``."""
+    root = cfg.run_root
+    tables, figures = root / "tables", root / "figures"
+    out = [f"# OMC-RL kit: results summary, preset `{cfg.preset}`", ""]
+    if cfg.preset == "smoke":
+        out += [SMOKE_NOTE, ""]
+    out += [
+        f"Written {time.strftime('%Y-%m-%d %H:%M %Z')} · commit {_commit()} · {_machine()}",
+        f"Results folder: `{root}` · training seeds {cfg.seeds} · {cfg.rl.total_steps:,} env steps per learned "
+        f"method · {cfg.pretrain.iterations:,} pretraining iterations · {cfg.eval.episodes} evaluation episodes "
+        "per scene",
+        "",
+        "## Wall time per stage",
+        "",
+    ]
+    walls = _read_json(root / "executed" / "wall_times.json") or {}
+    if walls:
+        rows = [
+            {"notebook": n, "stage": NOTEBOOK_TITLES.get(n, ""), "wall time": _duration(s)}
+            for n, s in sorted(walls.items())
+        ]
+        rows.append({"notebook": "total", "stage": "", "wall time": _duration(sum(walls.values()))})
+        out += [_md_table(rows), ""]
+        out += ["(last run of each notebook; a stage that reused finished runs is fast.)", ""]
+    else:
+        out += ["No notebook has run through `python -m omcrl notebooks` yet.", ""]
+
+    out += _section_data(tables) + _section_pretrain(tables) + _section_oracle(tables) + _section_student(tables)
+    out += _section_table1(tables) + _section_deploy(tables)
+
+    out += ["## Figures", ""]
+    figs = sorted(figures.glob("*.png")) if figures.is_dir() else []
+    out += [f"- [{f.stem}](figures/{f.name})" for f in figs] or ["No figures yet."]
+    out += ["", "## Metrics", "", glossary_markdown(), ""]
+    return "\n".join(out)
+
+
+def _duration(s: float) -> str:
+    from omcrl.utils.progress import format_duration
+
+    return format_duration(float(s))
+
+
+def _missing(what: str, notebook: str) -> list[str]:
+    return [f"_{what}: not run yet (notebook {notebook})._", ""]
+
+
+def _section_data(tables: Path) -> list[str]:
+    d = _read_json(tables / "data_summary.json")
+    out = ["## Data (notebook 01)", ""]
+    if d is None:
+        return out + _missing("data", "01_collect_data")
+    sr = d.get("pilot_success_rate")
+    return [
+        *out,
+        f"{d['episodes']} episodes, {d['steps']:,} steps in `{d['file']}` ({d.get('file_mb', 0):.1f} MB); "
+        f"scripted pilot success rate {_fmt(None if sr is None else 100 * sr)} %.",
+        "",
+    ]
+
+
+def _section_pretrain(tables: Path) -> list[str]:
+    d = _read_json(tables / "pretrain_summary.json")
+    out = ["## Pretraining (notebook 02)", ""]
+    if d is None:
+        return out + _missing("pretraining", "02_pretrain_encoder")
+    probe = d.get("probe_r2", {})
+    rows = []
+    for name, r in d.items():
+        if name == "probe_r2" or not isinstance(r, dict):
+            continue
+        rows.append(
+            {
+                "encoder": name,
+                "iterations": r.get("iterations"),
+                "final loss": r.get("final_loss"),
+                "masked top-1 acc": r.get("final_accuracy"),
+                "chance": r.get("chance_accuracy"),
+                "probe R² (mean)": probe.get(name, {}).get("mean_r2"),
+            }
+        )
+    if "random" in probe:
+        rows.append({"encoder": "random (floor)", "probe R² (mean)": probe["random"].get("mean_r2")})
+    return [*out, _md_table(rows), ""]
+
+
+def _section_oracle(tables: Path) -> list[str]:
+    d = _read_json(tables / "oracle_summary.json")
+    out = ["## Oracle (notebook 03)", ""]
+    if d is None:
+        return out + _missing("oracle", "03_train_oracle")
+    ev = d.get("eval_box", {})
+    return [
+        *out,
+        f"{_fmt(d.get('steps'))} env steps at {_fmt(d.get('steps_per_s'))} steps/s; training SR (last updates) "
+        f"{_fmt(100 * d['final_success_rate'] if d.get('final_success_rate') is not None else None)} %; "
+        f"evaluation in box: SR {_fmt(ev.get('SR'))} %, SPL {_fmt(ev.get('SPL'))}, CR {_fmt(ev.get('CR'))} % "
+        f"({_fmt(ev.get('episodes'))} episodes).",
+        "",
+    ]
+
+
+def _section_student(tables: Path) -> list[str]:
+    d = _read_json(tables / "student_summary.json")
+    out = ["## Student: ours and ours-noOT (notebook 04)", ""]
+    if d is None:
+        return out + _missing("student", "04_train_student")
+    rows = []
+    for label, key in (("ours", "guided"), ("ours-noOT", "unguided")):
+        r = d.get(key, {})
+        rows.append(
+            {
+                "method": label,
+                "env steps": r.get("steps"),
+                "steps/s": r.get("steps_per_s"),
+                "final training SR %": None if r.get("final_success_rate") is None else 100 * r["final_success_rate"],
+                "box SR % (eval)": d.get("box_SR", {}).get(label),
+            }
+        )
+    return [*out, _md_table(rows), ""]
+
+
+def _section_table1(tables: Path) -> list[str]:
+    out = ["## Table I (notebook 07)", ""]
+    csv_path = tables / "table1.csv"
+    if not csv_path.exists():
+        return out + _missing("Table I", "07_tables")
+    long = table1_long(csv_path)
+    out += [
+        "Mean [95% CI] over training seeds and evaluation episodes (two-stage bootstrap). Every method trained in "
+        "box only; furniture, barrier and tree are zero-shot. Full table: [tables/table1.md](tables/table1.md); "
+        "beside the paper's: [tables/table1_vs_paper.md](tables/table1_vs_paper.md).",
+        "",
+        _md_table(long.to_dict("records")) if len(long) else "(empty)",
+        "",
+    ]
+    s = _read_json(tables / "table1_summary.json") or {}
+    claims = s.get("claims") or []
+    if claims:
+        out += ["### The paper's orderings, checked here (SR, percentage points)", ""]
+        out += [
+            _md_table(
+                [
+                    {
+                        "claim": c["claim"],
+                        "scene": c["scene"],
+                        "difference": f"{c['diff']:.1f} [{c['lo']:.1f}, {c['hi']:.1f}]",
+                        "verdict": c["verdict"],
+                    }
+                    for c in claims
+                ]
+            ),
+            "",
+        ]
+    if s.get("missing_runs"):
+        out += [f"Runs not found (not in the table): {', '.join(map(str, s['missing_runs']))}.", ""]
+    return out
+
+
+def _section_deploy(tables: Path) -> list[str]:
+    d = _read_json(tables / "deploy_summary.json")
+    out = ["## Deployment (notebook 09)", ""]
+    if d is None:
+        return out + _missing("deployment", "09_deploy_tello")
+    lat = d.get("latency", {})
+    par = d.get("parity", {})
+    fl = d.get("sim_flight", {})
+    return [
+        *out,
+        f"`{d.get('method')}` exported to ONNX: parity max |Δ| {_fmt(par.get('max_abs_diff'))} over "
+        f"{par.get('observations')} observations; latency median / p99 (ms): "
+        + ", ".join(f"{k} {_fmt(v.get('median_ms'))} / {_fmt(v.get('p99_ms'))}" for k, v in lat.items())
+        + f"; simulated flight ended by `{fl.get('reason')}` after {fl.get('ticks')} ticks, "
+        f"{_fmt(fl.get('final_distance'))} m from the goal.",
+        "",
+    ]
+
+
+def write_summary(cfg: Config) -> Path:
+    """Write ``results/<preset>/summary.md`` (atomically) and return its path."""
+    from omcrl.utils.io import atomic_write_text
+
+    path = cfg.run_root / "summary.md"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, summary_text(cfg))
+    return path
+
+
+def run(cfg: Config) -> None:
+    """CLI stage ``summary``: write the summary of ``cfg.preset`` and print it."""
+    path = write_summary(cfg)
+    print(path.read_text(encoding="utf-8"))
+    print(f"[omcrl] summary: {path}", flush=True)
+
+
+__all__ = ["SMOKE_NOTE", "preset_banner", "summary_text", "table1_long", "write_summary"]

@@ -1,0 +1,205 @@
+"""The kit as a user meets it: progress, the summary, paths that resolve from anywhere, the CLI's habits."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import nbformat
+import pytest
+
+from omcrl.config import load_config, project_root
+from omcrl.utils.progress import Progress, format_duration
+
+
+# ---------------------------------------------------------------- progress
+def test_format_duration():
+    assert format_duration(9.4) == "9s"
+    assert format_duration(75) == "1m15s"
+    assert format_duration(3725) == "1h02m05s"
+
+
+def test_progress_log_lines_and_time_left(capsys, monkeypatch):
+    monkeypatch.delenv("OMCRL_STATUS_FILE", raising=False)
+    bar = Progress(100, "rl/ours seed0", unit="step", initial=20, log_interval=0.0)
+    for _ in range(4):
+        bar.update(20, sr="0.50")
+    bar.close()
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("[omcrl]")]
+    assert len(lines) == 6  # start, four updates, close
+    assert "20/100 step (20%)" in lines[0]
+    assert "60/100 step (60%) | sr 0.50" in lines[2] and "left" in lines[2]
+    assert lines[-1].endswith("elapsed, done")
+
+
+def test_progress_disabled_writes_nothing(capsys, tmp_path, monkeypatch):
+    status = tmp_path / "status.log"
+    monkeypatch.setenv("OMCRL_STATUS_FILE", str(status))
+    with Progress(10, "x", enabled=False, log_interval=0.0) as bar:
+        bar.update(10)
+    assert capsys.readouterr().err == "" and not status.exists()
+
+
+def test_progress_status_file_is_throttled(tmp_path, monkeypatch):
+    status = tmp_path / "status.log"
+    monkeypatch.setenv("OMCRL_STATUS_FILE", str(status))
+    with Progress(1000, "pretrain/omc seed0", unit="it", status_interval=3600.0, log_interval=3600.0) as bar:
+        for _ in range(1000):
+            bar.update(1, loss=2.5)
+    lines = status.read_text().splitlines()
+    assert len(lines) == 2  # the first line and the final one; nothing in between at a 1 h interval
+    assert lines[-1].startswith("pretrain/omc seed0 | 1000/1000 it (100%) | loss 2.5 |")
+
+
+_PROGRESS_NB = """
+from omcrl.utils.progress import Progress
+
+with Progress(300, "demo", unit="it", notebook_interval=0.0) as bar:
+    for i in range(300):
+        bar.update(1, i=i)
+"""
+
+
+@pytest.mark.notebooks
+def test_notebook_progress_is_one_output_and_console_gets_status(tmp_path, capfd, monkeypatch):
+    from omcrl.notebooks import run_chain
+
+    nb = nbformat.v4.new_notebook()
+    p = nbformat.v4.new_code_cell('preset = "smoke"')
+    p.metadata["tags"] = ["parameters"]
+    nb.cells = [p, nbformat.v4.new_code_cell(_PROGRESS_NB)]
+    src = tmp_path / "90_progress.ipynb"
+    nbformat.write(nb, src)
+    monkeypatch.setenv("OMCRL_STATUS_INTERVAL", "0")
+    (out,) = run_chain("smoke", [str(src)], results_dir=tmp_path / "res", cwd=tmp_path)
+    executed = nbformat.read(out, as_version=4)
+    outputs = executed.cells[-1].outputs  # papermill inserts its injected-parameters cell before it
+    # 300 refreshes at interval 0, yet one output, showing the final state.
+    assert len(outputs) == 1, [o.output_type for o in outputs]
+    assert "300/300 it (100%)" in outputs[0]["data"]["text/plain"] and "done" in outputs[0]["data"]["text/plain"]
+    console = capfd.readouterr()
+    fed = [ln for ln in console.out.splitlines() if "| demo |" in ln]
+    assert fed and "300/300 it" in fed[-1]
+    # The kernel's start-up warnings stay off the console.
+    assert "without encryption" not in console.err + console.out
+    times = json.loads((out.parent / "wall_times.json").read_text())
+    assert str(src) in times
+
+
+# ---------------------------------------------------------------- paths
+_PATHS = "from omcrl.config import load_config; c = load_config('smoke'); print(c.run_root); print(c.data_path)"
+
+
+def test_paths_resolve_from_the_repository_root_wherever_the_kernel_runs(repo_root, tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "OMCRL_ROOT"}
+    outs = [
+        subprocess.run([sys.executable, "-c", _PATHS], cwd=cwd, capture_output=True, text=True, env=env).stdout
+        for cwd in (repo_root, repo_root / "notebooks", tmp_path)
+    ]
+    assert outs[0] == outs[1] == outs[2]
+    run_root, data = (Path(x) for x in outs[0].split())
+    assert run_root == repo_root.resolve() / "results" / "smoke"
+    assert data == repo_root.resolve() / "data" / "smoke" / "box.h5"
+    moved = subprocess.run(
+        [sys.executable, "-c", _PATHS],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env={**env, "OMCRL_ROOT": str(tmp_path)},
+    ).stdout.split()
+    assert Path(moved[0]) == tmp_path.resolve() / "results" / "smoke"
+    # An absolute results_dir is kept as given.
+    assert load_config("smoke", overrides=[f"results_dir={tmp_path}"]).run_root == tmp_path / "smoke"
+
+
+# ---------------------------------------------------------------- CLI
+def test_every_stage_has_its_own_help(capsys):
+    from omcrl.__main__ import STAGES, main
+
+    for stage in STAGES:
+        with pytest.raises(SystemExit) as e:
+            main([stage, "--help"])
+        assert e.value.code == 0
+        out = capsys.readouterr().out
+        assert f"python -m omcrl {stage}: " in out, stage
+        assert ("--preset" in out) == (stage != "export"), stage
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    assert "hybrid-apf-perceptive" in capsys.readouterr().out  # the methods are listed where --method is taken
+
+
+def test_a_stage_without_preset_is_refused_before_any_work(repo_root, tmp_path):
+    r = subprocess.run([sys.executable, "-m", "omcrl", "collect"], cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode == 2 and "required: --preset" in r.stderr
+    assert not any(tmp_path.iterdir())
+
+
+def test_reproduce_refuses_a_contradictory_preset(repo_root):
+    r = subprocess.run(
+        ["bash", str(repo_root / "reproduce.sh"), "--smoke", "--preset", "quick"], capture_output=True, text=True
+    )
+    assert r.returncode == 2
+    assert "--smoke already chooses the preset" in r.stderr
+    assert "installing" not in r.stdout  # refused before the venv check or any install
+
+
+# ---------------------------------------------------------------- summary
+def _fake_results(root: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    (root / "figures").mkdir(parents=True)
+    (root / "tables").mkdir()
+    for name in ("scenes", "fig5_training_curves"):
+        fig, ax = plt.subplots()
+        ax.plot([0, 1])
+        fig.savefig(root / "figures" / f"{name}.png")
+        plt.close(fig)
+    rows = ["method,scene,metric,mean,lo,hi,seeds,episodes"]
+    for m in ("ours", "curl"):
+        for sc in ("box", "tree"):
+            for met, v in (("SR", 90.0), ("SPL", 0.8), ("CR", 5.0), ("NE", 0.4)):
+                rows.append(f"{m},{sc},{met},{v},{v * 0.9},{v * 1.1},3,50")
+    (root / "tables" / "table1.csv").write_text("\n".join(rows) + "\n")
+    (root / "executed").mkdir()
+    (root / "executed" / "wall_times.json").write_text(json.dumps({"00_scenes": 6.2, "02_pretrain_encoder": 1142.0}))
+
+
+@pytest.mark.parametrize("preset", ["smoke", "quick"])
+def test_summary_lists_every_figure_and_the_table(tmp_path, preset):
+    from omcrl.summary import SMOKE_NOTE, write_summary
+
+    cfg = load_config(preset, overrides=[f"results_dir={tmp_path}"])
+    _fake_results(cfg.run_root)
+    path = write_summary(cfg)
+    assert path == cfg.run_root / "summary.md"
+    text = path.read_text()
+    for f in (cfg.run_root / "figures").glob("*.png"):
+        assert f"(figures/{f.name})" in text
+    assert "| tree | curl | 90.0 [81.0, 99.0] |" in text
+    assert "19m02s" in text and "19m08s" in text  # notebook 02 and the total
+    assert "not run yet (notebook 03_train_oracle)" in text  # a missing stage is named, not skipped silently
+    assert "| SPL | success weighted by path length |" in text  # the glossary
+    assert (SMOKE_NOTE in text) == (preset == "smoke")
+
+
+def test_summary_cli(tmp_path, repo_root):
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    _fake_results(cfg.run_root)
+    r = subprocess.run(
+        [sys.executable, "-m", "omcrl", "summary", "--preset", "smoke", "--set", f"results_dir={tmp_path}"],
+        cwd=repo_root,
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "results summary, preset `smoke`" in r.stdout and (cfg.run_root / "summary.md").exists()
+
+
+def test_project_root_is_the_checkout(repo_root):
+    assert project_root() == repo_root.resolve()
