@@ -23,6 +23,7 @@ d_t)``, plus ``goal_reward`` on success or ``collision_penalty`` on a collision 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
@@ -58,6 +59,10 @@ class Disturbance:
     brightness : multiplier on the image (1 = unchanged).
     hue : hue rotation of the image, degrees.
     seed : seed for the random colours.
+    appearance : render this env's layout with another scene's look: that scene's surroundings (floor, walls
+        and ceiling, or grass and sky) and obstacle materials (colours and textures drawn from the materials
+        its own generator uses). Geometry, collisions, start/goal and rewards are untouched, so geometry and
+        appearance can be varied separately (e.g. the furniture layout with the box look). None: own look.
     """
 
     obstacle_colors: str | None = None
@@ -72,6 +77,7 @@ class Disturbance:
     brightness: float = 1.0
     hue: float = 0.0
     seed: int = 0
+    appearance: str | None = None
 
     @classmethod
     def from_any(cls, d: Disturbance | dict | None) -> Disturbance | None:
@@ -112,6 +118,8 @@ class Disturbance:
         number("brightness", 0.0)
         number("hue", -360.0, 360.0)
         number("seed", 0, integer=True)
+        if out.appearance is not None and out.appearance not in SCENES:
+            raise ConfigError(f"disturbance.appearance: got {show(out.appearance)}, expected None or one of {SCENES}")
         if out.switch_step is not None:
             number("switch_step", 0, integer=True)
         if out.light_direction is not None:
@@ -119,6 +127,18 @@ class Disturbance:
             if not (isinstance(ld, (list, tuple)) and len(ld) == 3 and all(isinstance(v, (int, float)) for v in ld)):
                 raise ConfigError(f"disturbance.light_direction: got {show(ld)}, expected three numbers (x, y, z)")
         return out
+
+
+@functools.lru_cache(maxsize=8)
+def appearance_materials(scene: str, arena_half: float) -> tuple[tuple[tuple, str | None], ...]:
+    """The obstacle materials (rgba, texture) of ``scene``'s generator, from four fixed layouts, in a fixed
+    order: the palette an appearance swap draws from (box: its one crate look; tree: barks and leaves; ...)."""
+    looks: dict[tuple, None] = {}
+    for seed in range(4):
+        for p in generate_scene(scene, seed, arena_half):
+            if not p.visual_only:
+                looks[(tuple(p.rgba), p.texture)] = None
+    return tuple(looks)
 
 
 class NavEnv(gym.Env):
@@ -222,7 +242,7 @@ class NavEnv(gym.Env):
             pb.resetSimulation(physicsClientId=cid)
             self._tex_ids = {}
             self._pool = {}
-            for p in decor(self.scene, self.cfg.arena_half):
+            for p in decor(self._look_scene, self.cfg.arena_half):
                 self._create(p, p.rgba, p.texture)
             self._decor_built = True
         free = {k: list(v) for k, v in self._pool.items()}
@@ -237,10 +257,20 @@ class NavEnv(gym.Env):
             for body in bodies:
                 pb.resetBasePositionAndOrientation(body, (0.0, 0.0, -1000.0), (0, 0, 0, 1), physicsClientId=cid)
 
+    @property
+    def _look_scene(self) -> str:
+        """The scene whose look (surroundings, obstacle materials) this env renders: its own unless swapped."""
+        d = self.disturbance
+        return d.appearance if d is not None and d.appearance else self.scene
+
     def _look(self, p: Primitive, rng: np.random.Generator) -> tuple[tuple, str | None]:
-        """Colour and texture of an obstacle after the disturbance (random colours, replaced textures)."""
+        """Colour and texture of an obstacle after the disturbance (appearance swap, random colours, replaced
+        textures)."""
         rgba, tex = tuple(p.rgba), p.texture
         dist = self.disturbance
+        if dist is not None and dist.appearance and dist.appearance != self.scene and not p.visual_only:
+            pool = appearance_materials(dist.appearance, self.cfg.arena_half)
+            rgba, tex = pool[int(rng.integers(len(pool)))]
         if dist is not None and not p.visual_only:
             if dist.obstacle_texture:
                 tex = f"{dist.obstacle_texture}:{rng.integers(8)}"

@@ -54,7 +54,7 @@ def draw_map(ax: plt.Axes, snap: dict[str, Any]) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.legend(loc="lower left", fontsize=7, framealpha=0.8)
+    ax.legend(loc="best", fontsize=7, framealpha=0.7)  # a fixed corner can hide a start or goal placed there
 
 
 def scene_gallery(

@@ -1,0 +1,193 @@
+"""Feature shift between scenes: how far an encoder's features move when the scene (or only its look) changes.
+
+The zero-shot question of the paper is whether features learnt in box stay meaningful in furniture, barrier and
+tree. This module measures the distance between the feature distributions of frames from pilot trajectories in
+two settings (two scenes, or one layout with two looks; see ``Disturbance.appearance``):
+
+- :func:`mmd_rbf`: squared maximum mean discrepancy with a Gaussian kernel (biased estimate, median-heuristic
+  bandwidth on the pooled features); 0 for identical samples;
+- :func:`frechet_distance`: the Fréchet distance between Gaussians fitted to the two feature sets (as FID does);
+- :func:`saturated_share`: the share of f's tanh outputs with |h| > 0.99 (saturated units carry no gradient and
+  little information; a scene that saturates more of them is off the encoder's training distribution).
+
+:func:`pilot_frames` collects observation stacks along scripted-pilot trajectories (Hybrid APF on the true map),
+so the frames of every setting come from comparable flight; :func:`shift_table` runs the comparison for several
+encoders and scenes and :func:`omcrl.viz.shift.plot_feature_shift` draws it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch
+
+SATURATION = 0.99
+
+
+def pilot_frames(
+    scene: str,
+    episodes: int,
+    seed: int = 0,
+    *,
+    env_config: Any = None,
+    disturbance: Any = None,
+    every: int = 2,
+    max_steps: int = 150,
+) -> np.ndarray:
+    """RGB stacks seen along scripted-pilot episodes.
+
+    Parameters
+    ----------
+    scene : the layout generator (``box``, ``furniture``, ``barrier``, ``tree``).
+    episodes : episodes to fly; episode ``i`` resets with seed ``seed + i`` (same seeds give the same layouts,
+        starts and goals, so two calls differing only in ``disturbance`` see the same geometry).
+    env_config : an :class:`omcrl.config.EnvConfig` (image size, frame stack); default the env's defaults.
+    disturbance : passed to the env, e.g. ``{"appearance": "box"}``.
+    every : keep every ``every``-th step (consecutive 10 Hz frames are near duplicates).
+    max_steps : at most this many steps per episode.
+
+    Returns
+    -------
+    uint8 array (N, 3L, H, W): the observation stacks the encoder takes.
+    """
+    from omcrl.envs import make_env
+    from omcrl.planners import HybridAPF
+
+    env = make_env(scene, seed=seed, config=env_config, disturbance=disturbance)
+    pilot = HybridAPF(env.cfg).bind(env)
+    out = []
+    try:
+        for i in range(episodes):
+            obs, info = env.reset(seed=seed + i)
+            pilot.reset(info)
+            for t in range(max_steps):
+                if t % every == 0:
+                    rgb = obs["rgb"]  # (L, 3, H, W)
+                    out.append(rgb.reshape(-1, *rgb.shape[-2:]))
+                obs, _, term, trunc, info = env.step(pilot.act(obs, info))
+                if term or trunc:
+                    break
+    finally:
+        env.close()
+    return np.stack(out).astype(np.uint8)
+
+
+@torch.no_grad()
+def encode(encoder: Any, frames: np.ndarray, batch: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """Features of ``frames`` (N, 3L, H, W) uint8 through a frozen encoder.
+
+    Returns
+    -------
+    (z, h): z (N, d) what the policy sees (φ(f(x)) of :class:`omcrl.models.artifact.FrozenEncoder`); h (N, d_f)
+    f's tanh outputs (for :func:`saturated_share`).
+    """
+    zs, hs = [], []
+    hook_out: list[torch.Tensor] = []
+    handle = encoder.f.register_forward_hook(lambda _m, _i, o: hook_out.append(o))
+    try:
+        for i in range(0, len(frames), batch):
+            x = torch.from_numpy(np.ascontiguousarray(frames[i : i + batch]))
+            zs.append(encoder(x).float().numpy())
+            hs.append(hook_out.pop().float().numpy())
+    finally:
+        handle.remove()
+    return np.concatenate(zs), np.concatenate(hs)
+
+
+def mmd_rbf(x: np.ndarray, y: np.ndarray, bandwidth: float | None = None, max_n: int = 2000, seed: int = 0) -> float:
+    """Squared MMD between samples x (n, d) and y (m, d) with kernel exp(-|a-b|²/(2σ²)) (biased estimate).
+
+    σ defaults to the median pairwise distance of the pooled samples; at most ``max_n`` rows of each are used
+    (drawn with ``seed``). 0 when x and y are the same sample; grows as the distributions part.
+    """
+    rng = np.random.default_rng(seed)
+    x = x[rng.permutation(len(x))[:max_n]] if len(x) > max_n else x
+    y = y[rng.permutation(len(y))[:max_n]] if len(y) > max_n else y
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    pooled = np.concatenate([x, y])
+    d2 = _sqdist(pooled, pooled)
+    if bandwidth is None:
+        off = d2[np.triu_indices(len(pooled), 1)]
+        med = float(np.median(off)) if off.size else 1.0
+        bandwidth = float(np.sqrt(med / 2.0)) if med > 0 else 1.0
+    k = np.exp(-d2 / (2.0 * bandwidth**2))
+    n = len(x)
+    kxx, kyy, kxy = k[:n, :n], k[n:, n:], k[:n, n:]
+    return float(max(0.0, kxx.mean() + kyy.mean() - 2.0 * kxy.mean()))
+
+
+def frechet_distance(x: np.ndarray, y: np.ndarray) -> float:
+    """Fréchet distance |μx − μy|² + tr(Σx + Σy − 2(ΣxΣy)^½) between Gaussians fitted to x (n, d) and y (m, d)."""
+    from scipy import linalg
+
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    mx, my = x.mean(0), y.mean(0)
+    cx, cy = np.atleast_2d(np.cov(x, rowvar=False)), np.atleast_2d(np.cov(y, rowvar=False))
+    covmean = linalg.sqrtm(cx @ cy)
+    if np.iscomplexobj(covmean):
+        covmean = covmean.real  # tiny imaginary parts from numerical error
+    d = float(((mx - my) ** 2).sum() + np.trace(cx + cy - 2.0 * covmean))
+    return max(0.0, d)
+
+
+def saturated_share(h: np.ndarray, threshold: float = SATURATION) -> float:
+    """Fraction of tanh outputs with |h| > ``threshold`` (h: (N, d) in [-1, 1])."""
+    return float((np.abs(h) > threshold).mean())
+
+
+def feature_shift(encoder: Any, frames_ref: np.ndarray, frames_other: np.ndarray) -> dict[str, float]:
+    """Shift of ``encoder``'s features from ``frames_ref`` to ``frames_other`` (both (N, 3L, H, W) uint8).
+
+    Returns ``{"mmd": ..., "frechet": ..., "saturated_ref": ..., "saturated": ..., "n_ref": ..., "n": ...}``.
+    """
+    z0, h0 = encode(encoder, frames_ref)
+    z1, h1 = encode(encoder, frames_other)
+    return {
+        "mmd": mmd_rbf(z0, z1),
+        "frechet": frechet_distance(z0, z1),
+        "saturated_ref": saturated_share(h0),
+        "saturated": saturated_share(h1),
+        "n_ref": float(len(z0)),
+        "n": float(len(z1)),
+    }
+
+
+def shift_table(encoders: Mapping[str, Any], frames: Mapping[str, np.ndarray], reference: str = "box") -> pd.DataFrame:
+    """:func:`feature_shift` of every encoder from ``frames[reference]`` to every setting in ``frames``.
+
+    Parameters
+    ----------
+    encoders : ``{name: FrozenEncoder}`` (e.g. OMC, CURL, random).
+    frames : ``{setting: (N, 3L, H, W) uint8}``, e.g. one entry per scene from :func:`pilot_frames`; the
+        reference compared with itself gives the floor (0 MMD by construction; use a second sample of the
+        reference scene, e.g. ``"box (other layouts)"``, for the sampling noise floor).
+
+    Returns
+    -------
+    DataFrame with columns encoder, setting, mmd, frechet, saturated_ref, saturated, n_ref, n.
+    """
+    rows = []
+    for name, enc in encoders.items():
+        for setting, fr in frames.items():
+            rows.append({"encoder": name, "setting": setting, **feature_shift(enc, frames[reference], fr)})
+    return pd.DataFrame(rows)
+
+
+def _sqdist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aa = (a * a).sum(1)[:, None]
+    bb = (b * b).sum(1)[None, :]
+    return np.maximum(aa + bb - 2.0 * a @ b.T, 0.0)
+
+
+__all__: Sequence[str] = [
+    "encode",
+    "feature_shift",
+    "frechet_distance",
+    "mmd_rbf",
+    "pilot_frames",
+    "saturated_share",
+    "shift_table",
+]

@@ -1,0 +1,84 @@
+"""Transfer diagnostics: the appearance swap and the feature-shift measures (issue: zero-shot generalisation)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from omcrl.config import ConfigError, load_config
+from omcrl.envs import make_env
+from omcrl.interpret import feature_shift, frechet_distance, mmd_rbf, pilot_frames, saturated_share
+
+
+def _roll(scene: str, look: str | None, steps: int = 40) -> dict:
+    env = make_env(scene, seed=2, image_size=32, disturbance={"appearance": look} if look else None)
+    obs, info = env.reset(seed=7)
+    out = {"rgb": [obs["rgb"][-1].copy()], "pose": [], "reward": [], "done": []}
+    out["path"], out["optimal"], out["occ"] = np.asarray(info["path"]), info["optimal_path_length"], env.grid.occ.copy()
+    rng = np.random.default_rng(0)
+    for _ in range(steps):
+        obs, r, term, trunc, info = env.step(rng.uniform(-1, 1, 3).astype(np.float32))
+        out["rgb"].append(obs["rgb"][-1].copy())
+        out["pose"].append(np.asarray(info["pose"]).copy())
+        out["reward"].append(r)
+        out["done"].append((term, trunc))
+        if term or trunc:
+            break
+    env.close()
+    return out
+
+
+@pytest.mark.parametrize("scene, look", [("furniture", "box"), ("box", "furniture"), ("barrier", "tree")])
+def test_appearance_swap_changes_frames_not_geometry(scene, look):
+    own, swapped = _roll(scene, None), _roll(scene, look)
+    # Geometry, start/goal, the shortest path, collisions and rewards are the layout's, whatever its look.
+    np.testing.assert_array_equal(own["occ"], swapped["occ"])
+    np.testing.assert_array_equal(own["path"], swapped["path"])
+    assert own["optimal"] == swapped["optimal"]
+    np.testing.assert_array_equal(np.asarray(own["pose"]), np.asarray(swapped["pose"]))
+    assert own["reward"] == swapped["reward"] and own["done"] == swapped["done"]
+    # ... but the camera sees another world.
+    diff = np.abs(np.asarray(own["rgb"], np.float32) - np.asarray(swapped["rgb"], np.float32)).mean()
+    assert diff > 10.0, diff
+
+
+def test_appearance_of_its_own_scene_is_the_identity():
+    a, b = _roll("tree", None, 5), _roll("tree", "tree", 5)
+    np.testing.assert_array_equal(np.asarray(a["rgb"]), np.asarray(b["rgb"]))
+
+
+def test_appearance_is_validated():
+    with pytest.raises(ConfigError, match="disturbance.appearance"):
+        make_env("box", disturbance={"appearance": "moon"})
+
+
+def test_mmd_and_frechet_are_zero_for_identical_and_grow_with_a_known_shift():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(300, 8))
+    fresh = rng.normal(size=(300, 8))  # same distribution, another sample
+    assert mmd_rbf(x, x) == 0.0
+    assert frechet_distance(x, x) < 1e-8
+    mmds = [mmd_rbf(x, fresh + s, bandwidth=2.0) for s in (0.0, 0.5, 1.5)]
+    frechets = [frechet_distance(x, fresh + s) for s in (0.0, 0.5, 1.5)]
+    assert mmds[0] < mmds[1] < mmds[2] and frechets[0] < frechets[1] < frechets[2]
+    # The Fréchet distance of two Gaussians differing in mean only is |Δμ|² (8 dims × 1.5²), up to sampling.
+    assert frechets[2] == pytest.approx(8 * 1.5**2, rel=0.15)
+
+
+def test_saturated_share():
+    h = np.array([[0.995, -0.999, 0.5, 0.0], [0.2, 0.98, -0.995, 1.0]])
+    assert saturated_share(h) == pytest.approx(4 / 8)
+
+
+def test_feature_shift_of_an_encoder_on_pilot_frames():
+    from omcrl.models import random_encoder
+
+    cfg = load_config("smoke")
+    enc = random_encoder(cfg, seed=0)
+    box = pilot_frames("box", 2, seed=3, env_config=cfg.env, max_steps=30)
+    assert box.dtype == np.uint8 and box.shape[1:] == (3 * cfg.env.frame_stack, cfg.env.image_size, cfg.env.image_size)
+    same = feature_shift(enc, box, box)
+    assert same["mmd"] == 0.0 and same["frechet"] < 1e-6 and same["saturated"] == same["saturated_ref"]
+    dark = (box.astype(np.float32) * 0.3).astype(np.uint8)  # a known, large shift of the input
+    shifted = feature_shift(enc, box, dark)
+    assert shifted["mmd"] > 0.01 and shifted["frechet"] > 1e-3
