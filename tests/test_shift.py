@@ -7,18 +7,28 @@ import pytest
 
 from omcrl.config import ConfigError, load_config
 from omcrl.envs import make_env
-from omcrl.interpret import feature_shift, frechet_distance, mmd_rbf, pilot_frames, saturated_share
+from omcrl.envs.scenes import INDOOR
+from omcrl.interpret import (
+    feature_shift,
+    frechet_distance,
+    mmd_rbf,
+    pilot_frames,
+    saturated_share,
+    with_fixed_features,
+)
 
 
-def _roll(scene: str, look: str | None, steps: int = 40) -> dict:
-    env = make_env(scene, seed=2, image_size=32, disturbance={"appearance": look} if look else None)
+def _roll(scene: str, look: str | None, steps: int = 40, parts: str = "all") -> dict:
+    dist = {"appearance": look, "appearance_parts": parts} if look else None
+    env = make_env(scene, seed=2, image_size=32, disturbance=dist)
     obs, info = env.reset(seed=7)
-    out = {"rgb": [obs["rgb"][-1].copy()], "pose": [], "reward": [], "done": []}
+    out = {"rgb": [obs["rgb"][-1].copy()], "depth": [obs["depth"][-1].copy()], "pose": [], "reward": [], "done": []}
     out["path"], out["optimal"], out["occ"] = np.asarray(info["path"]), info["optimal_path_length"], env.grid.occ.copy()
     rng = np.random.default_rng(0)
     for _ in range(steps):
         obs, r, term, trunc, info = env.step(rng.uniform(-1, 1, 3).astype(np.float32))
         out["rgb"].append(obs["rgb"][-1].copy())
+        out["depth"].append(obs["depth"][-1].copy())
         out["pose"].append(np.asarray(info["pose"]).copy())
         out["reward"].append(r)
         out["done"].append((term, trunc))
@@ -37,9 +47,21 @@ def test_appearance_swap_changes_frames_not_geometry(scene, look):
     assert own["optimal"] == swapped["optimal"]
     np.testing.assert_array_equal(np.asarray(own["pose"]), np.asarray(swapped["pose"]))
     assert own["reward"] == swapped["reward"] and own["done"] == swapped["done"]
+    # Depth sees shapes, not materials: between two indoor looks (same room walls and ceiling) the oracle's
+    # input is identical; an outdoor look moves the background (sky instead of walls and ceiling).
+    same_depth = np.array_equal(np.asarray(own["depth"]), np.asarray(swapped["depth"]))
+    assert same_depth == (INDOOR[scene] == INDOOR[look])
     # ... but the camera sees another world.
     diff = np.abs(np.asarray(own["rgb"], np.float32) - np.asarray(swapped["rgb"], np.float32)).mean()
     assert diff > 10.0, diff
+
+
+def test_appearance_parts_swap_one_part_each():
+    own, both = _roll("box", None, 3), _roll("box", "furniture", 3)
+    parts = {part: _roll("box", "furniture", 3, part) for part in ("surroundings", "obstacles")}
+    for part, out in parts.items():
+        for other in (own, both):
+            assert not np.array_equal(np.asarray(out["rgb"]), np.asarray(other["rgb"])), part
 
 
 def test_appearance_of_its_own_scene_is_the_identity():
@@ -50,6 +72,8 @@ def test_appearance_of_its_own_scene_is_the_identity():
 def test_appearance_is_validated():
     with pytest.raises(ConfigError, match="disturbance.appearance"):
         make_env("box", disturbance={"appearance": "moon"})
+    with pytest.raises(ConfigError, match="disturbance.appearance_parts"):
+        make_env("box", disturbance={"appearance": "tree", "appearance_parts": "sky"})
 
 
 def test_mmd_and_frechet_are_zero_for_identical_and_grow_with_a_known_shift():
@@ -82,3 +106,28 @@ def test_feature_shift_of_an_encoder_on_pilot_frames():
     dark = (box.astype(np.float32) * 0.3).astype(np.uint8)  # a known, large shift of the input
     shifted = feature_shift(enc, box, dark)
     assert shifted["mmd"] > 0.01 and shifted["frechet"] > 1e-3
+
+
+def test_fixed_features_policy_ignores_the_camera(tmp_path):
+    import torch
+
+    from omcrl.models import ActorCritic, random_encoder, save_encoder
+    from omcrl.models.features import make_student_features
+    from omcrl.rl.policy import Policy
+
+    cfg = load_config("smoke")
+    enc = random_encoder(cfg, seed=1)
+    save_encoder(tmp_path / "encoder.pt", enc.f, enc.phi, cfg)
+    env = make_env("box", seed=0, config=cfg.env)
+    obs, _ = env.reset(seed=0)
+    env.close()
+    torch.manual_seed(0)
+    pol = Policy(ActorCritic(make_student_features(tmp_path / "encoder.pt", env.observation_space), 3, 16), "ours")
+    other = dict(obs, rgb=(255 - obs["rgb"]).astype(np.uint8))  # another view, same state
+    assert not np.allclose(pol.act(obs), pol.act(other))  # the real policy looks at the camera
+    z = np.full(pol.agent.features.enc_dim, 0.1, np.float32)
+    blind = with_fixed_features(pol, z)
+    np.testing.assert_array_equal(blind.act(obs), blind.act(other))
+    assert not np.allclose(pol.act(obs), pol.act(other))  # the original is untouched
+    with pytest.raises(ValueError, match="values"):
+        with_fixed_features(pol, z[:3])

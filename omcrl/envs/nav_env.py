@@ -41,6 +41,7 @@ from omcrl.envs.textures import texture_file
 from omcrl.planners.grid import OccupancyGrid, build_grid, components, shortest_path
 
 GRAVITY = 9.81
+APPEARANCE_PARTS = ("all", "surroundings", "obstacles")
 POOL_SLACK = 24  # pooled bodies allowed beyond the current layout's count before a full rebuild
 
 
@@ -63,6 +64,8 @@ class Disturbance:
         and ceiling, or grass and sky) and obstacle materials (colours and textures drawn from the materials
         its own generator uses). Geometry, collisions, start/goal and rewards are untouched, so geometry and
         appearance can be varied separately (e.g. the furniture layout with the box look). None: own look.
+    appearance_parts : what ``appearance`` swaps: ``"all"``, ``"surroundings"`` (floor, walls, ceiling or sky
+        only) or ``"obstacles"`` (obstacle materials only).
     """
 
     obstacle_colors: str | None = None
@@ -78,6 +81,7 @@ class Disturbance:
     hue: float = 0.0
     seed: int = 0
     appearance: str | None = None
+    appearance_parts: str = "all"
 
     @classmethod
     def from_any(cls, d: Disturbance | dict | None) -> Disturbance | None:
@@ -120,6 +124,10 @@ class Disturbance:
         number("seed", 0, integer=True)
         if out.appearance is not None and out.appearance not in SCENES:
             raise ConfigError(f"disturbance.appearance: got {show(out.appearance)}, expected None or one of {SCENES}")
+        if out.appearance_parts not in APPEARANCE_PARTS:
+            raise ConfigError(
+                f"disturbance.appearance_parts: got {show(out.appearance_parts)}, expected one of {APPEARANCE_PARTS}"
+            )
         if out.switch_step is not None:
             number("switch_step", 0, integer=True)
         if out.light_direction is not None:
@@ -242,7 +250,7 @@ class NavEnv(gym.Env):
             pb.resetSimulation(physicsClientId=cid)
             self._tex_ids = {}
             self._pool = {}
-            for p in decor(self._look_scene, self.cfg.arena_half):
+            for p in decor(self._look_scene("surroundings"), self.cfg.arena_half):
                 self._create(p, p.rgba, p.texture)
             self._decor_built = True
         free = {k: list(v) for k, v in self._pool.items()}
@@ -257,19 +265,21 @@ class NavEnv(gym.Env):
             for body in bodies:
                 pb.resetBasePositionAndOrientation(body, (0.0, 0.0, -1000.0), (0, 0, 0, 1), physicsClientId=cid)
 
-    @property
-    def _look_scene(self) -> str:
-        """The scene whose look (surroundings, obstacle materials) this env renders: its own unless swapped."""
+    def _look_scene(self, part: str) -> str:
+        """The scene whose ``part`` (``surroundings`` or ``obstacles``) this env renders: its own unless swapped."""
         d = self.disturbance
-        return d.appearance if d is not None and d.appearance else self.scene
+        if d is not None and d.appearance and d.appearance_parts in ("all", part):
+            return d.appearance
+        return self.scene
 
     def _look(self, p: Primitive, rng: np.random.Generator) -> tuple[tuple, str | None]:
         """Colour and texture of an obstacle after the disturbance (appearance swap, random colours, replaced
         textures)."""
         rgba, tex = tuple(p.rgba), p.texture
         dist = self.disturbance
-        if dist is not None and dist.appearance and dist.appearance != self.scene and not p.visual_only:
-            pool = appearance_materials(dist.appearance, self.cfg.arena_half)
+        look = self._look_scene("obstacles")
+        if look != self.scene and not p.visual_only:
+            pool = appearance_materials(look, self.cfg.arena_half)
             rgba, tex = pool[int(rng.integers(len(pool)))]
         if dist is not None and not p.visual_only:
             if dist.obstacle_texture:

@@ -8,6 +8,7 @@ from omcrl.interpret.shift import (
     pilot_frames,
     saturated_share,
     shift_table,
+    with_fixed_features,
 )
 
 __all__ = [
@@ -18,4 +19,5 @@ __all__ = [
     "pilot_frames",
     "saturated_share",
     "shift_table",
+    "with_fixed_features",
 ]

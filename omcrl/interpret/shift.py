@@ -176,6 +176,39 @@ def shift_table(encoders: Mapping[str, Any], frames: Mapping[str, np.ndarray], r
     return pd.DataFrame(rows)
 
 
+class _FixedFeatures(torch.nn.Module):
+    """Stands in for a frozen encoder: returns the same feature vector z (d,) for every input stack."""
+
+    def __init__(self, z: np.ndarray) -> None:
+        super().__init__()
+        self.z = torch.as_tensor(np.asarray(z, np.float32))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.z.expand(x.shape[0], -1)
+
+
+def with_fixed_features(policy: Any, z: np.ndarray) -> Any:
+    """A copy of a frozen-encoder policy (``ours``, ``curl``, ...) whose visual features are always ``z`` (d,).
+
+    With ``z`` the mean box feature, the policy keeps its state inputs (velocity, attitude, goal vector) but
+    sees one typical box view whatever the camera shows: does goal seeking survive without vision, and how much
+    of the success in a scene comes from seeing? Raises ``ValueError`` for policies without a frozen encoder.
+    """
+    import copy
+
+    feats = policy.agent.features
+    if getattr(feats, "kind", None) != "student":
+        raise ValueError(f"with_fixed_features: needs a frozen-encoder policy, got features {feats.kind!r}")
+    z = np.asarray(z, np.float32).reshape(-1)
+    if z.shape[0] != feats.enc_dim:
+        raise ValueError(f"with_fixed_features: z has {z.shape[0]} values, the policy's features {feats.enc_dim}")
+    out = copy.copy(policy)
+    out.agent = copy.deepcopy(policy.agent)
+    out.agent.features.__dict__["encoder"] = _FixedFeatures(z)
+    out.name = f"{policy.name}+fixed-features"
+    return out
+
+
 def _sqdist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     aa = (a * a).sum(1)[:, None]
     bb = (b * b).sum(1)[None, :]
@@ -190,4 +223,5 @@ __all__: Sequence[str] = [
     "pilot_frames",
     "saturated_share",
     "shift_table",
+    "with_fixed_features",
 ]
