@@ -122,6 +122,11 @@ class DataConfig:
     random_corr: float = _f(0.9, lo=0.0, hi=0.9999, doc="AR(1) correlation of random exploration actions")
     max_steps: int = _f(200, lo=1, hi=100000, doc="cap on steps per collected episode")
     file: str = _f("data/{preset}/box.h5", doc="HDF5 path; {preset} is substituted")
+    look: str = _f(
+        "own",
+        choices=("own", "randomized"),
+        doc="own: the scene's look; randomized: a random generic look per layout (a deviation, docs/DEVIATIONS.md §2)",
+    )
 
 
 @dataclass
@@ -225,7 +230,10 @@ class Config:
     def data_path(self) -> Path:
         """The pretraining data file: ``data.file`` with ``{preset}`` substituted, absolute (see
         :func:`project_root`)."""
-        return resolve_path(self.data.file.format(preset=self.preset))
+        path = resolve_path(self.data.file.format(preset=self.preset))
+        if self.data.look != "own":  # another look is other data: never the same file as the default's
+            path = path.with_name(f"{path.stem}-{self.data.look}{path.suffix}")
+        return path
 
     def with_seed(self, seed: int) -> Config:
         """A copy of this config for one training seed (``seed`` set, everything else equal)."""

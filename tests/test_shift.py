@@ -131,3 +131,60 @@ def test_fixed_features_policy_ignores_the_camera(tmp_path):
     assert not np.allclose(pol.act(obs), pol.act(other))  # the original is untouched
     with pytest.raises(ValueError, match="values"):
         with_fixed_features(pol, z[:3])
+
+
+def test_randomized_look_varies_per_layout_keeps_geometry_and_is_seeded():
+    def frames(dist, seeds=(100, 101)):
+        env = make_env("box", seed=1, image_size=32, disturbance=dist)
+        out = []
+        for s in seeds:
+            obs, _ = env.reset(seed=s)
+            out.append((obs["rgb"][-1].copy(), env.grid.occ.copy()))
+        env.close()
+        return out
+
+    rand = frames({"randomize_look": True, "seed": 3})
+    own = frames(None)
+    again = frames({"randomize_look": True, "seed": 3})
+    assert not np.array_equal(rand[0][0], rand[1][0])
+    for (r, occ_r), (o, occ_o), (a, _) in zip(rand, own, again):
+        np.testing.assert_array_equal(occ_r, occ_o)  # geometry untouched
+        np.testing.assert_array_equal(r, a)  # reproducible from the seed
+        assert np.abs(r.astype(float) - o.astype(float)).mean() > 10
+
+
+def test_generic_textures_avoid_the_evaluation_scenes_materials():
+    from omcrl.envs.nav_env import GENERIC_TEXTURES, appearance_materials
+    from omcrl.envs.scenes import FLOOR_TEXTURE, WALL_TEXTURE
+
+    unseen = {t for s in ("furniture", "barrier", "tree") for _, t in appearance_materials(s, 8.0)}
+    unseen |= {FLOOR_TEXTURE[s] for s in ("furniture", "barrier", "tree")} | {
+        WALL_TEXTURE["furniture"],
+        WALL_TEXTURE["barrier"],
+    }
+    unseen_kinds = {t.split(":")[0] for t in unseen if t}
+    assert not {t.split(":")[0] for t in GENERIC_TEXTURES} & unseen_kinds
+
+
+def test_randomized_data_has_its_own_file_and_run_and_the_default_keeps_its_key(tmp_path):
+    from omcrl.data.collect import run as collect
+    from omcrl.data.dataset import DatasetError
+    from omcrl.pretrain.train import pretrain_run
+
+    own = load_config("smoke", overrides=[f"results_dir={tmp_path}", f"data.file={tmp_path}/box.h5"])
+    rand = load_config(
+        "smoke", overrides=[f"results_dir={tmp_path}", f"data.file={tmp_path}/box.h5", "data.look=randomized"]
+    )
+    assert rand.data_path == tmp_path / "box-randomized.h5" and own.data_path == tmp_path / "box.h5"
+    assert "look" not in pretrain_run(own).identity["data"]  # a new field at its default: old keys hold
+    assert (
+        pretrain_run(rand).identity["data"]["look"] == "randomized" and pretrain_run(rand).key != pretrain_run(own).key
+    )
+    res = collect(rand, progress=False)
+    assert res.path == rand.data_path and res.episodes_added > 0 if hasattr(res, "episodes_added") else True
+    # A file of the other look is refused, not reused or overwritten.
+    rand.data_path.rename(own.data_path)
+    before = own.data_path.read_bytes()
+    with pytest.raises(DatasetError, match="data.look='randomized'"):
+        collect(own, progress=False)
+    assert own.data_path.read_bytes() == before

@@ -233,6 +233,11 @@ def _open_existing(path: Path, cfg: Config) -> int:
         return 0
     try:
         with open_dataset(path, image_size=cfg.env.image_size, frame_stack=cfg.env.frame_stack) as ds:
+            stored = ds.env_config.get("look", "own")
+            if stored != cfg.data.look:
+                raise DatasetError(
+                    f"{path}: collected with data.look={stored!r}, the config asks for {cfg.data.look!r}"
+                )
             return len(ds)
     except DatasetError as e:
         raise DatasetError(
@@ -280,7 +285,8 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
     rng = np.random.default_rng(ss.spawn(1)[0])
     n_envs = min(d.n_envs, n_new)
 
-    vec = make_vec_env(d.scene, n_envs, seed=env_seed, config=env_cfg, max_steps=d.max_steps)
+    look = {"disturbance": {"randomize_look": True, "seed": env_seed}} if d.look == "randomized" else {}
+    vec = make_vec_env(d.scene, n_envs, seed=env_seed, config=env_cfg, max_steps=d.max_steps, **look)
     planners = [HybridAPF(env_cfg) for _ in range(n_envs)]
     behaviours: list[_Source | None] = [None] * n_envs
     episode_of: list[int] = [-1] * n_envs  # index (relative to this call) of the episode each env is flying
@@ -309,7 +315,8 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
 
     bar = Progress(n_new, f"collect/{d.scene}", unit="ep", enabled=progress)
     try:
-        with DatasetWriter(path, cfg.env.image_size, cfg.env.frame_stack, dataclasses.asdict(env_cfg)) as w:
+        meta = dataclasses.asdict(env_cfg) | ({"look": d.look} if d.look != "own" else {})
+        with DatasetWriter(path, cfg.env.image_size, cfg.env.frame_stack, meta) as w:
             obs, infos = vec.reset(seed=env_seed)
             # One per-env info dict per vector step, shared by start() and act(): the planner recognises the
             # reset info it started from and does not plan the episode twice.

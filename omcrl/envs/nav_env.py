@@ -42,6 +42,11 @@ from omcrl.planners.grid import OccupancyGrid, build_grid, components, shortest_
 
 GRAVITY = 9.81
 APPEARANCE_PARTS = ("all", "surroundings", "obstacles")
+# Textures for randomized looks: only kinds no evaluation scene (furniture, barrier, tree) uses (not paint:
+# furniture's room and barrier's walls are painted), so randomized box data never shows an unseen scene's material.
+GENERIC_TEXTURES = tuple(
+    f"{kind}:{k}" for kind in ("tiles", "carpet", "checker", "stripes", "crate") for k in range(10)
+)
 POOL_SLACK = 24  # pooled bodies allowed beyond the current layout's count before a full rebuild
 
 
@@ -66,6 +71,9 @@ class Disturbance:
         appearance can be varied separately (e.g. the furniture layout with the box look). None: own look.
     appearance_parts : what ``appearance`` swaps: ``"all"``, ``"surroundings"`` (floor, walls, ceiling or sky
         only) or ``"obstacles"`` (obstacle materials only).
+    randomize_look : a new random look for every layout: floor, room walls and each obstacle get a texture drawn
+        from :data:`GENERIC_TEXTURES` (kinds and variants no evaluation scene uses) and a random tint. For
+        pretraining data that varies what box cannot (``data.look=randomized``, a deviation behind a flag).
     """
 
     obstacle_colors: str | None = None
@@ -82,6 +90,7 @@ class Disturbance:
     seed: int = 0
     appearance: str | None = None
     appearance_parts: str = "all"
+    randomize_look: bool = False
 
     @classmethod
     def from_any(cls, d: Disturbance | dict | None) -> Disturbance | None:
@@ -243,16 +252,27 @@ class NavEnv(gym.Env):
         """
         cid = self._client
         dist = self.disturbance
-        rng = np.random.default_rng(dist.seed if dist else 0)
+        randomize = dist is not None and dist.randomize_look
+        if randomize:
+            # One generator for the env's life: every layout draws a new look, reproducibly from dist.seed.
+            if getattr(self, "_look_rng", None) is None:
+                self._look_rng = np.random.default_rng([dist.seed, 7])
+            rng = self._look_rng
+        else:
+            rng = np.random.default_rng(dist.seed if dist else 0)
         looks = [self._look(p, rng) for p in prims]
         pooled = sum(len(v) for v in self._pool.values())
         if not self._decor_built or pooled > len(prims) + POOL_SLACK:
             pb.resetSimulation(physicsClientId=cid)
             self._tex_ids = {}
             self._pool = {}
-            for p in decor(self._look_scene("surroundings"), self.cfg.arena_half):
-                self._create(p, p.rgba, p.texture)
+            self._decor_bodies = [
+                (self._create(p, p.rgba, p.texture), p)
+                for p in decor(self._look_scene("surroundings"), self.cfg.arena_half)
+            ]
             self._decor_built = True
+        if randomize:
+            self._randomize_surroundings(rng)
         free = {k: list(v) for k, v in self._pool.items()}
         for p, (rgba, tex) in zip(prims, looks):
             key = (p.kind, p.size, rgba, tex)
@@ -272,6 +292,24 @@ class NavEnv(gym.Env):
             return d.appearance
         return self.scene
 
+    def _randomize_surroundings(self, rng: np.random.Generator) -> None:
+        """Give the floor one random generic texture and the room walls another, each with a random tint."""
+        cid = self._client
+        floor, walls = (str(rng.choice(GENERIC_TEXTURES)) for _ in range(2))
+        tints = [(*rng.uniform(0.5, 1.0, 3).tolist(), 1.0) for _ in range(2)]
+        for body, p in self._decor_bodies:
+            if p.center[2] < 0:  # floor tiles
+                tex, rgba = floor, tints[0]
+            elif p.size[2] > 0.5:  # walls (the ceiling is a thin slab; the sky stays sky)
+                if p.texture and p.texture.startswith("sky"):
+                    continue
+                tex, rgba = walls, tints[1]
+            else:
+                continue
+            if tex not in self._tex_ids:
+                self._tex_ids[tex] = pb.loadTexture(texture_file(tex), physicsClientId=cid)
+            pb.changeVisualShape(body, -1, textureUniqueId=self._tex_ids[tex], rgbaColor=rgba, physicsClientId=cid)
+
     def _look(self, p: Primitive, rng: np.random.Generator) -> tuple[tuple, str | None]:
         """Colour and texture of an obstacle after the disturbance (appearance swap, random colours, replaced
         textures)."""
@@ -281,6 +319,9 @@ class NavEnv(gym.Env):
         if look != self.scene and not p.visual_only:
             pool = appearance_materials(look, self.cfg.arena_half)
             rgba, tex = pool[int(rng.integers(len(pool)))]
+        if dist is not None and dist.randomize_look and not p.visual_only:
+            tex = str(rng.choice(GENERIC_TEXTURES))
+            rgba = (*np.round(rng.uniform(0.4, 1.0, 3), 2).tolist(), 1.0)
         if dist is not None and not p.visual_only:
             if dist.obstacle_texture:
                 tex = f"{dist.obstacle_texture}:{rng.integers(8)}"

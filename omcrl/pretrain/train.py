@@ -93,6 +93,9 @@ def pretrain_run(cfg: Config) -> Run:
     # The data file's path is not identity (moving the data must not orphan the run); its content is checked
     # against the fingerprint recorded in done.json.
     data = {k: v for k, v in dataclasses.asdict(cfg.data).items() if k != "file"}
+    # Fields added after runs existed are identity only when set: at their default they keep the runs' keys.
+    if data.get("look") == "own":
+        del data["look"]
     ident = {
         "pretrain": p,
         "data": data,
