@@ -26,6 +26,15 @@ import yaml
 PRESETS = ("smoke", "quick", "paper")
 PRESET_DIR = Path(__file__).parent / "presets"
 ROOT_ENV = "OMCRL_ROOT"
+# Fields added after runs existed, with the value that means "as before": at that value they are left out of run
+# identities and hashes, so existing runs keep their keys (see omcrl.pretrain.train.pretrain_run).
+NEUTRAL_DEFAULTS: dict[str, dict[str, Any]] = {"data": {"look": "own"}, "pretrain": {"color_jitter": 0.0}}
+
+
+def drop_neutral(section: str, values: dict) -> dict:
+    """``values`` (a config section as a dict) without the fields that sit at their neutral default."""
+    neutral = NEUTRAL_DEFAULTS.get(section, {})
+    return {k: v for k, v in values.items() if not (k in neutral and v == neutral[k])}
 
 
 def project_root() -> Path:
@@ -153,6 +162,12 @@ class PretrainConfig:
     warmup_steps: int = _f(6000, lo=0, hi=10000000, doc="linear warm-up then inverse-sqrt decay for xi")
     iterations: int = _f(2000, lo=1, hi=100000000, doc="optimisation steps")
     cons_stride: int = _f(1, lo=1, hi=100, doc="CURL-cons: step gap between the two consecutive stacks")
+    color_jitter: float = _f(
+        0.0,
+        lo=0.0,
+        hi=0.9,
+        doc="OMC: per-view colour gains in [1-s, 1+s] (query and keys jittered differently; a deviation, §3); 0 off",
+    )
     checkpoint_every: int = _f(200, lo=1, hi=100000000, doc="iterations between checkpoints")
     num_threads: int = _f(2, lo=1, hi=256, doc="torch intra-op threads")
 

@@ -303,3 +303,35 @@ def test_finished_run_skips_without_its_dataset_and_lost_metrics_are_reported(da
     assert done.iterations == 6
     record = json.loads((done.run_dir / "done.json").read_text())  # strict JSON: no NaN
     assert record["final_loss"] is None or np.isfinite(record["final_loss"])
+
+
+def test_color_jitter_changes_colours_not_masks_and_is_seeded():
+    from omcrl.pretrain.learner import color_jitter
+
+    seq = torch.full((4, 3, 9, 8, 8), 100, dtype=torch.uint8)
+    seq[1, 2] = 0  # a masked (all-zero) stack
+    out = color_jitter(seq, 0.5, torch.Generator().manual_seed(0))
+    assert out.shape == seq.shape and out.dtype == torch.float32
+    assert float(out.min()) >= 0 and float(out.max()) <= 255
+    assert torch.all(out[1, 2] == 0)  # masks stay masks
+    gains = out[:, 0, :, 0, 0] / 100.0  # (B, 3L)
+    # One gain per sequence and RGB channel, shared by every stack and every frame of a stack ...
+    torch.testing.assert_close(out[[0, 2, 3]], out[[0, 2, 3], :1].expand(3, 3, 9, 8, 8))
+    torch.testing.assert_close(gains[:, 0:3], gains[:, 3:6])
+    torch.testing.assert_close(gains[:, 0:3], gains[:, 6:9])
+    # ... within [(1 - s)², (1 + s)²], and different between sequences.
+    assert float(gains.min()) >= 0.25 - 1e-6 and float(gains.max()) <= 2.25 + 1e-6
+    assert not torch.allclose(gains[0], gains[2])
+    torch.testing.assert_close(out, color_jitter(seq, 0.5, torch.Generator().manual_seed(0)))
+    assert not torch.allclose(out, color_jitter(seq, 0.5, torch.Generator().manual_seed(1)))
+
+
+def test_color_jitter_default_keeps_run_keys(tmp_path):
+    from omcrl.pretrain.train import pretrain_run
+
+    base = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    on = load_config("smoke", overrides=[f"results_dir={tmp_path}", "pretrain.color_jitter=0.4"])
+    assert "color_jitter" not in pretrain_run(base).identity["pretrain"]
+    assert (
+        pretrain_run(on).identity["pretrain"]["color_jitter"] == 0.4 and pretrain_run(on).key != pretrain_run(base).key
+    )

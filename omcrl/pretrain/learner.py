@@ -33,6 +33,21 @@ def transformer_lr_factor(step: int, warmup: int) -> float:
     return min(step / w, math.sqrt(w / step)) if warmup > 0 else 1.0 / math.sqrt(step)
 
 
+def color_jitter(seq: torch.Tensor, strength: float, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Random colour gains per sequence: (B, T, 3L, H, W) on the 0–255 scale → float, same shape.
+
+    Each sequence gets one brightness factor and one gain per RGB channel, each uniform in [1 − s, 1 + s], applied
+    to all T stacks and L frames alike (the look of a whole flight changes, its content does not); results are
+    clipped to 255. Multiplicative, so masked (all-zero) stacks stay zero.
+    """
+    B = seq.shape[0]
+    L = seq.shape[2] // 3
+    u = torch.rand(B, 4, generator=generator) * 2 - 1
+    gains = (1 + strength * u[:, :3]) * (1 + strength * u[:, 3:])  # (B, 3)
+    g = gains.repeat(1, L).view(B, 1, 3 * L, 1, 1)
+    return (seq.float() * g).clamp_(0, 255)
+
+
 class ContrastiveLearner(nn.Module):
     """Online networks f, φ (+ ξ for OMC, W for CURL) and their momentum copies.
 
@@ -94,9 +109,14 @@ class ContrastiveLearner(nn.Module):
         """Masked contrastive loss for sequences (B, T, 3L, H, W); ``pool`` (N, 3L, H, W) feeds swaps."""
         B, T = seq.shape[:2]
         masked, mask, _ = mask_sequence(seq, self.cfg.mask_prob, generator, pool)
+        keys_in = seq
+        if self.cfg.color_jitter > 0:
+            # Query and key views of a sequence get different colours: matching them must not rely on colour.
+            masked = color_jitter(masked, self.cfg.color_jitter, generator)
+            keys_in = color_jitter(seq, self.cfg.color_jitter, generator)
         q = self.xi(self.embed(masked.flatten(0, 1)).view(B, T, -1))
         with torch.no_grad():
-            k = self.embed(seq.flatten(0, 1), key=True).view(B, T, -1)
+            k = self.embed(keys_in.flatten(0, 1), key=True).view(B, T, -1)
             if self.xi_k is not None:
                 k = self.xi_k(k)
         loss, acc = masked_info_nce(q, k, mask, self.cfg.temperature, self.cfg.batch_negatives)

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import torch
 
-from omcrl.config import Config, PretrainConfig, config_hash, save_config
+from omcrl.config import Config, PretrainConfig, config_hash, drop_neutral, save_config
 from omcrl.data.dataset import open_dataset
 from omcrl.data.sampler import SequenceSampler
 from omcrl.models.artifact import save_encoder
@@ -90,12 +90,11 @@ def pretrain_run(cfg: Config) -> Run:
     same run.
     """
     p = {k: v for k, v in dataclasses.asdict(cfg.pretrain).items() if k not in ("checkpoint_every", "num_threads")}
+    p = drop_neutral("pretrain", p)
     # The data file's path is not identity (moving the data must not orphan the run); its content is checked
     # against the fingerprint recorded in done.json.
-    data = {k: v for k, v in dataclasses.asdict(cfg.data).items() if k != "file"}
     # Fields added after runs existed are identity only when set: at their default they keep the runs' keys.
-    if data.get("look") == "own":
-        del data["look"]
+    data = drop_neutral("data", {k: v for k, v in dataclasses.asdict(cfg.data).items() if k != "file"})
     ident = {
         "pretrain": p,
         "data": data,
@@ -121,7 +120,7 @@ def default_dataset_path(cfg: Config) -> Path:
 
 
 def _hashes(cfg: Config, fingerprint: str) -> tuple[str, str]:
-    p = dataclasses.asdict(cfg.pretrain)
+    p = drop_neutral("pretrain", dataclasses.asdict(cfg.pretrain))
     p.pop("num_threads")
     base = {"pretrain": p, "frame_stack": cfg.env.frame_stack, "seed": cfg.seed, "dataset": fingerprint}
     compat = {**base, "pretrain": {k: v for k, v in p.items() if k not in _RESUMABLE}}
