@@ -16,7 +16,7 @@ from typing import Any
 
 import pandas as pd
 
-from omcrl.config import Config, project_root
+from omcrl.config import Config
 from omcrl.eval.metrics import glossary_markdown
 
 SMOKE_NOTE = (
@@ -60,8 +60,9 @@ def _read_json(path: Path) -> dict | None:
 
 
 def _commit() -> str:
-    """``<short sha>`` of the project checkout, ``+ local changes`` when dirty; ``unknown`` outside git."""
-    root = project_root()
+    """``<short sha>`` of the checkout the running ``omcrl`` code comes from (not of the results folder, which
+    ``OMCRL_ROOT`` may put elsewhere), ``+ local changes`` when dirty; ``unknown`` outside git."""
+    root = Path(__file__).resolve().parent.parent
     try:
         sha = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
@@ -102,6 +103,8 @@ def _machine() -> str:
 def _fmt(v: Any, digits: int = 3) -> str:
     if v is None or (isinstance(v, float) and v != v):
         return "–"
+    if isinstance(v, float) and v.is_integer() and abs(v) >= 1000:
+        return f"{int(v):,}"
     if isinstance(v, float):
         return f"{v:.{digits}g}"
     return str(v)
