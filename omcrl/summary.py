@@ -85,13 +85,10 @@ def _machine() -> str:
     from omcrl.bench import machine_info
 
     info = machine_info()
-    mem = ""
-    try:
-        kb = next(int(ln.split()[1]) for ln in open("/proc/meminfo") if ln.startswith("MemTotal"))
-        mem = f", {kb / 2**20:.0f} GiB RAM"
-    except (OSError, StopIteration, ValueError):
-        pass
+    import psutil
     import torch
+
+    mem = f", {psutil.virtual_memory().total / 2**30:.0f} GiB RAM"
 
     gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "no GPU"
     return (
@@ -133,9 +130,8 @@ def table1_long(csv_path: Path, metrics: tuple[str, ...] = ("SR", "SPL", "CR", "
     # Scenes, then methods, in the order the table file lists them (training scene first, ours early).
     order = {k: i for i, k in enumerate(dict.fromkeys(df["scene"]))}
     m_order = {k: i for i, k in enumerate(dict.fromkeys(df["method"]))}
-    keys = sorted(df.groupby(["scene", "method"], sort=False).groups, key=lambda k: (order[k[0]], m_order[k[1]]))
     groups = df.groupby(["scene", "method"], sort=False)
-    for scene, method in keys:
+    for scene, method in sorted(groups.groups, key=lambda k: (order[k[0]], m_order[k[1]])):
         g = groups.get_group((scene, method))
         row: dict[str, Any] = {"scene": scene, "method": method}
         for m in metrics:
@@ -178,8 +174,11 @@ def summary_text(cfg: Config) -> str:
     else:
         out += ["No notebook has run through `python -m omcrl notebooks` yet.", ""]
 
-    out += _section_data(tables) + _section_pretrain(tables) + _section_oracle(tables) + _section_student(tables)
-    out += _section_table1(tables) + _section_deploy(tables)
+    for heading, source, what, notebook, body in SECTIONS:
+        path = tables / source
+        d = (_read_json(path) if path.suffix == ".json" else {}) if path.exists() else None
+        out += [heading, ""]
+        out += body(d, tables) if d is not None else [f"_{what}: not run yet (notebook {notebook})._", ""]
 
     out += ["## Figures", ""]
     figs = sorted(figures.glob("*.png")) if figures.is_dir() else []
@@ -194,29 +193,17 @@ def _duration(s: float) -> str:
     return format_duration(float(s))
 
 
-def _missing(what: str, notebook: str) -> list[str]:
-    return [f"_{what}: not run yet (notebook {notebook})._", ""]
-
-
-def _section_data(tables: Path) -> list[str]:
-    d = _read_json(tables / "data_summary.json")
-    out = ["## Data (notebook 01)", ""]
-    if d is None:
-        return out + _missing("data", "01_collect_data")
+# Each section renders what one stage left in tables/: (d = its JSON, or {} for a CSV source; tables folder).
+def _section_data(d: dict, tables: Path) -> list[str]:
     sr = d.get("pilot_success_rate")
     return [
-        *out,
         f"{d['episodes']} episodes, {d['steps']:,} steps in `{d['file']}` ({d.get('file_mb', 0):.1f} MB); "
         f"scripted pilot success rate {_fmt(None if sr is None else 100 * sr)} %.",
         "",
     ]
 
 
-def _section_pretrain(tables: Path) -> list[str]:
-    d = _read_json(tables / "pretrain_summary.json")
-    out = ["## Pretraining (notebook 02)", ""]
-    if d is None:
-        return out + _missing("pretraining", "02_pretrain_encoder")
+def _section_pretrain(d: dict, tables: Path) -> list[str]:
     probe = d.get("probe_r2", {})
     rows = []
     for name, r in d.items():
@@ -234,17 +221,12 @@ def _section_pretrain(tables: Path) -> list[str]:
         )
     if "random" in probe:
         rows.append({"encoder": "random (floor)", "probe R² (mean)": probe["random"].get("mean_r2")})
-    return [*out, _md_table(rows), ""]
+    return [_md_table(rows), ""]
 
 
-def _section_oracle(tables: Path) -> list[str]:
-    d = _read_json(tables / "oracle_summary.json")
-    out = ["## Oracle (notebook 03)", ""]
-    if d is None:
-        return out + _missing("oracle", "03_train_oracle")
+def _section_oracle(d: dict, tables: Path) -> list[str]:
     ev = d.get("eval_box", {})
     return [
-        *out,
         f"{_fmt(d.get('steps'))} env steps at {_fmt(d.get('steps_per_s'))} steps/s; training SR (last updates) "
         f"{_fmt(100 * d['final_success_rate'] if d.get('final_success_rate') is not None else None)} %; "
         f"evaluation in box: SR {_fmt(ev.get('SR'))} %, SPL {_fmt(ev.get('SPL'))}, CR {_fmt(ev.get('CR'))} % "
@@ -253,11 +235,7 @@ def _section_oracle(tables: Path) -> list[str]:
     ]
 
 
-def _section_student(tables: Path) -> list[str]:
-    d = _read_json(tables / "student_summary.json")
-    out = ["## Student: ours and ours-noOT (notebook 04)", ""]
-    if d is None:
-        return out + _missing("student", "04_train_student")
+def _section_student(d: dict, tables: Path) -> list[str]:
     rows = []
     for label, key in (("ours", "guided"), ("ours-noOT", "unguided")):
         r = d.get(key, {})
@@ -270,16 +248,12 @@ def _section_student(tables: Path) -> list[str]:
                 "box SR % (eval)": d.get("box_SR", {}).get(label),
             }
         )
-    return [*out, _md_table(rows), ""]
+    return [_md_table(rows), ""]
 
 
-def _section_table1(tables: Path) -> list[str]:
-    out = ["## Table I (notebook 07)", ""]
-    csv_path = tables / "table1.csv"
-    if not csv_path.exists():
-        return out + _missing("Table I", "07_tables")
-    long = table1_long(csv_path)
-    out += [
+def _section_table1(d: dict, tables: Path) -> list[str]:
+    long = table1_long(tables / "table1.csv")
+    out = [
         "Mean [95% CI] over training seeds and evaluation episodes (two-stage bootstrap). Every method trained in "
         "box only; furniture, barrier and tree are zero-shot. Full table: [tables/table1.md](tables/table1.md); "
         "beside the paper's: [tables/table1_vs_paper.md](tables/table1_vs_paper.md).",
@@ -310,16 +284,11 @@ def _section_table1(tables: Path) -> list[str]:
     return out
 
 
-def _section_deploy(tables: Path) -> list[str]:
-    d = _read_json(tables / "deploy_summary.json")
-    out = ["## Deployment (notebook 09)", ""]
-    if d is None:
-        return out + _missing("deployment", "09_deploy_tello")
+def _section_deploy(d: dict, tables: Path) -> list[str]:
     lat = d.get("latency", {})
     par = d.get("parity", {})
     fl = d.get("sim_flight", {})
     return [
-        *out,
         f"`{d.get('method')}` exported to ONNX: parity max |Δ| {_fmt(par.get('max_abs_diff'))} over "
         f"{par.get('observations')} observations; latency median / p99 (ms): "
         + ", ".join(f"{k} {_fmt(v.get('median_ms'))} / {_fmt(v.get('p99_ms'))}" for k, v in lat.items())
@@ -327,6 +296,23 @@ def _section_deploy(tables: Path) -> list[str]:
         f"{_fmt(fl.get('final_distance'))} m from the goal.",
         "",
     ]
+
+
+# (heading, file in tables/ whose presence means the stage ran, what, notebook, renderer)
+SECTIONS = (
+    ("## Data (notebook 01)", "data_summary.json", "data", "01_collect_data", _section_data),
+    ("## Pretraining (notebook 02)", "pretrain_summary.json", "pretraining", "02_pretrain_encoder", _section_pretrain),
+    ("## Oracle (notebook 03)", "oracle_summary.json", "oracle", "03_train_oracle", _section_oracle),
+    (
+        "## Student: ours and ours-noOT (notebook 04)",
+        "student_summary.json",
+        "student",
+        "04_train_student",
+        _section_student,
+    ),
+    ("## Table I (notebook 07)", "table1.csv", "Table I", "07_tables", _section_table1),
+    ("## Deployment (notebook 09)", "deploy_summary.json", "deployment", "09_deploy_tello", _section_deploy),
+)
 
 
 def write_summary(cfg: Config) -> Path:

@@ -188,6 +188,7 @@ class NavEnv(gym.Env):
         self.cfg = cfg
         self.scene = cfg.scene
         self.disturbance = Disturbance.from_any(disturbance)
+        self._look_rng = np.random.default_rng([self.disturbance.seed if self.disturbance else 0, 7])
         try:
             self.layout = layout_to_primitives(layout) if layout is not None else None
         except ValueError as e:
@@ -253,13 +254,9 @@ class NavEnv(gym.Env):
         cid = self._client
         dist = self.disturbance
         randomize = dist is not None and dist.randomize_look
-        if randomize:
-            # One generator for the env's life: every layout draws a new look, reproducibly from dist.seed.
-            if getattr(self, "_look_rng", None) is None:
-                self._look_rng = np.random.default_rng([dist.seed, 7])
-            rng = self._look_rng
-        else:
-            rng = np.random.default_rng(dist.seed if dist else 0)
+        # With randomized looks one generator lives as long as the env, so every layout draws a new look
+        # (reproducibly from dist.seed); otherwise every layout gets the same draws.
+        rng = self._look_rng if randomize else np.random.default_rng(dist.seed if dist else 0)
         looks = [self._look(p, rng) for p in prims]
         pooled = sum(len(v) for v in self._pool.values())
         if not self._decor_built or pooled > len(prims) + POOL_SLACK:

@@ -17,7 +17,7 @@ encoders and scenes and :func:`omcrl.viz.shift.plot_feature_shift` draws it.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -213,15 +213,3 @@ def _sqdist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     aa = (a * a).sum(1)[:, None]
     bb = (b * b).sum(1)[None, :]
     return np.maximum(aa + bb - 2.0 * a @ b.T, 0.0)
-
-
-__all__: Sequence[str] = [
-    "encode",
-    "feature_shift",
-    "frechet_distance",
-    "mmd_rbf",
-    "pilot_frames",
-    "saturated_share",
-    "shift_table",
-    "with_fixed_features",
-]
