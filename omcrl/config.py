@@ -204,7 +204,15 @@ class RLConfig:
         doc="oracle PPO guided early by HybridAPF through the KL term ('none': pure PPO)",
     )
     checkpoint_every: int = _f(20480, lo=1, hi=10**10, doc="env steps between checkpoints")
-    num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads in the learner")
+    num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads while the envs step (rollouts)")
+    update_threads: int = _f(
+        0,
+        lo=0,
+        hi=256,
+        doc="torch intra-op threads during PPO updates, when the env workers sleep; 0: one per core. An "
+        "execution setting like the machine: not part of a run's identity (results are bit-identical for a "
+        "fixed count, and differ in rounding between counts)",
+    )
 
 
 @dataclass
@@ -215,6 +223,12 @@ class EvalConfig:
     scenes: list = _f(["box", "furniture", "barrier", "tree"], doc="scenes to evaluate")
     seed_offset: int = _f(1_000_000, lo=0, hi=10**9, doc="evaluation seeds start here, disjoint from training")
     success_threshold_os: float = _f(0.5, lo=0.0, hi=10.0, doc="OS radius (m)")
+    workers: int = _f(
+        0,
+        lo=0,
+        hi=256,
+        doc="processes running evaluation episodes in parallel; 0: one per core (results do not depend on it)",
+    )
 
 
 @dataclass

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 import torch
 
-from omcrl.eval import eval_seeds, evaluate, format_table, summarize, summary_table
+from omcrl.eval import EvalPool, eval_seeds, evaluate, format_table, summarize, summary_table
 
 torch.set_num_threads(1)
 
@@ -131,3 +131,42 @@ def test_evaluate_rows_seeds_and_trajectories():
     assert s["SR"] == 100.0 and s["SPL"] == pytest.approx(1.0) and s["TTS"] == 6.0
     stuck = summarize(evaluate(GoRight(0.0), "box", episodes=2, make_env=LineEnv))
     assert stuck["SR"] == 0.0 and math.isnan(stuck["TTS"]) and stuck["NE"] == pytest.approx(3.0)
+
+
+def _smoke_student(tmp_path):
+    from omcrl.config import load_config
+    from omcrl.envs import make_env
+    from omcrl.models import random_encoder, save_encoder
+    from omcrl.models.actor_critic import ActorCritic
+    from omcrl.rl.policy import Policy, make_student_features
+
+    cfg = load_config("smoke")
+    enc = random_encoder(cfg, seed=0)
+    path = save_encoder(tmp_path / "encoder.pt", enc.f, enc.phi, cfg)
+    env = make_env("box", seed=0, config=cfg.env)
+    space = env.observation_space
+    env.close()
+    torch.manual_seed(0)
+    return cfg, Policy(ActorCritic(make_student_features(path, space), 3, 32), name="student")
+
+
+def test_parallel_evaluation_gives_the_same_rows_as_in_process(tmp_path):
+    from omcrl.eval import EvalPool
+    from omcrl.eval.stage import planner_for
+
+    cfg, student = _smoke_student(tmp_path)
+    with EvalPool(2) as pool:
+        for policy in (student, planner_for("hybrid-apf-perceptive"), planner_for("hybrid-apf")):
+            kw = {"seed": 1, "seed_offset": 5_000, "config": cfg.env}
+            one = evaluate(policy, "furniture", 5, **kw)
+            two = evaluate(policy, "furniture", 5, workers=pool, **kw)
+            assert list(two.episode) == list(range(5))
+            pd.testing.assert_frame_equal(one, two)
+            assert one.steps.sum() > 5  # real episodes, not an empty frame on both sides
+
+
+def test_parallel_evaluation_refuses_what_cannot_reach_a_worker():
+    with EvalPool(2) as pool, pytest.raises(TypeError, match="picklable.*workers=1"):
+        evaluate(GoRight(1.0), "box", 3, workers=pool, make_env=lambda scene, seed: LineEnv(scene, seed))
+    with pytest.raises(RuntimeError, match="not open"):
+        EvalPool(2).run((None,), [0], "x", False)

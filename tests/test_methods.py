@@ -104,7 +104,8 @@ def test_registry_separates_configs_that_change_the_artifact(grid):
     for changed in ("rl.total_steps=512", "env.max_steps=61", "rl.oracle_guide=none", "rl.lr=0.001"):
         assert oracle_run(_cfg(grid["root"], changed)).dir != base.dir, changed
     # Fields that do not change what is trained: the same folder.
-    for same in ("rl.checkpoint_every=128", "eval.episodes=7", "pretrain.iterations=99", "seeds=[0,1]"):
+    same_artifact = ("rl.checkpoint_every=128", "rl.update_threads=1", "eval.episodes=7", "eval.workers=1")
+    for same in (*same_artifact, "pretrain.iterations=99", "seeds=[0,1]"):
         assert oracle_run(_cfg(grid["root"], same)).dir == base.dir, same
     # Another seed: same parent (method and key), its own seed folder.
     other = oracle_run(cfg.with_seed(3))

@@ -36,6 +36,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space, create_shared_memory, read_from_shared_memory
 
 from omcrl.envs.nav_env import make_env
+from omcrl.utils.runtime import cpu_count
 
 # How long a waiting process spins on its semaphore before blocking. A blocked process lets its vCPU halt, and
 # waking it again is most of what a hand-over costs in a microVM; the spin covers the usual turnaround (one env
@@ -48,13 +49,6 @@ PAYLOAD_BYTES = 1 << 20
 
 _STEP, _RESET, _CLOSE = 1, 2, 3
 _OK, _ERROR = 0, 1
-
-
-def _cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return os.cpu_count() or 1
 
 
 def _take(sem: Any, spin: float, alive: Callable[[], bool], lost: str) -> None:
@@ -210,7 +204,7 @@ class SplitVectorEnv(gym.vector.VectorEnv):
         if len(env_fns) < 2:
             raise ValueError(f"SplitVectorEnv needs at least 2 envs, got {len(env_fns)}")
         self.num_envs = n = len(env_fns)
-        self.spin = (SPIN_SECONDS if n <= _cpus() else 0.0) if spin is None else float(spin)
+        self.spin = (SPIN_SECONDS if n <= cpu_count() else 0.0) if spin is None else float(spin)
         self.local = env_fns[0]()
         self.single_observation_space = self.local.observation_space
         self.single_action_space = self.local.action_space

@@ -13,7 +13,7 @@ from omcrl.eval.metrics import (
     summarize,
     summary_table,
 )
-from omcrl.eval.runner import eval_seeds, evaluate, start_episode
+from omcrl.eval.runner import EvalPool, eval_seeds, evaluate, start_episode
 from omcrl.eval.stage import EvalResult, evaluate_methods, find_policies, run, to_markdown, write_tables
 from omcrl.eval.stats import aggregate, compare_sr, mean_ci
 from omcrl.eval.table1 import Table1Result, evaluate_grid, paper_table1, write_table1
@@ -21,6 +21,7 @@ from omcrl.eval.table1 import Table1Result, evaluate_grid, paper_table1, write_t
 __all__ = [
     "GLOSSARY",
     "METRICS",
+    "EvalPool",
     "EvalResult",
     "Table1Result",
     "aggregate",

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Mapping, Sequence
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ import pandas as pd
 
 from omcrl.config import Config, config_hash
 from omcrl.eval.metrics import format_table, summary_table
-from omcrl.eval.runner import evaluate
+from omcrl.eval.runner import EvalPool, evaluate
 from omcrl.utils.io import atomic_write_text, file_digest
 
 HYBRID_APF = "HybridAPF"
@@ -127,6 +128,7 @@ def evaluate_methods(
     *,
     cache: bool = True,
     progress: bool = False,
+    pool: EvalPool | None = None,
 ) -> pd.DataFrame:
     """Evaluate each method in each scene on the same evaluation seeds; one row per episode.
 
@@ -139,6 +141,8 @@ def evaluate_methods(
     scenes, episodes : default ``cfg.eval.scenes`` and ``cfg.eval.episodes``.
     cache : read/write ``<run_root>/eval/<label>/seed<k>/<scene>.csv`` keyed by checkpoint content, env config
         and episode seeds.
+    pool : an open :class:`~omcrl.eval.runner.EvalPool` to run episodes in; default: one of
+        ``cfg.eval.workers`` processes for this call (in this process when 1). Results do not depend on it.
 
     Every method, and every training seed ``cfg.seed``, is evaluated on the same episodes: episode ``i`` resets
     with seed ``cfg.eval.seed_offset + i`` (paired comparisons across methods and seeds).
@@ -153,27 +157,31 @@ def evaluate_methods(
     env_key = asdict(cfg.env)
     env_key.pop("scene")
     frames = []
-    for label, source in methods.items():
-        policy, pkey = _load(label, source)
-        for scene in scenes:
-            ident = {"policy": pkey, "env": env_key, "scene": scene, "episodes": episodes}
-            key = config_hash({**ident, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
-            path = cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}" / f"{scene}.csv"
-            df = _read_cache(path, key) if cache else None
-            if df is None:
-                df = evaluate(
-                    policy,
-                    scene,
-                    episodes,
-                    0,
-                    seed_offset=cfg.eval.seed_offset,
-                    method=label,
-                    progress=progress,
-                    config=cfg.env,
-                )
-                if cache and key:
-                    _write_cache(path, key, df)
-            frames.append(df.assign(method=label, scene=scene, train_seed=cfg.seed))
+    with ExitStack() as stack:
+        if pool is None and cfg.eval.workers != 1:  # workers start on the first uncached evaluation
+            pool = stack.enter_context(EvalPool(cfg.eval.workers))
+        for label, source in methods.items():
+            policy, pkey = _load(label, source)
+            for scene in scenes:
+                ident = {"policy": pkey, "env": env_key, "scene": scene, "episodes": episodes}
+                key = config_hash({**ident, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
+                path = cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}" / f"{scene}.csv"
+                df = _read_cache(path, key) if cache else None
+                if df is None:
+                    df = evaluate(
+                        policy,
+                        scene,
+                        episodes,
+                        0,
+                        seed_offset=cfg.eval.seed_offset,
+                        method=label,
+                        progress=progress,
+                        workers=pool or 1,
+                        config=cfg.env,
+                    )
+                    if cache and key:
+                        _write_cache(path, key, df)
+                frames.append(df.assign(method=label, scene=scene, train_seed=cfg.seed))
     return pd.concat(frames, ignore_index=True)
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +27,7 @@ import pandas as pd
 
 from omcrl.config import Config
 from omcrl.eval.metrics import METRICS
+from omcrl.eval.runner import EvalPool
 from omcrl.eval.stage import evaluate_methods
 from omcrl.eval.stats import aggregate, compare_sr
 from omcrl.utils.io import atomic_write_text
@@ -98,8 +100,10 @@ def evaluate_grid(
     seeds = list(seeds if seeds is not None else cfg.seeds)
     sources, missing = method_sources(cfg, methods, seeds)
     frames = []
-    for (m, s), src in track(list(sources.items()), desc="evaluate", unit="run", enabled=progress):
-        frames.append(evaluate_methods(cfg.with_seed(s), {m: src}, scenes, episodes))
+    # One set of workers for the whole grid, started when the first uncached evaluation needs them.
+    with EvalPool(cfg.eval.workers) if cfg.eval.workers != 1 else nullcontext() as pool:
+        for (m, s), src in track(list(sources.items()), desc="evaluate", unit="run", enabled=progress):
+            frames.append(evaluate_methods(cfg.with_seed(s), {m: src}, scenes, episodes, pool=pool))
     df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     return df, missing
 

@@ -50,7 +50,7 @@ from omcrl.rl.rollout import Runner
 from omcrl.runs import MetricsLog, Run, RunConfigMismatch, make_run, rng_state, set_rng_state
 from omcrl.utils.io import atomic_save_torch, file_digest, load_torch
 from omcrl.utils.progress import Progress
-from omcrl.utils.runtime import seed_everything, set_threads
+from omcrl.utils.runtime import cpu_count, seed_everything, set_threads
 
 __all__ = [
     "METRIC_NAMES",
@@ -82,10 +82,13 @@ METRIC_NAMES = (
     "clip_frac",
     "approx_kl_old",
     "steps_per_s",
+    "rollout_s",
+    "update_s",
 )
 
 # RL fields that do not change the trained artifact (they may differ between a run and its resume).
-_NOT_IDENTITY = ("checkpoint_every",)
+# ``update_threads`` changes the rounding of the update, not the algorithm, like running on another machine.
+_NOT_IDENTITY = ("checkpoint_every", "update_threads")
 _GUIDE_FIELDS = ("alpha_schedule", "alpha_start", "alpha_decay_steps", "alpha_exp_factor", "alpha_exp_every", "beta")
 
 
@@ -177,7 +180,8 @@ def train(
     meta : plain values stored in the policy file's ``meta``.
     """
     rl = cfg.rl
-    set_threads(rl.num_threads)
+    rollout_threads = set_threads(rl.num_threads)
+    update_threads = rl.update_threads or cpu_count()
     run_dir = run.dir
     ckpt_path, final_path = run_dir / "checkpoint.pt", run_dir / "final.pt"
     if not overwrite:
@@ -234,17 +238,30 @@ def train(
             n_done = len(runner.episodes)
             agent.eval()
             rollout = runner.collect(length, rl.horizon, use_guide=alpha > 0.0)
+            t_rollout = time.perf_counter() - t0
+            # The env workers sleep during the update, so the learner may use their cores (the rollout's
+            # batch-of-n_envs forwards do not gain from threads and would contend with the renderers).
+            set_threads(update_threads)
             try:
                 stats = algo.update(rollout, alpha=alpha, step=step)
             except NonFiniteLossError as e:
                 where = f"last good checkpoint: {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written"
                 raise NonFiniteLossError(f"{run.method} seed {cfg.seed}: {e}; {where}") from None
+            finally:
+                set_threads(rollout_threads)
             step += per_update
             update += 1
             dt = time.perf_counter() - t0
             eps = runner.episodes[n_done:]
             recent.extend(eps)
-            row = {**stats, "alpha": alpha, "lr": lr, "steps_per_s": per_update / max(dt, 1e-9)}
+            row = {
+                **stats,
+                "alpha": alpha,
+                "lr": lr,
+                "steps_per_s": per_update / max(dt, 1e-9),
+                "rollout_s": t_rollout,
+                "update_s": dt - t_rollout,
+            }
             if eps:
                 row["episodic_return"] = float(np.mean([e["return"] for e in eps]))
                 row["episode_length"] = float(np.mean([e["length"] for e in eps]))

@@ -8,6 +8,14 @@ import random
 import numpy as np
 
 
+def cpu_count() -> int:
+    """Cores this process may run on (its CPU affinity; ``os.cpu_count()`` where affinity is unknown)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return os.cpu_count() or 1
+
+
 def set_threads(n: int | None = None) -> int:
     """Limit torch/BLAS intra-op threads to ``n`` (default: ``OMP_NUM_THREADS`` or 2 on this 2-core target).
 
