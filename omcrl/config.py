@@ -113,6 +113,11 @@ class EnvConfig:
     collision_penalty: float = _f(-1.0, doc="terminal reward on collision or leaving the arena")
     step_penalty_horizon: int = _f(0, lo=0, hi=1000000, doc="H_max in -1/H_max per step; 0 means max_steps")
     grid_resolution: float = _f(0.1, lo=0.01, hi=1.0, doc="occupancy grid cell (m) for planners and SPL")
+    renderer: str = _f(
+        "auto",
+        choices=("auto", "tiny", "egl"),
+        doc="camera renderer: TinyRenderer (CPU), PyBullet's EGL plugin (GPU), or auto (EGL with a CUDA GPU)",
+    )
 
 
 @dataclass

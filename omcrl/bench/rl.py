@@ -1,22 +1,22 @@
-"""``python -m omcrl.bench rl``: how much PPO training costs on top of stepping the envs.
+"""``python -m omcrl.bench rl``: what each PPO trainer costs on top of stepping its envs.
 
-At the quick preset's shape (64 px, ``rl.n_envs`` envs, encoder of the quick ``feature_dim`` / crop; a random-
-init encoder artifact, so no pretraining is needed) it measures, in env steps per second over all envs:
+At the quick preset's shape (64 px, ``rl.n_envs`` envs; random-init encoders and an untrained oracle of the right
+shapes: costs do not depend on weights, so no pretraining is needed) it measures, in env steps per second over
+all envs:
 
-* ``(a) vec env``       bare ``AsyncVectorEnv`` steps with random actions (resets included);
-* ``(b) env+encoder``   the same plus one batched frozen-encoder forward per vector step (the student's
-  feature computation, :meth:`StudentFeatures.preprocess`);
-* ``(c) student``       ``train_student`` for ``--steps`` env steps with oracle guidance (an untrained oracle of
-  the right shape: the guide's cost does not depend on its weights), rollout + PPO updates;
-* ``(c0) student α≡0``  the same without guidance (``rl.alpha_schedule=none``);
-* ``(d) oracle``        ``train_oracle`` for ``--steps`` env steps;
-* ``(c) before``        with ``--baseline``: (c) with the guide evaluated every vector step (the loop before
-  the guide was batched; ``omcrl.rl.rollout.GUIDE_CHUNK = 1``).
+* ``(a) vec env``        bare vector-env steps with random actions (resets included);
+* ``(b) env+<kind>``     the same plus the rollout's forward pass per vector step for each feature kind: the
+  frozen encoder (``student``), the trainable pixel encoder and heads (``pixel``: ppo, npe), the depth encoder
+  and heads (``oracle``). This is each trainer's *limit*: stepping its envs and choosing its actions;
+* the trainers for ``--steps`` env steps each: ``(c) student`` (oracle-guided), ``(c0) student α≡0``,
+  ``(d) oracle`` (APF-guided), ``(e) ppo``, ``(f) npe`` (APF-guided), and with ``--threads`` ``(e1) ppo, 1
+  thread`` (updates on one core, as before ``rl.update_threads``); with ``--baseline`` ``(c) before``
+  (the guide evaluated every vector step instead of in chunks).
 
-Training throughput is taken from the run's own clock (Σ update steps / steps_per_s: rollouts and updates,
-without process start-up): ``steps_per_s`` over all updates, ``steady_sps`` without the first update (first
-calls of every kernel, page-in); ``wall_s`` adds start-up (worker processes, model build). The target is
-(c) / (b) >= 0.7: PPO updates and bookkeeping may add at most 30 % to the unavoidable env + encoder cost.
+For every trainer row: ``vs_limit`` = its rate / its (b) row; ``rollout_vs_limit`` = the rate of its
+rollouts alone (Σ steps / Σ ``rollout_s``) / (b); ``update_share`` = Σ ``update_s`` / Σ (rollout_s +
+update_s), the part of the run spent in PPO updates (GAE, epochs of minibatch SGD). Rates are over all updates
+but the first (first calls of every kernel, page-in): ``steady_sps``; ``wall_s`` adds process start-up.
 All numbers depend on what else runs on the machine: compare rows of one invocation, not across runs.
 """
 
@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -35,21 +36,26 @@ from omcrl.bench import parser, write_results
 from omcrl.config import Config, load_config
 
 
-def _vec_env_rate(cfg: Config, vec_steps: int, encoder_path: Path | None) -> float:
-    """Env steps/s of random-action vector steps, optionally with the student's encoder forward per step."""
+def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | None) -> float:
+    """Env steps/s of random-action vector steps, optionally with an agent's rollout forward per step.
+
+    ``build``: ``single_observation_space -> FeatureExtractor``; the agent built on it runs
+    ``agent.step(features.preprocess(obs))`` every vector step, exactly as the rollout does.
+    """
     from omcrl.envs import make_vec_env
-    from omcrl.rl.policy import make_student_features
+    from omcrl.models.actor_critic import ActorCritic
 
     env = make_vec_env(cfg.env.scene, cfg.rl.n_envs, seed=0, config=cfg.env)
     try:
-        feats = make_student_features(encoder_path, env.single_observation_space) if encoder_path else None
+        agent = ActorCritic(build(env.single_observation_space), 3, cfg.rl.hidden).eval() if build else None
         rng = np.random.default_rng(0)
         obs, _ = env.reset(seed=0)
         for i in range(vec_steps + 10):  # the first 10 steps warm up (page-in, allocator)
             if i == 10:
                 t0 = time.perf_counter()
-            if feats is not None:
-                feats.preprocess(obs)
+            if agent is not None:
+                with torch.no_grad():
+                    agent.step(agent.features.preprocess(obs))
             obs, *_ = env.step(rng.uniform(-1, 1, (cfg.rl.n_envs, 3)).astype(np.float32))
         return vec_steps * cfg.rl.n_envs / (time.perf_counter() - t0)
     finally:
@@ -70,7 +76,7 @@ def _untrained_oracle(cfg: Config, path: Path) -> Path:
     return path
 
 
-def _train_rate(label: str, fn: callable) -> dict:
+def _train_rate(label: str, limit: str, fn: Callable[[], Any]) -> dict:
     from omcrl.viz.rl import run_summary
 
     t0 = time.perf_counter()
@@ -82,55 +88,91 @@ def _train_rate(label: str, fn: callable) -> dict:
     later = sps.iloc[1:] if len(sps) > 1 else sps
     steps = np.diff(np.concatenate([[0], sps.step.to_numpy()]))[len(sps) - len(later) :]
     steady = float(steps.sum() / (steps / later.value.to_numpy()).sum())
+    roll = m[m.metric == "rollout_s"].sort_values("step").value.to_numpy()[len(sps) - len(later) :]
+    upd = m[m.metric == "update_s"].sort_values("step").value.to_numpy()[len(sps) - len(later) :]
     return {
         "case": label,
+        "limit": limit,
         "env_steps": int(res.steps),
         "steps_per_s": s["steps_per_s"],
         "steady_sps": steady,
+        "rollout_sps": float(steps.sum() / roll.sum()),
+        "update_share": float(upd.sum() / (upd.sum() + roll.sum())),
         "wall_s": wall,
     }
 
 
-def measure(cfg: Config, steps: int, vec_steps: int, root: Path, baseline: bool = False) -> list[dict]:
+def measure(
+    cfg: Config, steps: int, vec_steps: int, root: Path, baseline: bool = False, threads: bool = False
+) -> list[dict]:
     import importlib
 
     from omcrl.models import random_encoder, save_encoder
-    from omcrl.rl import train_oracle, train_student
+    from omcrl.rl import train_oracle, train_pixel, train_student
+    from omcrl.rl.methods import _apf_factory
+    from omcrl.rl.policy import make_oracle_features, make_pixel_features, make_student_features
 
     rollout = importlib.import_module("omcrl.rl.rollout")  # where the runner reads GUIDE_CHUNK
 
     enc = random_encoder(cfg, seed=0)
     enc_path = save_encoder(root / "encoder.pt", enc.f, enc.phi, cfg)
     oracle_path = _untrained_oracle(cfg, root / "oracle.pt")
-    rows = [
-        {"case": "(a) vec env", "steps_per_s": _vec_env_rate(cfg, vec_steps, None)},
-        {"case": "(b) env+encoder", "steps_per_s": _vec_env_rate(cfg, vec_steps, enc_path)},
-    ]
-    run = load_config(cfg.preset, overrides=[f"results_dir={root}", f"rl.total_steps={steps}"])
-    unguided = load_config(
-        run.preset, overrides=[f"results_dir={root}", f"rl.total_steps={steps}", "rl.alpha_schedule=none"]
-    )
-    rows.append(_train_rate("(c) student", lambda: train_student(run, enc_path, oracle_path, progress=False)))
+    p = cfg.pretrain
+    limits = {
+        "student": lambda s: make_student_features(enc_path, s),
+        "pixel": lambda s: make_pixel_features(s, p.crop_to, p.feature_dim),
+        "oracle": lambda s: make_oracle_features(s, p.feature_dim, cfg.env.far),
+    }
+    rows = [{"case": "(a) vec env", "steps_per_s": _vec_env_rate(cfg, vec_steps, None)}]
+    rows += [{"case": f"(b) env+{k}", "steps_per_s": _vec_env_rate(cfg, vec_steps, b)} for k, b in limits.items()]
+
+    def config(*extra: str) -> Config:
+        return load_config(cfg.preset, overrides=[f"results_dir={root}", f"rl.total_steps={steps}", *extra])
+
+    run, apf = config(), _apf_factory(cfg)
     rows.append(
-        _train_rate("(c0) student α≡0", lambda: train_student(unguided, enc_path, None, name="noOT", progress=False))
+        _train_rate("(c) student", "student", lambda: train_student(run, enc_path, oracle_path, progress=False))
     )
-    rows.append(_train_rate("(d) oracle", lambda: train_oracle(run, progress=False)))
+    rows.append(
+        _train_rate(
+            "(c0) student α≡0",
+            "student",
+            lambda: train_student(config("rl.alpha_schedule=none"), enc_path, None, name="noOT", progress=False),
+        )
+    )
+    rows.append(_train_rate("(d) oracle", "oracle", lambda: train_oracle(run, progress=False)))
+    rows.append(_train_rate("(e) ppo", "pixel", lambda: train_pixel(run, None, name="ppo", progress=False)))
+    rows.append(
+        _train_rate("(f) npe", "pixel", lambda: train_pixel(run, None, name="npe", planner_factory=apf, progress=False))
+    )
+    if threads:
+        one = config("rl.update_threads=1")
+        rows.append(
+            _train_rate(
+                "(e1) ppo, 1 update thread", "pixel", lambda: train_pixel(one, None, name="ppo1", progress=False)
+            )
+        )
     if baseline:
         chunk = rollout.GUIDE_CHUNK
         rollout.GUIDE_CHUNK = 1
         try:
             rows.append(
                 _train_rate(
-                    "(c) before", lambda: train_student(run, enc_path, oracle_path, name="before", progress=False)
+                    "(c) before",
+                    "student",
+                    lambda: train_student(run, enc_path, oracle_path, name="before", progress=False),
                 )
             )
         finally:
             rollout.GUIDE_CHUNK = chunk
-    base = rows[1]["steps_per_s"]
+    limit_sps = {r["case"].split("+")[1]: r["steps_per_s"] for r in rows if r["case"].startswith("(b)")}
+    base = rows[0]["steps_per_s"]
     for r in rows:
-        r["vs_(b)"] = r["steps_per_s"] / base
-        if "steady_sps" in r:
-            r["steady_vs_(b)"] = r["steady_sps"] / base
+        r["vs_(a)"] = r["steps_per_s"] / base
+        if "limit" in r:
+            lim = limit_sps[r.pop("limit")]
+            r["vs_limit"] = r["steady_sps"] / lim
+            r["rollout_vs_limit"] = r.pop("rollout_sps") / lim
     return rows
 
 
@@ -140,6 +182,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=4096, help="env steps per training run (default: 4096)")
     ap.add_argument("--vec-steps", type=int, default=400, help="vector steps for (a) and (b) (default: 400)")
     ap.add_argument("--baseline", action="store_true", help="also time (c) with the per-step guide (before)")
+    ap.add_argument("--threads", action="store_true", help="also time (e) with one update thread (before)")
     ap.add_argument("--keep", default=None, help="keep the run folders here instead of a temporary folder")
     args = ap.parse_args(argv)
     cfg = load_config(args.preset)
@@ -148,11 +191,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.keep:
         root = Path(args.keep)
         root.mkdir(parents=True, exist_ok=True)
-        rows = measure(cfg, steps, vec_steps, root, args.baseline)
+        rows = measure(cfg, steps, vec_steps, root, args.baseline, args.threads)
     else:
         with tempfile.TemporaryDirectory(prefix="omcrl-bench-rl-") as tmp:
-            rows = measure(cfg, steps, vec_steps, Path(tmp), args.baseline)
-    ratio = next(r["vs_(b)"] for r in rows if r["case"] == "(c) student")
+            rows = measure(cfg, steps, vec_steps, Path(tmp), args.baseline, args.threads)
+    ratios = {r["case"]: round(r["vs_limit"], 3) for r in rows if "vs_limit" in r}
     write_results(
         "rl",
         rows,
@@ -161,8 +204,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         image_size=cfg.env.image_size,
         n_envs=cfg.rl.n_envs,
         train_steps=steps,
-        student_over_env_encoder=ratio,
-        target=0.7,
+        vs_limit=ratios,
+        target=0.8,
     )
-    print(f"# (c)/(b) = {ratio:.2f} (target >= 0.7)")
+    print("# trainer / its limit (target >= 0.8): " + ", ".join(f"{k} {v:.2f}" for k, v in ratios.items()))
     return 0

@@ -47,6 +47,7 @@ import numpy as np
 
 from omcrl.config import Config, ConfigError
 from omcrl.data.dataset import SOURCES, DatasetError, DatasetWriter, EpisodeBuffer, open_dataset
+from omcrl.envs.render import resolve_renderer
 from omcrl.utils.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -315,7 +316,8 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
 
     bar = Progress(n_new, f"collect/{d.scene}", unit="ep", enabled=progress)
     try:
-        meta = dataclasses.asdict(env_cfg) | ({"look": d.look} if d.look != "own" else {})
+        meta = dataclasses.asdict(env_cfg) | {"renderer": resolve_renderer(env_cfg.renderer)}
+        meta |= {"look": d.look} if d.look != "own" else {}
         with DatasetWriter(path, cfg.env.image_size, cfg.env.frame_stack, meta) as w:
             obs, infos = vec.reset(seed=env_seed)
             # One per-env info dict per vector step, shared by start() and act(): the planner recognises the

@@ -36,6 +36,7 @@ from gymnasium import spaces
 
 from omcrl.config import ConfigError, EnvConfig, _check_value, show, validate_env
 from omcrl.envs.geometry import Geometry, Primitive
+from omcrl.envs.render import load_egl, pybullet_renderer, resolve_renderer
 from omcrl.envs.scenes import SCENES, decor, generate_scene, layout_to_primitives
 from omcrl.envs.textures import texture_file
 from omcrl.planners.grid import OccupancyGrid, build_grid, components, shortest_path
@@ -218,6 +219,10 @@ class NavEnv(gym.Env):
         sub_dt = self.dt / self._substeps
         self._k_resp = 1.0 - math.exp(-sub_dt / cfg.velocity_tau) if cfg.velocity_tau > 0 else 1.0
         self._client = pb.connect(pb.DIRECT)
+        self.renderer = resolve_renderer(cfg.renderer)  # "tiny" or "egl"
+        if self.renderer == "egl":
+            load_egl(self._client)
+        self._pb_renderer = pybullet_renderer(self.renderer)
         self._proj = pb.computeProjectionMatrixFOV(cfg.fov_deg, 1.0, cfg.near, cfg.far)
         self._built_key: Any = None
         self._decor_built = False
@@ -688,7 +693,7 @@ class NavEnv(gym.Env):
         return pb.computeViewMatrix(eye.tolist(), [eye[0] + cy, eye[1] + sy, eye[2]], [0.0, 0.0, 1.0])
 
     def _render_frame(self) -> tuple[np.ndarray, np.ndarray]:
-        """One TinyRenderer call: RGB (3, H, W) uint8 and linear depth (H, W) float32 in metres."""
+        """One camera render (``self.renderer``): RGB (3, H, W) uint8 and linear depth (H, W) float32 in metres."""
         c = self.cfg
         view = self.view_matrix()
         S = c.image_size
@@ -697,7 +702,7 @@ class NavEnv(gym.Env):
             S,
             view,
             self._proj,
-            renderer=pb.ER_TINY_RENDERER,
+            renderer=self._pb_renderer,
             shadow=0,
             flags=pb.ER_NO_SEGMENTATION_MASK,
             physicsClientId=self._client,

@@ -20,13 +20,14 @@ import json
 import time
 from collections.abc import Mapping, Sequence
 from contextlib import ExitStack
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
 from omcrl.config import Config, config_hash
+from omcrl.envs.render import env_identity
 from omcrl.eval.metrics import format_table, summary_table
 from omcrl.eval.runner import EvalPool, evaluate
 from omcrl.utils.io import atomic_write_text, file_digest
@@ -154,7 +155,7 @@ def evaluate_methods(
     """
     scenes = list(scenes if scenes is not None else cfg.eval.scenes)
     episodes = int(episodes if episodes is not None else cfg.eval.episodes)
-    env_key = asdict(cfg.env)
+    env_key = env_identity(cfg.env)
     env_key.pop("scene")
     frames = []
     with ExitStack() as stack:

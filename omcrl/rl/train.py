@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import Config, save_config
+from omcrl.envs.render import env_identity
 from omcrl.models.actor_critic import ActorCritic
 from omcrl.models.features import FeatureExtractor, IdentityFeatures
 from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_from_config
@@ -142,7 +143,7 @@ def rl_identity(cfg: Config, guide: str | None, **extra: Any) -> dict:
         rl["alpha_schedule"] = "none"
     elif guide != "planner":
         rl.pop("guide_std")
-    return {"rl": rl, "env": asdict(cfg.env), **extra}
+    return {"rl": rl, "env": env_identity(cfg.env), **extra}
 
 
 def rl_run(cfg: Config, method: str, identity: dict) -> Run:
