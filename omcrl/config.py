@@ -175,6 +175,11 @@ class PretrainConfig:
     )
     checkpoint_every: int = _f(200, lo=1, hi=100000000, doc="iterations between checkpoints")
     num_threads: int = _f(2, lo=1, hi=256, doc="torch intra-op threads")
+    device: str = _f(
+        "auto",
+        choices=("auto", "cpu", "cuda"),
+        doc="where the learner runs: CUDA when available (auto), or cpu / cuda; not part of a run's identity",
+    )
 
 
 @dataclass
@@ -210,6 +215,12 @@ class RLConfig:
     )
     checkpoint_every: int = _f(20480, lo=1, hi=10**10, doc="env steps between checkpoints")
     num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads while the envs step (rollouts)")
+    device: str = _f(
+        "auto",
+        choices=("auto", "cpu", "cuda"),
+        doc="where the networks run: CUDA when available (auto), or cpu / cuda. An execution setting: not part "
+        "of a run's identity (a run may resume on another device)",
+    )
     update_threads: int = _f(
         0,
         lo=0,

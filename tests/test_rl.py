@@ -373,3 +373,22 @@ def test_oracle_and_student_train_and_check_checkpoints(tmp_path):
         train_student(cfg, enc, other.final_path, name="z", make_env=toy_vec(), progress=False)
     assert not list((tmp_path / "smoke/runs/rl").glob("z-*"))
     assert math.isfinite(float(m[m.metric == "kl"].value.iloc[0]))
+
+
+def test_device_setting_resolves_and_refuses_a_missing_gpu_before_training(tmp_path):
+    from omcrl.config import ConfigError
+    from omcrl.utils.runtime import resolve_device, to_device
+
+    # This machine has no CUDA GPU: auto is the CPU, where moving a batch is the identity.
+    assert resolve_device("auto") == torch.device("cpu") == resolve_device("cpu")
+    batch = {"obs": {"x": torch.ones(2, 3)}, "guide_mean": None}
+    moved = to_device(batch, torch.device("cpu"))
+    assert moved["obs"]["x"] is batch["obs"]["x"] and moved["guide_mean"] is None
+    with pytest.raises(ConfigError, match="device"):
+        resolve_device("tpu")
+    if torch.cuda.is_available():
+        return
+    cfg = rl_cfg(tmp_path, device="cuda")
+    with pytest.raises(ConfigError, match="'cuda'.*no CUDA GPU"):
+        train_ppo(cfg, vec(), progress=False)
+    assert not (tmp_path / "smoke" / "runs").exists()  # refused before a run folder appeared

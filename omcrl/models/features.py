@@ -182,12 +182,19 @@ class StudentFeatures(FeatureExtractor):
         self.image_size, self.frame_stack = int(image_size), int(frame_stack)
         self.out_dim = self.enc_dim + 12
 
+    def _apply(self, fn: Any, *args: Any, **kwargs: Any) -> StudentFeatures:
+        # ``.to(device)`` on the policy must move the frozen encoder too, though it is not a submodule.
+        self.encoder._apply(fn, *args, **kwargs)
+        return super()._apply(fn, *args, **kwargs)
+
     @torch.no_grad()
     def preprocess(self, obs: Any) -> dict[str, torch.Tensor]:
-        rgb = torch.as_tensor(np.asarray(obs["rgb"]))
+        """The encoder runs on its own device (the policy's); ``x`` comes back on that device."""
+        device = next(self.encoder.parameters()).device
+        rgb = torch.as_tensor(np.asarray(obs["rgb"])).to(device)
         b = rgb.shape[0]
         z = self.encoder(rgb.reshape(b, -1, rgb.shape[-2], rgb.shape[-1])).float()
-        state = torch.as_tensor(np.asarray(obs["state"]), dtype=torch.float32)
+        state = torch.as_tensor(np.asarray(obs["state"]), dtype=torch.float32).to(device)
         return {"x": torch.cat([z.reshape(b, -1), state], dim=1)}
 
     def forward(self, stored: dict[str, torch.Tensor]) -> torch.Tensor:

@@ -99,6 +99,11 @@ class ContrastiveLearner(nn.Module):
             for p, pk in zip(online.parameters(), key.parameters()):
                 pk.mul_(1.0 - m).add_(p.detach(), alpha=m)
 
+    @property
+    def device(self) -> torch.device:
+        """Where the networks are (inputs built on the CPU are moved here)."""
+        return next(self.f.parameters()).device
+
     def embed(self, x: torch.Tensor, key: bool = False) -> torch.Tensor:
         """φ(f(x)) (or φ_k(f_k(x))) for stacks (N, 3L, H, W) → (N, d)."""
         return self.phi_k(self.f_k(x)) if key else self.phi(self.f(x))
@@ -114,6 +119,10 @@ class ContrastiveLearner(nn.Module):
             # Query and key views of a sequence get different colours: matching them must not rely on colour.
             masked = color_jitter(masked, self.cfg.color_jitter, generator)
             keys_in = color_jitter(seq, self.cfg.color_jitter, generator)
+        # Masks and colour draws come from CPU generators (the same on any device); the networks' device gets
+        # one batch.
+        dev = self.device
+        masked, keys_in, mask = masked.to(dev), keys_in.to(dev), mask.to(dev)
         q = self.xi(self.embed(masked.flatten(0, 1)).view(B, T, -1))
         with torch.no_grad():
             k = self.embed(keys_in.flatten(0, 1), key=True).view(B, T, -1)
@@ -128,6 +137,7 @@ class ContrastiveLearner(nn.Module):
 
     def curl_loss(self, anchor: torch.Tensor, positive: torch.Tensor) -> tuple[torch.Tensor, dict]:
         """CURL / CURL-cons loss for stacks (N, 3L, H, W): anchor online, positive via the keys."""
+        anchor, positive = anchor.to(self.device), positive.to(self.device)
         q = self.embed(anchor)
         with torch.no_grad():
             k = self.embed(positive, key=True)

@@ -34,12 +34,14 @@ from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
 from omcrl.runs import Run, make_run
 from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
 from omcrl.utils.progress import Progress
-from omcrl.utils.runtime import set_threads
+from omcrl.utils.runtime import resolve_device, set_threads
 
 log = logging.getLogger(__name__)
 
 # Fields that do not change what is learned up to a given step (a run may be extended or resumed across them).
 _RESUMABLE = ("iterations", "checkpoint_every", "num_threads")
+# Where and how fast the arithmetic runs, not what it computes (rounding aside): never part of a run's identity.
+_EXECUTION = ("checkpoint_every", "num_threads", "device")
 _CACHE_BYTES = 256 * 2**20  # cache all frames in RAM below this size
 
 
@@ -84,12 +86,12 @@ def method_name(p: PretrainConfig) -> str:
 def pretrain_run(cfg: Config) -> Run:
     """The :class:`omcrl.runs.Run` of this pretraining configuration.
 
-    Its identity is everything that changes the encoder: the pretraining fields (less ``checkpoint_every`` and
-    ``num_threads``), the data collection settings (less the file's path), the frame stack and the image size;
-    the dataset's content fingerprint is checked separately (``done.json``), so re-collected data retrains the
-    same run.
+    Its identity is everything that changes the encoder: the pretraining fields (less ``checkpoint_every``,
+    ``num_threads`` and ``device``), the data collection settings (less the file's path), the frame stack and
+    the image size; the dataset's content fingerprint is checked separately (``done.json``), so re-collected
+    data retrains the same run.
     """
-    p = {k: v for k, v in dataclasses.asdict(cfg.pretrain).items() if k not in ("checkpoint_every", "num_threads")}
+    p = {k: v for k, v in dataclasses.asdict(cfg.pretrain).items() if k not in _EXECUTION}
     p = drop_neutral("pretrain", p)
     # The data file's path is not identity (moving the data must not orphan the run); its content is checked
     # against the fingerprint recorded in done.json.
@@ -121,7 +123,8 @@ def default_dataset_path(cfg: Config) -> Path:
 
 def _hashes(cfg: Config, fingerprint: str) -> tuple[str, str]:
     p = drop_neutral("pretrain", dataclasses.asdict(cfg.pretrain))
-    p.pop("num_threads")
+    for k in ("num_threads", "device"):
+        p.pop(k)
     base = {"pretrain": p, "frame_stack": cfg.env.frame_stack, "seed": cfg.seed, "dataset": fingerprint}
     compat = {**base, "pretrain": {k: v for k, v in p.items() if k not in _RESUMABLE}}
     return config_hash(base), config_hash(compat)
@@ -206,7 +209,7 @@ def run(
 
     torch.manual_seed(cfg.seed)
     L = cfg.env.frame_stack
-    learner = ContrastiveLearner(p, L)
+    learner = ContrastiveLearner(p, L).to(resolve_device(p.device))
     opt = torch.optim.Adam(learner.param_groups())
     # Keep all episodes in memory when the frames are small (quick/smoke presets); else stream from disk.
     rgb_bytes = ds.n_steps * 3 * ds.image_size**2

@@ -23,6 +23,7 @@ import torch
 
 from omcrl.eval.runner import start_episode
 from omcrl.rl.ppo import ActorCritic
+from omcrl.utils.runtime import to_device
 
 
 class Guide(Protocol):
@@ -105,15 +106,20 @@ class PolicyGuide:
         """The guide's input for one vector step, as tensors that do not alias the env's buffers."""
         return self.agent.features.preprocess(obs)
 
+    def to(self, device: Any) -> PolicyGuide:
+        """Run the guide's network on ``device`` (its prepared inputs stay in host memory until evaluated)."""
+        self.agent.to(device)
+        return self
+
     @torch.no_grad()
     def distribution_stored(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Mean and std (B, A) float32 for prepared inputs of B states."""
-        mean, std, _ = self.agent(stored)
+        """Mean and std (B, A) float32, on the guide's device, for prepared inputs of B states."""
+        mean, std, _ = self.agent(to_device(stored, next(self.agent.parameters()).device))
         return mean.float(), std.float()
 
     def distribution(self, obs: Any, infos: dict, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         mean, std = self.distribution_stored(self.prepare(obs))
-        return mean.numpy(), std.numpy()
+        return mean.cpu().numpy(), std.cpu().numpy()
 
 
 class PlannerGuide:

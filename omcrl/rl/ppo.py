@@ -37,6 +37,7 @@ from omcrl.models.features import (
     PixelFeatures,
     StudentFeatures,
 )
+from omcrl.utils.runtime import to_device
 
 __all__ = [
     "PPO",
@@ -220,7 +221,8 @@ def ppo_update(
     ``extra_losses`` are added to each minibatch's total (their metrics are averaged like the others).
     Raises :class:`NonFiniteLossError` before any parameter update with a non-finite loss is applied.
     """
-    data = rollout.flat()
+    # One transfer of the whole batch to the networks' device (a no-op on the CPU).
+    data = to_device(rollout.flat(), next(agent.parameters()).device)
     n = data["actions"].shape[0]
     if n == 0:
         return {}
@@ -231,7 +233,7 @@ def ppo_update(
     sums: dict[str, float] = {}
     count = 0
     for _ in range(epochs):
-        perm = torch.randperm(n)
+        perm = torch.randperm(n).to(data["actions"].device)  # drawn on the CPU: the same order on any device
         for start in range(0, n, minibatch):
             idx = perm[start : start + minibatch]
             mb = {"obs": {k: v[idx] for k, v in data["obs"].items()}}

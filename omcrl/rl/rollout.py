@@ -14,6 +14,7 @@ import torch
 from omcrl.models.actor_critic import ActorCritic
 from omcrl.rl.guidance import Guide, info_at
 from omcrl.rl.ppo import Rollout
+from omcrl.utils.runtime import to_device
 
 # States per call of a batched guide: large enough to amortise reading the oracle's weights, small enough that
 # the pending depth stacks stay small (256 · 3 · 224² float16 ≈ 77 MB at the paper's image size).
@@ -62,8 +63,12 @@ class Runner:
         self.guide_every = max(1, chunk // env.num_envs)
         self.mode = _autoreset_mode(env)
         self.n = env.num_envs
+        # The networks may live on a GPU; the rollout buffer stays in host memory (paper-scale pixel buffers
+        # are gigabytes). Per vector step one batch goes up (the stored inputs) and one comes down (action,
+        # log-prob, value, stored inputs made on the device); on the CPU every transfer is a no-op.
+        self.device = next(agent.parameters()).device
         self.obs, self.infos = env.reset(seed=seed)
-        self.stored = agent.features.preprocess(self.obs)
+        self.stored = self._prepare(self.obs)
         self.starts = np.ones(self.n, bool)
         self.dummy = np.zeros(self.n, bool)  # next-step mode: this step only resets, the action is ignored
         self.ep_return = np.zeros(self.n)
@@ -78,8 +83,9 @@ class Runner:
         final_values: dict[tuple[int, int], float] = {}
         guided = use_guide and self.guide is not None
         pending: list[dict[str, torch.Tensor]] = []  # prepared guide inputs not evaluated yet (batched guides)
+        host = torch.device("cpu")
         for t in range(length):
-            action, logp, value, _, _ = self.agent.step(self.stored)
+            action, logp, value, _, _ = (x.to(host) for x in self.agent.step(self.stored))
             if guided and self.guide_batched:
                 pending.append(self.guide.prepare(self.obs))
                 if len(pending) == self.guide_every or t == length - 1:
@@ -88,7 +94,7 @@ class Runner:
                 gm, gs = self.guide.distribution(self.obs, self.infos, self.starts)
                 buf["gm"].append(torch.as_tensor(gm, dtype=torch.float32))
                 buf["gs"].append(torch.as_tensor(gs, dtype=torch.float32))
-            buf["obs"].append(self.stored)
+            buf["obs"].append(to_device(self.stored, host))
             buf["act"].append(action)
             buf["logp"].append(logp)
             buf["val"].append(value)
@@ -109,8 +115,8 @@ class Runner:
             if self.mode == "same" and ended.size:
                 # Same-step autoreset returns the reset obs; bootstrap truncations from the real final obs.
                 with torch.no_grad():
-                    fo = self.agent.features.preprocess(_stack_final_obs(infos["final_obs"], ended))
-                    _, _, v_final = self.agent(fo)
+                    _, _, v_final = self.agent(self._prepare(_stack_final_obs(infos["final_obs"], ended)))
+                    v_final = v_final.to(host)
                 for j, i in enumerate(ended):
                     final_values[(t, int(i))] = float(v_final[j])
             src = infos.get("final_info", {}) if self.mode == "same" else infos
@@ -124,9 +130,10 @@ class Runner:
             else:
                 self.starts, self.dummy = done.copy(), np.zeros(n, bool)
             self.obs, self.infos = obs, infos
-            self.stored = self.agent.features.preprocess(obs)
+            self.stored = self._prepare(obs)
         with torch.no_grad():
             _, _, last_value = self.agent(self.stored)
+            last_value = last_value.to(host)
         values = torch.stack(buf["val"])
         # V(s_{t+1}) is the next slot's value; in next-step mode that slot holds an ended episode's final obs.
         next_values = torch.cat([values[1:], last_value[None]], dim=0)
@@ -147,10 +154,14 @@ class Runner:
             guide_std=torch.stack(buf["gs"]) if buf["gs"] else None,
         )
 
+    def _prepare(self, obs: Any) -> dict[str, torch.Tensor]:
+        """The policy's stored inputs for a batched observation, on the networks' device."""
+        return to_device(self.agent.features.preprocess(obs), self.device)
+
     def _flush_guide(self, pending: list[dict[str, torch.Tensor]], buf: dict[str, list]) -> None:
         """Evaluate a batched guide on the pending steps at once and append one (N, A) row per step."""
         stored = {k: torch.cat([p[k] for p in pending]) for k in pending[0]}
-        mean, std = self.guide.distribution_stored(stored)
+        mean, std = (x.cpu() for x in self.guide.distribution_stored(stored))
         buf["gm"].extend(mean.split(self.n))
         buf["gs"].extend(std.split(self.n))
         pending.clear()

@@ -51,7 +51,7 @@ from omcrl.rl.rollout import Runner
 from omcrl.runs import MetricsLog, Run, RunConfigMismatch, make_run, rng_state, set_rng_state
 from omcrl.utils.io import atomic_save_torch, file_digest, load_torch
 from omcrl.utils.progress import Progress
-from omcrl.utils.runtime import cpu_count, seed_everything, set_threads
+from omcrl.utils.runtime import cpu_count, resolve_device, seed_everything, set_threads
 
 __all__ = [
     "METRIC_NAMES",
@@ -88,8 +88,9 @@ METRIC_NAMES = (
 )
 
 # RL fields that do not change the trained artifact (they may differ between a run and its resume).
-# ``update_threads`` changes the rounding of the update, not the algorithm, like running on another machine.
-_NOT_IDENTITY = ("checkpoint_every", "update_threads")
+# ``update_threads`` and ``device`` change the rounding of the arithmetic, not the algorithm, like running on
+# another machine.
+_NOT_IDENTITY = ("checkpoint_every", "update_threads", "device")
 _GUIDE_FIELDS = ("alpha_schedule", "alpha_start", "alpha_decay_steps", "alpha_exp_factor", "alpha_exp_every", "beta")
 
 
@@ -183,6 +184,7 @@ def train(
     rl = cfg.rl
     rollout_threads = set_threads(rl.num_threads)
     update_threads = rl.update_threads or cpu_count()
+    device = resolve_device(rl.device)
     run_dir = run.dir
     ckpt_path, final_path = run_dir / "checkpoint.pt", run_dir / "final.pt"
     if not overwrite:
@@ -212,9 +214,11 @@ def train(
         obs_space = env.single_observation_space
         features = build_features(obs_space)
         act_dim = int(np.prod(env.single_action_space.shape))
-        agent = ActorCritic(features, act_dim, rl.hidden, rl.init_log_std, layer_norm=layer_norm)
+        agent = ActorCritic(features, act_dim, rl.hidden, rl.init_log_std, layer_norm=layer_norm).to(device)
         algo = PPO.from_config(agent, rl, extra_losses)
         guide = make_guide(env) if (make_guide is not None and rl.alpha_schedule != "none") else None
+        if guide is not None and hasattr(guide, "to"):
+            guide.to(device)
         # Only now, with encoder / oracle / env known to fit, does the run folder appear: a failed start
         # (missing or mismatched checkpoint) leaves nothing behind that looks like a run.
         run.claim(overwrite=overwrite)

@@ -1,9 +1,10 @@
-"""Seeding and CPU thread settings."""
+"""Seeding, CPU thread settings and the compute device."""
 
 from __future__ import annotations
 
 import os
 import random
+from typing import Any
 
 import numpy as np
 
@@ -43,3 +44,42 @@ def seed_everything(seed: int) -> np.random.Generator:
     except ImportError:  # pragma: no cover
         pass
     return np.random.default_rng(seed)
+
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def resolve_device(name: str) -> Any:
+    """The ``torch.device`` for a config value: ``auto`` (CUDA when available, else CPU), ``cpu`` or ``cuda``.
+
+    Raises
+    ------
+    ConfigError : an unknown name, or ``cuda`` on a machine without a usable CUDA GPU.
+    """
+    import torch
+
+    from omcrl.config import ConfigError
+
+    if name not in DEVICES:
+        raise ConfigError(f"device: got {name!r}, allowed values are {list(DEVICES)}")
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    elif name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("device: got 'cuda', but torch sees no CUDA GPU here; use 'auto' or 'cpu'")
+    return torch.device(name)
+
+
+def to_device(tree: Any, device: Any) -> Any:
+    """Tensors in ``tree`` (nested dicts; other values kept) on ``device``: a no-op for tensors already there.
+
+    Host tensors bound for a GPU are pinned first, so the copy is asynchronous (one batch per call).
+    """
+    import torch
+
+    if isinstance(tree, dict):
+        return {k: to_device(v, device) for k, v in tree.items()}
+    if isinstance(tree, torch.Tensor) and tree.device != device:
+        if device.type == "cuda" and tree.device.type == "cpu":
+            return tree.pin_memory().to(device, non_blocking=True)
+        return tree.to(device)
+    return tree
