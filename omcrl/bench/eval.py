@@ -4,6 +4,8 @@ In rounds, side by side (so whatever else the machine does weighs on every row a
 
 * ``(a) vec env`` — a ``cfg.rl.n_envs``-env ``make_vec_env`` stepped with a slow random walk, resets included,
   in env steps per second over all envs: what the hardware gives a batch of envs;
+* ``(b) vec env+student`` — the same with the student's batched forward every vector step (lock-step batched
+  evaluation could not beat it);
 * for each policy (a student on a random-init frozen encoder; the privileged Hybrid APF), the same episodes
   evaluated ``in-process`` (``workers=1``) and ``parallel`` (``workers=0``: one process per core, one
   :class:`~omcrl.eval.runner.EvalPool` kept across rounds as the evaluation stage keeps it), in env steps
@@ -48,12 +50,16 @@ def _student_policy(cfg: Config, root: Path) -> Path:
 
 
 def measure(cfg: Config, episodes: int, rounds: int, vec_seconds: float, root: Path) -> list[dict]:
+    from omcrl.bench.rl import _vec_env_rate
     from omcrl.envs import make_vec_env
     from omcrl.eval.runner import EvalPool, evaluate
     from omcrl.eval.stage import planner_for
     from omcrl.rl import load_policy
+    from omcrl.rl.policy import make_student_features
 
     student = _student_policy(cfg, root)
+    enc_path = root / "encoder.pt"
+    vec_steps = max(50, int(vec_seconds * 100))
     makers = {"student": lambda: load_policy(student, name="student"), "hybrid-apf": lambda: planner_for("hybrid-apf")}
     n = cfg.rl.n_envs
     vec = make_vec_env(cfg.env.scene, n, seed=0, config=cfg.env)
@@ -75,6 +81,9 @@ def measure(cfg: Config, episodes: int, rounds: int, vec_seconds: float, root: P
         with EvalPool(0) as pool:
             for r in range(rounds + 1):  # round 0 warms up (worker start, first layouts) and is not counted
                 row = {"(a) vec env": (vec_block(), float("nan"))}
+                if r:
+                    b = _vec_env_rate(cfg, vec_steps, lambda s: make_student_features(enc_path, s))
+                    row["(b) vec env+student"] = (b, float("nan"))
                 for name, make in makers.items():
                     for mode, workers in (("in-process", 1), ("parallel", pool)):
                         t0 = time.perf_counter()

@@ -7,7 +7,8 @@ all envs:
 * ``(a) vec env``        bare vector-env steps with random actions (resets included);
 * ``(b) env+<kind>``     the same plus the rollout's forward pass per vector step for each feature kind: the
   frozen encoder (``student``), the trainable pixel encoder and heads (``pixel``: ppo, npe), the depth encoder
-  and heads (``oracle``). This is each trainer's *limit*: stepping its envs and choosing its actions;
+  and heads (``oracle``), and the student with the oracle guide's forwards (``student+guide``, in chunks as the
+  rollout runs them). This is each trainer's *limit*: stepping its envs and the forward passes it needs;
 * the trainers for ``--steps`` env steps each: ``(c) student`` (oracle-guided), ``(c0) student α≡0``,
   ``(d) oracle`` (APF-guided), ``(e) ppo``, ``(f) npe`` (APF-guided), and with ``--threads`` ``(e1) ppo, 1
   thread`` (updates on one core, as before ``rl.update_threads``); with ``--baseline`` ``(c) before``
@@ -36,18 +37,25 @@ from omcrl.bench import parser, write_results
 from omcrl.config import Config, load_config
 
 
-def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | None) -> float:
+def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | None, guide: Path | None = None) -> float:
     """Env steps/s of random-action vector steps, optionally with an agent's rollout forward per step.
 
     ``build``: ``single_observation_space -> FeatureExtractor``; the agent built on it runs
-    ``agent.step(features.preprocess(obs))`` every vector step, exactly as the rollout does.
+    ``agent.step(features.preprocess(obs))`` every vector step, exactly as the rollout does. ``guide``: an
+    oracle policy file evaluated as the rollout evaluates its guide (inputs prepared every step, the network
+    run once per chunk of :data:`omcrl.rl.rollout.GUIDE_CHUNK` states).
     """
     from omcrl.envs import make_vec_env
     from omcrl.models.actor_critic import ActorCritic
+    from omcrl.rl.guidance import PolicyGuide
+    from omcrl.rl.policy import load_policy
+    from omcrl.rl.rollout import GUIDE_CHUNK
 
     env = make_vec_env(cfg.env.scene, cfg.rl.n_envs, seed=0, config=cfg.env)
     try:
         agent = ActorCritic(build(env.single_observation_space), 3, cfg.rl.hidden).eval() if build else None
+        oracle = PolicyGuide(load_policy(guide).agent) if guide is not None else None
+        every, pending = max(1, GUIDE_CHUNK // cfg.rl.n_envs), []
         rng = np.random.default_rng(0)
         obs, _ = env.reset(seed=0)
         for i in range(vec_steps + 10):  # the first 10 steps warm up (page-in, allocator)
@@ -56,6 +64,11 @@ def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | Non
             if agent is not None:
                 with torch.no_grad():
                     agent.step(agent.features.preprocess(obs))
+            if oracle is not None:
+                pending.append(oracle.prepare(obs))
+                if len(pending) == every:
+                    oracle.distribution_stored({k: torch.cat([p[k] for p in pending]) for k in pending[0]})
+                    pending.clear()
             obs, *_ = env.step(rng.uniform(-1, 1, (cfg.rl.n_envs, 3)).astype(np.float32))
         return vec_steps * cfg.rl.n_envs / (time.perf_counter() - t0)
     finally:
@@ -125,13 +138,15 @@ def measure(
     }
     rows = [{"case": "(a) vec env", "steps_per_s": _vec_env_rate(cfg, vec_steps, None)}]
     rows += [{"case": f"(b) env+{k}", "steps_per_s": _vec_env_rate(cfg, vec_steps, b)} for k, b in limits.items()]
+    guided = _vec_env_rate(cfg, vec_steps, limits["student"], oracle_path)
+    rows.append({"case": "(b) env+student+guide", "steps_per_s": guided})
 
     def config(*extra: str) -> Config:
         return load_config(cfg.preset, overrides=[f"results_dir={root}", f"rl.total_steps={steps}", *extra])
 
     run, apf = config(), _apf_factory(cfg)
     rows.append(
-        _train_rate("(c) student", "student", lambda: train_student(run, enc_path, oracle_path, progress=False))
+        _train_rate("(c) student", "student+guide", lambda: train_student(run, enc_path, oracle_path, progress=False))
     )
     rows.append(
         _train_rate(
@@ -159,13 +174,13 @@ def measure(
             rows.append(
                 _train_rate(
                     "(c) before",
-                    "student",
+                    "student+guide",
                     lambda: train_student(run, enc_path, oracle_path, name="before", progress=False),
                 )
             )
         finally:
             rollout.GUIDE_CHUNK = chunk
-    limit_sps = {r["case"].split("+")[1]: r["steps_per_s"] for r in rows if r["case"].startswith("(b)")}
+    limit_sps = {r["case"].split("+", 1)[1]: r["steps_per_s"] for r in rows if r["case"].startswith("(b)")}
     base = rows[0]["steps_per_s"]
     for r in rows:
         r["vs_(a)"] = r["steps_per_s"] / base
