@@ -43,6 +43,10 @@ STAGES: dict[str, tuple[str, str]] = {
     "train": ("omcrl.rl.methods:train_stage", "train one method of the comparison: --method NAME [--seed K]"),
     "evaluate": ("omcrl.eval:run", "evaluate the policies of --seed (or cfg.seed) and write a quick table"),
     "tables": ("omcrl.eval.table1:run", "evaluate every method at cfg.seeds and write Table I with CIs"),
+    "interpret": (
+        "omcrl.interpret.stage:run",
+        "disturbance tests in a simulated room, Grad-CAM mass on obstacles, feature stability (notebook 08)",
+    ),
     "summary": ("omcrl.summary:run", "write and print results/<preset>/summary.md from what the stages left"),
     "export": ("omcrl.deploy.export:export_stage", "export a visuomotor policy to ONNX: --policy RUN [--out FILE]"),
 }

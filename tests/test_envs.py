@@ -393,8 +393,8 @@ def test_split_vector_env_matches_sync_vector_env():
 
 
 def test_renderers_agree_on_size_and_depth_in_metres():
-    from omcrl.envs.render import RendererError, env_identity, resolve_renderer
     from omcrl.config import EnvConfig
+    from omcrl.envs.render import RendererError, env_identity, resolve_renderer
 
     def frames(renderer, n=3):
         env = make_env("box", seed=3, renderer=renderer)

@@ -63,6 +63,8 @@ class Disturbance:
     light_direction : (3,) direction the light comes from; None keeps the default.
     switch_step : at this step of an episode the light switches to ``switch_ambient``/``switch_diffuse``
         (the paper's lights-off test); None for no switch.
+    switch_range : (lo, hi): the switch happens at a step drawn uniformly from [lo, hi] for every episode
+        (reproducibly from ``seed`` and the episode's layout seed); overrides ``switch_step``.
     brightness : multiplier on the image (1 = unchanged).
     hue : hue rotation of the image, degrees.
     seed : seed for the random colours.
@@ -84,6 +86,7 @@ class Disturbance:
     specular: float | None = None
     light_direction: tuple[float, float, float] | None = None
     switch_step: int | None = None
+    switch_range: tuple[int, int] | None = None
     switch_ambient: float = 0.25
     switch_diffuse: float = 0.15
     brightness: float = 1.0
@@ -140,6 +143,16 @@ class Disturbance:
             )
         if out.switch_step is not None:
             number("switch_step", 0, integer=True)
+        if out.switch_range is not None:
+            sr = out.switch_range
+            if not (
+                isinstance(sr, (list, tuple))
+                and len(sr) == 2
+                and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in sr)
+                and sr[0] <= sr[1]
+            ):
+                raise ConfigError(f"disturbance.switch_range: got {show(sr)}, expected two integers 0 <= lo <= hi")
+            out.switch_range = (int(sr[0]), int(sr[1]))
         if out.light_direction is not None:
             ld = out.light_direction
             if not (isinstance(ld, (list, tuple)) and len(ld) == 3 and all(isinstance(v, (int, float)) for v in ld)):
@@ -232,6 +245,7 @@ class NavEnv(gym.Env):
         self._prims: list[Primitive] = []
         self.grid: OccupancyGrid | None = None
         self.path = np.zeros((0, 2))
+        self.light_switch_step: int | None = None
         self._rgb = np.zeros((L, 3, S, S), np.uint8)
         self._depth = np.zeros((L, S, S), np.float32)
         self._episode_seed = -1
@@ -390,6 +404,7 @@ class NavEnv(gym.Env):
         self._acc = (0.0, 0.0)  # body frame, m/s^2
         self._goal = np.array([goal[0], goal[1], c.altitude])
         self._steps = 0
+        self.light_switch_step = self._draw_switch(layout_seed)
         self._d_init = self._d_prev = float(np.linalg.norm(self._goal[:2] - self._pos[:2]))
         self._min_d = self._d_init
         self._path_len = 0.0
@@ -681,10 +696,41 @@ class NavEnv(gym.Env):
             kw["lightSpecularCoeff"] = d.specular
         if d.light_direction is not None:
             kw["lightDirection"] = list(d.light_direction)
-        if d.switch_step is not None and self._steps >= d.switch_step:
+        if self.light_switch_step is not None and self._steps >= self.light_switch_step:
             kw["lightAmbientCoeff"] = d.switch_ambient
             kw["lightDiffuseCoeff"] = d.switch_diffuse
         return kw
+
+    def _draw_switch(self, layout_seed: int) -> int | None:
+        """The step at which this episode's light switches (None: no switch); see ``Disturbance.switch_range``."""
+        d = self.disturbance
+        if d is None:
+            return None
+        if d.switch_range is not None:
+            lo, hi = d.switch_range
+            return int(np.random.default_rng([d.seed, max(layout_seed, 0), 11]).integers(lo, hi + 1))
+        return d.switch_step
+
+    def obstacle_mask(self) -> np.ndarray:
+        """(H, W) bool: pixels of the current camera view that show an obstacle (not floor, walls or sky).
+
+        Renders the view once more with PyBullet's segmentation buffer (the observation renders skip it); for
+        analysis such as the Grad-CAM mass on obstacles, not for training.
+        """
+        c = self.cfg
+        S = c.image_size
+        *_, seg = pb.getCameraImage(
+            S,
+            S,
+            self.view_matrix(),
+            self._proj,
+            renderer=self._pb_renderer,
+            shadow=0,
+            physicsClientId=self._client,
+            **self._light(),
+        )
+        bodies = [b for v in self._pool.values() for b in v]
+        return np.isin(np.asarray(seg, np.int64).reshape(S, S), bodies)
 
     def view_matrix(self) -> list[float]:
         """PyBullet view matrix (16 floats) of the forward camera at the current pose (what renders use)."""

@@ -37,42 +37,81 @@ def pilot_frames(
     every: int = 2,
     max_steps: int = 150,
 ) -> np.ndarray:
-    """RGB stacks seen along scripted-pilot episodes.
+    """RGB stacks seen along scripted-pilot episodes: ``pilot_samples(...)["rgb"]`` (N, 3L, H, W) uint8."""
+    return pilot_samples(
+        scene, episodes, seed, env_config=env_config, disturbance=disturbance, every=every, max_steps=max_steps
+    )["rgb"]
+
+
+def pilot_samples(
+    scene: str,
+    episodes: int,
+    seed: int = 0,
+    *,
+    env_config: Any = None,
+    disturbance: Any = None,
+    every: int = 2,
+    max_steps: int = 150,
+    masks: bool = False,
+    successful_only: bool = False,
+) -> dict[str, np.ndarray]:
+    """Observations along scripted-pilot episodes (Hybrid APF on the true map).
 
     Parameters
     ----------
     scene : the layout generator (``box``, ``furniture``, ``barrier``, ``tree``).
     episodes : episodes to fly; episode ``i`` resets with seed ``seed + i`` (same seeds give the same layouts,
         starts and goals, so two calls differing only in ``disturbance`` see the same geometry).
-    env_config : an :class:`omcrl.config.EnvConfig` (image size, frame stack); default the env's defaults.
+    env_config : an :class:`omcrl.config.EnvConfig` (image size, frame stack, arena); default the env's defaults.
     disturbance : passed to the env, e.g. ``{"appearance": "box"}``.
     every : keep every ``every``-th step (consecutive 10 Hz frames are near duplicates).
     max_steps : at most this many steps per episode.
+    masks : also return the obstacle pixels of the newest frame (:meth:`NavEnv.obstacle_mask`; one extra render
+        per kept step).
+    successful_only : keep only the steps of episodes that reached the goal.
 
     Returns
     -------
-    uint8 array (N, 3L, H, W): the observation stacks the encoder takes.
+    ``{"rgb": (N, 3L, H, W) uint8 stacks the encoder takes, "state": (N, 12) float32, "episode": (N,) int,
+    "mask": (N, H, W) bool (with ``masks``)}``.
     """
     from omcrl.envs import make_env
     from omcrl.planners import HybridAPF
 
     env = make_env(scene, seed=seed, config=env_config, disturbance=disturbance)
     pilot = HybridAPF(env.cfg).bind(env)
-    out = []
+    keep: dict[str, list] = {"rgb": [], "state": [], "episode": [], "mask": []}
     try:
         for i in range(episodes):
             obs, info = env.reset(seed=seed + i)
             pilot.reset(info)
+            ep: dict[str, list] = {k: [] for k in keep}
             for t in range(max_steps):
                 if t % every == 0:
                     rgb = obs["rgb"]  # (L, 3, H, W)
-                    out.append(rgb.reshape(-1, *rgb.shape[-2:]))
+                    ep["rgb"].append(rgb.reshape(-1, *rgb.shape[-2:]))
+                    ep["state"].append(np.asarray(obs["state"], np.float32))
+                    ep["episode"].append(i)
+                    if masks:
+                        ep["mask"].append(env.obstacle_mask())
                 obs, _, term, trunc, info = env.step(pilot.act(obs, info))
                 if term or trunc:
                     break
+            if not successful_only or info.get("metrics", {}).get("success", False):
+                for k in keep:
+                    keep[k] += ep[k]
     finally:
         env.close()
-    return np.stack(out).astype(np.uint8)
+    if not keep["rgb"]:
+        raise RuntimeError(f"pilot_samples: no frames kept from {episodes} episodes in {scene!r}")
+    out = {
+        "rgb": np.stack(keep["rgb"]).astype(np.uint8),
+        "state": np.stack(keep["state"]),
+        "episode": np.asarray(keep["episode"]),
+    }
+    if masks:
+        out["mask"] = np.stack(keep["mask"])
+    return out
 
 
 @torch.no_grad()
