@@ -298,6 +298,27 @@ def _section_deploy(d: dict, tables: Path) -> list[str]:
     ]
 
 
+def _section_interpret(d: dict, tables: Path) -> list[str]:
+    import pandas as pd
+
+    dist = pd.read_csv(tables / "disturbance.csv")
+    rows = [
+        {
+            "method": r.method,
+            "condition": r.condition,
+            "SR [95% CI]": f"{r.SR:.0f} [{r.lo:.0f}, {r.hi:.0f}]",
+            "paper (real)": "" if pd.isna(r.paper_SR) else f"{r.paper_SR:.0f}",
+        }
+        for r in dist.itertuples()
+    ]
+    out = ["Disturbance tests in the simulated room (SR %):", "", _md_table(rows), ""]
+    for name, label in (("gradcam_mass.csv", "Grad-CAM mass on obstacles"), ("stability.csv", "Feature stability")):
+        if (tables / name).exists():
+            t = pd.read_csv(tables / name).round(3)
+            out += [f"{label}:", "", _md_table(t.to_dict("records")), ""]
+    return out
+
+
 # (heading, file in tables/ whose presence means the stage ran, what, notebook, renderer)
 SECTIONS = (
     ("## Data (notebook 01)", "data_summary.json", "data", "01_collect_data", _section_data),
@@ -311,6 +332,13 @@ SECTIONS = (
         _section_student,
     ),
     ("## Table I (notebook 07)", "table1.csv", "Table I", "07_tables", _section_table1),
+    (
+        "## Interpretability and disturbances (notebook 08)",
+        "disturbance.csv",
+        "interpretability",
+        "08_interpretability",
+        _section_interpret,
+    ),
     ("## Deployment (notebook 09)", "deploy_summary.json", "deployment", "09_deploy_tello", _section_deploy),
 )
 

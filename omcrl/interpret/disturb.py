@@ -28,7 +28,7 @@ import pandas as pd
 from omcrl.config import Config, ConfigError, EnvConfig, config_hash
 
 # A room of 7 m x 7 m with six crates: the size of a motion-capture lab where a Tello flies.
-ROOM = {"arena_half": 3.5, "n_obstacles": 6, "goal_distance": (3.0, 5.5), "goal_radius": 0.5, "max_steps": 300}
+ROOM = {"arena_half": 3.5, "n_obstacles": 6, "goal_distance": (3.0, 5.5), "goal_radius": 0.5}
 
 CONDITIONS: dict[str, dict] = {
     "normal": {},
@@ -50,7 +50,7 @@ SEED_OFFSET = 3_000_000
 
 
 def room_config(env: EnvConfig) -> EnvConfig:
-    """``env`` with the room's arena, obstacle count, goal distances, 0.5 m success radius and step limit."""
+    """``env`` with the room's arena, obstacle count, goal distances and 0.5 m success radius (step limit kept)."""
     from omcrl.config import validate_env
 
     out = copy.deepcopy(env)

@@ -80,7 +80,11 @@ def room_frames(cfg: Config, cond: str, episodes: int, masks: bool = True, succe
 
 
 def gradcam_table(
-    cfg: Config, methods: Sequence[str], conditions: Sequence[str] = tuple(CONDITIONS), target: str = "all"
+    cfg: Config,
+    methods: Sequence[str],
+    conditions: Sequence[str] = tuple(CONDITIONS),
+    target: str = "all",
+    episodes: int = GRADCAM_EPISODES,
 ) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Share of Grad-CAM mass on obstacle pixels per method and condition, over the room's pilot frames.
 
@@ -92,7 +96,7 @@ def gradcam_table(
     policies = {m: encoder_policy(cfg, m) for m in methods}
     rows, examples = [], {}
     for cond in conditions:
-        fr = room_frames(cfg, cond, GRADCAM_EPISODES)
+        fr = room_frames(cfg, cond, episodes)
         pick = np.linspace(0, len(fr["rgb"]) - 1, 3).astype(int)
         ex: dict[str, Any] = {"rgb": fr["rgb"][pick], "cams": {}}
         for m, pol in policies.items():
@@ -125,12 +129,16 @@ def run(
     methods: Sequence[str] = ENCODER_METHODS,
     gradcam_methods: Sequence[str] | None = None,
     stability_methods: Sequence[str] = ("ours", "curl"),
+    gradcam_episodes: int = GRADCAM_EPISODES,
+    stability_episodes: int = STABILITY_EPISODES,
     progress: bool = True,
 ) -> InterpretResult:
     """CLI stage ``interpret``: all three analyses at ``cfg.seed``; tables written under ``<run_root>/tables``.
 
     Every method's policy and encoder is found before any episode runs (missing ones raise
-    :class:`~omcrl.rl.policy.CheckpointError` naming the command that makes them).
+    :class:`~omcrl.rl.policy.CheckpointError` naming the command that makes them). ``gradcam_episodes`` pilot
+    episodes per condition give the Grad-CAM frames (every second step: about 20 frames per episode in the
+    room); ``stability_episodes`` give the frames of successful flights for feature stability and t-SNE.
     """
     from omcrl.eval.stage import to_markdown
     from omcrl.interpret.stability import stability_table
@@ -142,8 +150,8 @@ def run(
     encoders = encoders_for_stability(cfg, stability_methods)
     episodes = disturbance_episodes(cfg, methods, progress=progress)
     dist = disturbance_table(episodes)
-    cam, examples = gradcam_table(cfg, gradcam_methods)
-    frames = room_frames(cfg, "normal", STABILITY_EPISODES, masks=False, successful_only=True)["rgb"]
+    cam, examples = gradcam_table(cfg, gradcam_methods, episodes=gradcam_episodes)
+    frames = room_frames(cfg, "normal", stability_episodes, masks=False, successful_only=True)["rgb"]
     stab, feats = stability_table(encoders, frames, seed=cfg.seed)
     out = cfg.run_root / "tables"
     out.mkdir(parents=True, exist_ok=True)
