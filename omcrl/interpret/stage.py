@@ -32,8 +32,8 @@ from omcrl.interpret.disturb import (
 )
 
 # Grad-CAM frames per condition (the issue asks for >= 200) and feature-stability frames.
-GRADCAM_EPISODES = 12
-STABILITY_EPISODES = 14
+GRADCAM_EPISODES = 16
+STABILITY_EPISODES = 16
 FRAME_SEED = 4_000_000  # pilot episodes for frames: seeds disjoint from training and evaluation
 
 
