@@ -61,7 +61,9 @@ def test_mass_share_of_a_uniform_map_is_the_obstacle_fraction():
     masks = np.zeros((3, 8, 8), bool)
     masks[:, :2] = True
     s = mass_share(cams, masks)
-    assert s["share"] == pytest.approx(0.25) and s["lift"] == pytest.approx(1.0) and s["frames"] == 3
+    assert s["share"] == pytest.approx(0.25) and s["lift"] == pytest.approx(1.0) and s["frames_used"] == 3
+    cams[0] = 0.0  # a frame without mass is analysed but left out of the means
+    assert mass_share(cams, masks)["frames"] == 3 and mass_share(cams, masks)["frames_used"] == 2
     with pytest.raises(ValueError, match="differ"):
         mass_share(cams, masks[:, :4])
 

@@ -161,17 +161,20 @@ def mass_share(cams: np.ndarray, masks: np.ndarray) -> dict[str, float]:
 
     Returns
     -------
-    ``{"share": Σ cam·mask / Σ cam over frames with any mass, "obstacle_fraction": the mean share of pixels
-    that are obstacles (a uniform map's share), "lift": share / obstacle_fraction, "frames": frames used}``.
-    Frames without mass (no location raises the score) or without obstacle pixels are left out.
+    ``{"share": Σ cam·mask / Σ cam, the mean over frames with mass and obstacles, "obstacle_fraction": the mean
+    share of pixels that are obstacles in those frames (a uniform map's share), "lift": share /
+    obstacle_fraction, "frames": frames analysed, "frames_used": frames in the means}``. Frames without mass (no
+    location raises the score) or without obstacle pixels are left out of the means.
     """
     cams, masks = np.asarray(cams, np.float64), np.asarray(masks, bool)
     if cams.shape != masks.shape:
         raise ValueError(f"mass_share: cams {cams.shape} and masks {masks.shape} differ")
     tot = cams.sum((1, 2))
     ok = (tot > 0) & masks.any((1, 2))
+    n = len(cams)
     if not ok.any():
-        return {"share": float("nan"), "obstacle_fraction": float("nan"), "lift": float("nan"), "frames": 0}
+        nan = float("nan")
+        return {"share": nan, "obstacle_fraction": nan, "lift": nan, "frames": n, "frames_used": 0}
     share = float(((cams * masks).sum((1, 2))[ok] / tot[ok]).mean())
     frac = float(masks[ok].mean())
-    return {"share": share, "obstacle_fraction": frac, "lift": share / frac, "frames": int(ok.sum())}
+    return {"share": share, "obstacle_fraction": frac, "lift": share / frac, "frames": n, "frames_used": int(ok.sum())}
