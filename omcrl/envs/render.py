@@ -15,9 +15,10 @@ import warnings
 from dataclasses import asdict
 from typing import Any
 
-import pybullet as pb
-
 from omcrl.config import ConfigError
+
+# PyBullet is imported inside the functions that render: resolving a renderer name for a run's identity must not
+# load it (importing it prints its build time, and the CLI reports config errors before any such line).
 
 RENDERERS = ("auto", "tiny", "egl")
 
@@ -37,6 +38,8 @@ def _egl_plugin_file() -> str:
 
 def load_egl(client: int) -> int:
     """Load the EGL renderer plugin into ``client``; returns the plugin id, raises RendererError otherwise."""
+    import pybullet as pb
+
     plugin = pb.loadPlugin(_egl_plugin_file(), "_eglRendererPlugin", physicsClientId=client)
     if plugin < 0:
         raise RendererError(
@@ -58,6 +61,8 @@ def _cuda_present() -> bool:
 @functools.cache
 def _egl_works() -> bool:
     """Whether a fresh DIRECT client loads the EGL plugin and renders one frame (checked once per process)."""
+    import pybullet as pb
+
     cid = pb.connect(pb.DIRECT)
     try:
         load_egl(cid)
@@ -83,6 +88,8 @@ def resolve_renderer(name: str) -> str:
 
 def pybullet_renderer(resolved: str) -> int:
     """The ``getCameraImage`` renderer flag for a resolved renderer name."""
+    import pybullet as pb
+
     return pb.ER_BULLET_HARDWARE_OPENGL if resolved == "egl" else pb.ER_TINY_RENDERER
 
 

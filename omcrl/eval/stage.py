@@ -27,7 +27,6 @@ from typing import Any
 import pandas as pd
 
 from omcrl.config import Config, config_hash
-from omcrl.envs.render import env_identity
 from omcrl.eval.metrics import format_table, summary_table
 from omcrl.eval.runner import EvalPool, evaluate
 from omcrl.utils.io import atomic_write_text, file_digest
@@ -155,6 +154,8 @@ def evaluate_methods(
     """
     scenes = list(scenes if scenes is not None else cfg.eval.scenes)
     episodes = int(episodes if episodes is not None else cfg.eval.episodes)
+    from omcrl.envs.render import env_identity  # here: importing omcrl.envs loads PyBullet
+
     env_key = env_identity(cfg.env)
     env_key.pop("scene")
     frames = []

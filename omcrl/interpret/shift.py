@@ -27,20 +27,10 @@ import torch
 SATURATION = 0.99
 
 
-def pilot_frames(
-    scene: str,
-    episodes: int,
-    seed: int = 0,
-    *,
-    env_config: Any = None,
-    disturbance: Any = None,
-    every: int = 2,
-    max_steps: int = 150,
-) -> np.ndarray:
-    """RGB stacks seen along scripted-pilot episodes: ``pilot_samples(...)["rgb"]`` (N, 3L, H, W) uint8."""
-    return pilot_samples(
-        scene, episodes, seed, env_config=env_config, disturbance=disturbance, every=every, max_steps=max_steps
-    )["rgb"]
+def pilot_frames(scene: str, episodes: int, seed: int = 0, **kwargs: Any) -> np.ndarray:
+    """RGB stacks seen along scripted-pilot episodes: ``pilot_samples(...)["rgb"]`` (N, 3L, H, W) uint8; the keyword
+    arguments are :func:`pilot_samples`'s."""
+    return pilot_samples(scene, episodes, seed, **kwargs)["rgb"]
 
 
 def pilot_samples(

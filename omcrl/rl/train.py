@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import Config, save_config
-from omcrl.envs.render import env_identity
 from omcrl.models.actor_critic import ActorCritic
 from omcrl.models.features import FeatureExtractor, IdentityFeatures
 from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_from_config
@@ -144,6 +143,8 @@ def rl_identity(cfg: Config, guide: str | None, **extra: Any) -> dict:
         rl["alpha_schedule"] = "none"
     elif guide != "planner":
         rl.pop("guide_std")
+    from omcrl.envs.render import env_identity  # here: importing omcrl.envs loads PyBullet
+
     return {"rl": rl, "env": env_identity(cfg.env), **extra}
 
 
