@@ -47,6 +47,10 @@ STAGES: dict[str, tuple[str, str]] = {
         "omcrl.interpret.stage:run",
         "disturbance tests in a simulated room, Grad-CAM mass on obstacles, feature stability (notebook 08)",
     ),
+    "sweep": (
+        "omcrl.sweep:sweep_stage",
+        "run a named ablation grid over seeds: sweep GRID [--seeds 0,1,2] [--backend ray|local] [--address A]",
+    ),
     "summary": ("omcrl.summary:run", "write and print results/<preset>/summary.md from what the stages left"),
     "export": ("omcrl.deploy.export:export_stage", "export a visuomotor policy to ONNX: --policy RUN [--out FILE]"),
 }
@@ -158,6 +162,14 @@ def build_parser() -> argparse.ArgumentParser:
             default=None,
             help="method of the comparison (see below)" if name in METHOD_STAGES else argparse.SUPPRESS,
         )
+        if name == "sweep":
+            from omcrl.sweep import GRIDS
+
+            sp.add_argument("grid", nargs="?", default=None, help=f"the grid to run, one of {list(GRIDS)}")
+            sp.add_argument("--seeds", default=None, help="comma-separated seeds (default: the config's seeds)")
+            sp.add_argument("--backend", default="ray", choices=("ray", "local"), help="Ray tasks or in-process")
+            sp.add_argument("--address", default=None, help="a Ray cluster (auto, ray://host:port); default: embedded")
+            sp.add_argument("--num-cpus", type=int, default=None, help="CPUs of an embedded Ray (default: cores)")
         if name == "export":
             sp.add_argument("--policy", default=None, help="a run folder or its final.pt (required)")
             sp.add_argument("--out", default=None, help="the ONNX file (default: policy.onnx beside final.pt)")
@@ -224,6 +236,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             result = func(cfg, method=args.method)
         elif args.stage == "export":
             result = func(cfg, policy=args.policy, out=args.out)
+        elif args.stage == "sweep":
+            seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else None
+            kw = {"backend": args.backend, "address": args.address, "num_cpus": args.num_cpus}
+            result = func(cfg, args.grid, seeds=seeds, **kw)
         else:
             result = func(cfg)
     except ConfigError as e:

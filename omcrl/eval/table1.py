@@ -94,9 +94,9 @@ def evaluate_grid(
 
     Returns the episodes (one row each; ``method``, ``train_seed``, ``scene`` ...) and the runs not found.
     """
-    from omcrl.rl.methods import METHODS
+    from omcrl.rl.methods import TABLE1_METHODS
 
-    methods = list(methods or METHODS)
+    methods = list(methods or TABLE1_METHODS)
     seeds = list(seeds if seeds is not None else cfg.seeds)
     sources, missing = method_sources(cfg, methods, seeds)
     frames = []
@@ -299,9 +299,9 @@ def run(cfg: Config, *, progress: bool = True) -> Table1Result:
     """
     t0 = time.perf_counter()
     episodes, missing = evaluate_grid(cfg, progress=progress)
-    from omcrl.rl.methods import METHODS
+    from omcrl.rl.methods import METHODS, TABLE1_METHODS
 
-    learned = [m for m in METHODS if METHODS[m].learned]
+    learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
     if episodes.empty or not set(episodes["method"]) & set(learned):
         raise FileNotFoundError(
             f"no finished training run under {cfg.run_root / 'runs'} for seeds {cfg.seeds}; train first "

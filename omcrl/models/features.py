@@ -190,7 +190,8 @@ class StudentFeatures(FeatureExtractor):
     @torch.no_grad()
     def preprocess(self, obs: Any) -> dict[str, torch.Tensor]:
         """The encoder runs on its own device (the policy's); ``x`` comes back on that device."""
-        device = next(self.encoder.parameters()).device
+        # An encoder without parameters (e.g. a stand-in that returns fixed features) runs on the CPU.
+        device = next(self.encoder.parameters(), torch.empty(0)).device
         rgb = torch.as_tensor(np.asarray(obs["rgb"])).to(device)
         b = rgb.shape[0]
         z = self.encoder(rgb.reshape(b, -1, rgb.shape[-2], rgb.shape[-1])).float()

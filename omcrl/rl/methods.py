@@ -45,6 +45,7 @@ class MethodSpec:
     guide : ``oracle`` | ``apf`` | None (``oracle-config``: the oracle's own ``rl.oracle_guide``).
     privileged : uses inputs a real robot does not have (true map or depth + obstacle vectors).
     description : one line for ``--help``.
+    ablation : a variant for the ablations (VI-C), not a row of Table I.
     """
 
     name: str
@@ -54,6 +55,7 @@ class MethodSpec:
     guide: str | None = None
     privileged: bool = False
     description: str = ""
+    ablation: bool = False
 
     @property
     def learned(self) -> bool:
@@ -83,11 +85,18 @@ METHODS: dict[str, MethodSpec] = {
                    description="A* on the true map + potential field on the true nearest obstacle"),
         MethodSpec("hybrid-apf-perceptive", "Hybrid APF (perceptive)", "planner",
                    description="A* on the map seen by the depth camera + potential field on sensed obstacles"),
+        # Ablation variants (VI-C; grids in omcrl.sweep).
+        MethodSpec("ours-noPhi", "Ours w/o phi", "frozen", {"method": "omc", "use_projection": False},
+                   guide="oracle", ablation=True, description="ablation: OMC encoder without projection phi"),
+        MethodSpec("ours-dualT", "Ours-dualT", "frozen", {"method": "omc", "dual_transformer": True},
+                   guide="oracle", ablation=True, description="ablation: OMC with a Transformer on both branches"),
+        MethodSpec("curl-cons", "CURL-cons", "frozen", {"method": "curl_cons", "use_projection": False},
+                   ablation=True, description="ablation: CURL on consecutive stacks (pretrain.cons_stride apart)"),
     )
 }  # fmt: skip
 
-# Methods of Table I in the paper's order (the oracle first as the upper bound).
-TABLE1_METHODS = tuple(METHODS)
+# Methods of Table I in the paper's order (the oracle first as the upper bound); ablation variants are not rows.
+TABLE1_METHODS = tuple(n for n, s in METHODS.items() if not s.ablation)
 
 
 def get_method(name: str) -> MethodSpec:
@@ -204,7 +213,7 @@ def final_policy_path(cfg: Config, method: str) -> Path | None:
 def training_runs(cfg: Config, methods: list[str] | None = None, seeds: list[int] | None = None) -> dict:
     """``{method: {seed: run folder}}`` of the finished training runs of learned methods at ``seeds``."""
     out: dict[str, dict[int, Path]] = {}
-    for m in methods or [n for n, s in METHODS.items() if s.learned]:
+    for m in methods or [n for n in TABLE1_METHODS if METHODS[n].learned]:
         for s in seeds if seeds is not None else cfg.seeds:
             p = final_policy_path(cfg.with_seed(s), m)
             if p is not None:

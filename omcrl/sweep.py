@@ -1,0 +1,389 @@
+"""Sweeps: named grids of (method, overrides) × seeds, run in-process or as Ray tasks (paper VI-C ablations).
+
+A grid (:data:`GRIDS`) is a list of :class:`Variant` s. :func:`expand` turns it, for every seed, into jobs with
+dependencies:
+
+    collect ─► pretrain (frozen-encoder methods) ─┐
+                         train oracle (guided) ────┴─► train method ─► evaluate
+
+A job's id is the identity of what it makes: pretraining and oracle jobs take the run folder the registry gives
+them (:mod:`omcrl.runs`), so variants that share an encoder or an oracle share one job. Each job is the stage's
+ordinary entry point (``pretrain_method``, ``train_method``, ``evaluate_methods``) with the registry's cache,
+so a finished job is skipped and a killed one resumes: re-running a sweep after a crash finishes only what is
+missing.
+
+Backends (:func:`run_sweep`):
+
+- ``local``: the jobs one at a time in this process, in dependency order.
+- ``ray``: every job a Ray task. With no address, Ray starts embedded on this machine with one CPU per core.
+  With an address (``auto``, ``ray://host:port``, or a head's ``host:port``), the jobs go to that cluster. A
+  job asks Ray for as many CPUs as it keeps busy (a trainer: one per env; pretraining: its threads;
+  evaluation: its workers), so two jobs never share a core.
+
+Every job writes its output to ``<run_root>/sweeps/<grid>/logs/<job>.log``. A failed job is reported with its
+error and log path; jobs that need it are skipped, and the others run on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import time
+import traceback
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from omcrl.config import Config, ConfigError, config_hash, load_config
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One arm of a grid: a method of :mod:`omcrl.rl.methods` with config overrides (``section.field=value``)."""
+
+    label: str
+    method: str
+    overrides: tuple[str, ...] = ()
+
+
+GRIDS: dict[str, tuple[Variant, ...]] = {
+    # Fig. 7: masking probability of the OMC encoder (ours at each ρ), CURL as the reference line.
+    "mask-prob": (
+        *(Variant(f"rho={r}", "ours", (f"pretrain.mask_prob={r}",)) for r in (0.1, 0.3, 0.5, 0.7, 0.9)),
+        Variant("CURL", "curl"),
+    ),
+    # Table II: sequential input for CURL.
+    "sequential": (Variant("CURL", "curl"), Variant("CURL-cons", "curl-cons")),
+    # Fig. 8: the Transformer on both branches.
+    "dual-transformer": (Variant("ours", "ours"), Variant("ours-dualT", "ours-dualT")),
+    # Fig. 9: the projection φ.
+    "projection": (
+        Variant("ours", "ours"),
+        Variant("ours w/o phi", "ours-noPhi"),
+        Variant("CURL", "curl"),
+        Variant("CURL w/ phi", "curl-phi"),
+    ),
+    # Fig. 10: the oracle teacher.
+    "oracle-teacher": (
+        Variant("ours", "ours"),
+        Variant("ours w/o OT", "ours-noOT"),
+        Variant("NPE", "npe"),
+        Variant("NPE w/ OT", "npe-ot"),
+    ),
+    # Table III: the decay of the guidance weight α.
+    "decay": (
+        Variant("linear", "ours", ("rl.alpha_schedule=linear",)),
+        Variant("exp", "ours", ("rl.alpha_schedule=exp", "rl.alpha_exp_factor=0.95", "rl.alpha_exp_every=1000")),
+        Variant("fixed", "ours", ("rl.alpha_schedule=fixed",)),
+    ),
+    # The smallest grid (CI): one frozen-encoder method and one end-to-end method.
+    "smoke": (Variant("ours w/o OT", "ours-noOT"), Variant("PPO", "ppo")),
+}
+
+KINDS = ("collect", "pretrain", "train", "evaluate")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One unit of work: ``kind`` of ``method`` at ``seed`` under ``overrides``; ``deps`` are job ids."""
+
+    id: str
+    kind: str
+    method: str
+    seed: int
+    overrides: tuple[str, ...]
+    deps: tuple[str, ...] = ()
+    label: str = ""
+
+    @property
+    def log_name(self) -> str:
+        """A file name for the job's log (ids hold ``/``)."""
+        h = hashlib.sha1(self.id.encode()).hexdigest()[:8]
+        return f"{self.kind}-{self.method}-seed{self.seed}-{h}.log"
+
+
+@dataclass
+class SweepResult:
+    """What a sweep did: jobs, their status (``done | skipped | failed | blocked``), errors, evaluation rows."""
+
+    grid: str
+    jobs: list[Job]
+    status: dict[str, str]
+    errors: dict[str, str] = field(default_factory=dict)
+    logs: dict[str, Path] = field(default_factory=dict)
+    episodes: pd.DataFrame = field(default_factory=pd.DataFrame)
+    wall_s: float = 0.0
+
+    @property
+    def failed(self) -> list[Job]:
+        return [j for j in self.jobs if self.status.get(j.id) == "failed"]
+
+    def counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for s in self.status.values():
+            out[s] = out.get(s, 0) + 1
+        return out
+
+    def __repr__(self) -> str:
+        lines = [f"sweep {self.grid}: {len(self.jobs)} jobs in {self.wall_s:.0f} s, {self.counts()}"]
+        for j in self.failed:
+            lines.append(
+                f"FAILED {j.kind} {j.method} seed {j.seed}: {self.errors.get(j.id)} (log: {self.logs.get(j.id)})"
+            )
+        return "\n".join(lines)
+
+
+def grid_variants(name: str) -> tuple[Variant, ...]:
+    """The variants of a named grid; a ConfigError lists the known grids."""
+    if name not in GRIDS:
+        raise ConfigError(f"sweep: got grid {name!r}, known grids are {list(GRIDS)}")
+    return GRIDS[name]
+
+
+def _config(base: Config, overrides: Sequence[str], seed: int) -> Config:
+    from omcrl.config import parse_override
+
+    cfg = load_config(base.preset, overrides=[*_base_overrides(base), *overrides])
+    for o in overrides:
+        parse_override(o)  # a malformed override fails here, with its text
+    return cfg.with_seed(seed)
+
+
+def _base_overrides(cfg: Config) -> list[str]:
+    """The overrides that turn the preset into ``cfg`` (every field that differs), so jobs rebuild it anywhere."""
+    from omcrl.notebooks import overrides_from_config
+
+    return list(overrides_from_config(cfg))
+
+
+def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[Job]:
+    """The jobs of ``grid`` at ``seeds`` (default ``cfg.seeds``), in an order that respects dependencies.
+
+    Every variant's config is resolved (and validated) here, before any work starts.
+    """
+    from omcrl.pretrain.train import pretrain_run
+    from omcrl.rl.methods import encoder_config, get_method
+    from omcrl.rl.train import oracle_run
+
+    seeds = list(seeds if seeds is not None else cfg.seeds)
+    jobs: dict[str, Job] = {}
+
+    def add(job: Job) -> str:
+        jobs.setdefault(job.id, job)
+        return job.id
+
+    for v in grid_variants(grid):
+        spec = get_method(v.method)
+        if not spec.learned:
+            raise ConfigError(f"sweep {grid}: variant {v.label!r} uses planner {v.method!r}; sweeps train methods")
+        for s in seeds:
+            c = _config(cfg, v.overrides, s)
+            deps: list[str] = []
+            if spec.features == "frozen":
+                col = add(Job(f"collect:{c.data_path}", "collect", v.method, s, v.overrides))
+                enc_run = pretrain_run(encoder_config(c, spec))
+                deps.append(add(Job(f"pretrain:{enc_run.dir}", "pretrain", v.method, s, v.overrides, (col,))))
+            if spec.guide == "oracle" or spec.features == "oracle":
+                deps.append(add(Job(f"train:{oracle_run(c).dir}", "train", "oracle", s, v.overrides)))
+            if spec.features != "oracle":
+                ident = {"method": v.method, "rl": asdict(c.rl), "env": asdict(c.env), "deps": deps, "seed": s}
+                if spec.features == "pixel":
+                    ident["pixel"] = {"crop": c.pretrain.crop_to, "feature_dim": c.pretrain.feature_dim}
+                tid = add(Job(f"train:{v.method}:{config_hash(ident)}", "train", v.method, s, v.overrides, tuple(deps)))
+            else:
+                tid = deps[-1]
+            add(Job(f"evaluate:{v.label}:{tid}", "evaluate", v.method, s, v.overrides, (tid,), v.label))
+    return list(jobs.values())
+
+
+def job_cpus(cfg: Config, job: Job) -> int:
+    """CPUs a job keeps busy: its env processes (training, collection), threads (pretraining) or workers."""
+    from omcrl.utils.runtime import cpu_count
+
+    if job.kind == "train":
+        return max(1, cfg.rl.n_envs)
+    if job.kind == "collect":
+        return max(1, cfg.data.n_envs)
+    if job.kind == "pretrain":
+        return max(1, cfg.pretrain.num_threads)
+    return max(1, cfg.eval.workers or cpu_count())
+
+
+def run_job(preset_cfg: dict, job: Job, log_path: str) -> dict:
+    """Run one job (any backend) with its output in ``log_path``; returns ``{"status", "seconds", "rows"}``.
+
+    ``preset_cfg`` is ``{"preset", "overrides"}`` of the sweep's base config (plain data: it travels to Ray workers).
+    Raises whatever the stage raises (the caller records it).
+    """
+    Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    with open(log_path, "a", encoding="utf-8") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+        print(f"[sweep] {job.kind} {job.method} seed {job.seed} {list(job.overrides)} ({job.id})", flush=True)
+        base = load_config(preset_cfg["preset"], overrides=preset_cfg["overrides"])
+        cfg = _config(base, job.overrides, job.seed)
+        if cfg.eval.workers == 0 and job.kind == "evaluate":
+            cfg.eval.workers = job_cpus(cfg, job)
+        rows: list[dict] = []
+        skipped = False
+        if job.kind == "collect":
+            from omcrl.data import collect
+
+            skipped = bool(collect.run(cfg, progress=False).skipped)
+        elif job.kind == "pretrain":
+            from omcrl.rl.methods import pretrain_method
+
+            skipped = bool(pretrain_method(cfg, job.method, progress=False).skipped)
+        elif job.kind == "train":
+            from omcrl.rl.methods import train_method
+
+            skipped = bool(train_method(cfg, job.method, progress=False).skipped)
+        else:
+            from omcrl.eval.stage import evaluate_methods
+            from omcrl.rl.methods import final_policy_path
+
+            path = final_policy_path(cfg, job.method)
+            if path is None:
+                raise FileNotFoundError(f"{job.method} seed {job.seed}: no finished run to evaluate")
+            df = evaluate_methods(cfg, {job.method: path})
+            df = df.drop(columns=["trajectory"], errors="ignore").assign(
+                label=job.label, overrides=" ".join(job.overrides)
+            )
+            rows = json.loads(df.to_json(orient="records"))
+        print(f"[sweep] finished in {time.perf_counter() - t0:.1f} s{' (cached)' if skipped else ''}", flush=True)
+    return {"status": "skipped" if skipped else "done", "seconds": time.perf_counter() - t0, "rows": rows}
+
+
+def run_sweep(
+    cfg: Config,
+    grid: str,
+    seeds: Sequence[int] | None = None,
+    *,
+    backend: str = "ray",
+    address: str | None = None,
+    num_cpus: int | None = None,
+    progress: bool = True,
+) -> SweepResult:
+    """Run ``grid`` at ``seeds`` (default ``cfg.seeds``) on ``backend`` (``ray`` or ``local``).
+
+    ``address``: a Ray cluster to use (``auto``, ``ray://host:port`` or ``host:port``); None starts Ray embedded with
+    ``num_cpus`` CPUs (default one per core). Returns a :class:`SweepResult`; evaluation rows are in
+    ``result.episodes`` with the variant's ``label``.
+    """
+    from omcrl.utils.progress import Progress
+
+    if backend not in ("ray", "local"):
+        raise ConfigError(f"sweep backend: got {backend!r}, expected 'ray' or 'local'")
+    jobs = expand(cfg, grid, seeds)
+    logs_dir = cfg.run_root / "sweeps" / grid / "logs"
+    base = {"preset": cfg.preset, "overrides": _base_overrides(cfg)}
+    res = SweepResult(grid, jobs, {}, logs={j.id: logs_dir / j.log_name for j in jobs})
+    t0 = time.perf_counter()
+    rows: list[dict] = []
+    bar = Progress(len(jobs), f"sweep/{grid}", unit="job", enabled=progress)
+
+    def finish(job: Job, out: dict | None, err: str | None) -> None:
+        if err is not None:
+            res.status[job.id], res.errors[job.id] = "failed", err
+        else:
+            res.status[job.id] = out["status"]
+            rows.extend(out["rows"])
+        bar.update(1, **_postfix(res, running))
+
+    running: set[str] = set()
+    if backend == "local":
+        for job in jobs:
+            if any(res.status.get(d) in ("failed", "blocked") for d in job.deps):
+                res.status[job.id] = "blocked"
+                bar.update(1, **_postfix(res, running))
+                continue
+            try:
+                out = run_job(base, job, str(res.logs[job.id]))
+                finish(job, out, None)
+            except Exception as e:
+                finish(job, None, _error(e, res.logs[job.id]))
+    else:
+        _run_ray(cfg, jobs, base, res, finish, running, bar, address, num_cpus)
+    bar.close()
+    res.wall_s = time.perf_counter() - t0
+    res.episodes = pd.DataFrame(rows)
+    return res
+
+
+def _postfix(res: SweepResult, running: set[str]) -> dict[str, Any]:
+    c = res.counts()
+    return {"done": c.get("done", 0) + c.get("skipped", 0), "running": len(running), "failed": c.get("failed", 0)}
+
+
+def _error(e: BaseException, log: Path) -> str:
+    with contextlib.suppress(OSError):
+        with open(log, "a", encoding="utf-8") as f:
+            f.write("".join(traceback.format_exception(e)))
+    return f"{type(e).__name__}: {e}"
+
+
+def _run_ray(
+    cfg: Config,
+    jobs: list[Job],
+    base: dict,
+    res: SweepResult,
+    finish: Any,
+    running: set[str],
+    bar: Any,
+    address: str | None,
+    num_cpus: int | None,
+) -> None:
+    import ray
+
+    from omcrl.utils.runtime import cpu_count
+
+    started_here = not ray.is_initialized()
+    if started_here:
+        if address is None:
+            ray.init(num_cpus=num_cpus or cpu_count(), include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(address=address, log_to_driver=False)
+    try:
+        capacity = int(ray.cluster_resources().get("CPU", 1))
+        remote = ray.remote(max_retries=0)(run_job)
+        pending: dict[Any, Job] = {}
+        todo = list(jobs)
+        while todo or pending:
+            for job in list(todo):
+                st = [res.status.get(d) for d in job.deps]
+                if any(s in ("failed", "blocked") for s in st):
+                    todo.remove(job)
+                    res.status[job.id] = "blocked"
+                    bar.update(1, **_postfix(res, running))
+                elif all(s in ("done", "skipped") for s in st):
+                    todo.remove(job)
+                    need = min(job_cpus(_config(cfg, job.overrides, job.seed), job), capacity)
+                    ref = remote.options(num_cpus=need).remote(base, job, str(res.logs[job.id]))
+                    pending[ref] = job
+                    running.add(job.id)
+            if not pending:
+                continue
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                job = pending.pop(ref)
+                running.discard(job.id)
+                try:
+                    finish(job, ray.get(ref), None)
+                except Exception as e:
+                    cause = getattr(e, "cause", None) or e
+                    finish(job, None, _error(cause, res.logs[job.id]))
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def sweep_stage(
+    cfg: Config, grid: str | None = None, *, seeds: Sequence[int] | None = None, progress: bool = True, **kw: Any
+) -> SweepResult:
+    """CLI stage ``sweep``: ``python -m omcrl sweep <grid> --preset P [--seeds 0,1,2] [--address A] [--backend B]``."""
+    if grid is None:
+        raise ConfigError(f"stage 'sweep' needs a grid name, one of {list(GRIDS)}")
+    return run_sweep(cfg, grid, seeds, progress=progress, **kw)

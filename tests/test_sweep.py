@@ -1,0 +1,134 @@
+"""Sweeps: grid expansion, the local backend (failures, re-runs), Ray embedded and by address (slow)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+
+from omcrl import sweep
+from omcrl.config import ConfigError, load_config
+from omcrl.sweep import GRIDS, Variant, expand, run_sweep
+
+
+def _cfg(root, *extra):
+    # Data under the run's own folder: a sweep collects it like any other job.
+    return load_config("smoke", overrides=[f"results_dir={root}", f"data.file={root}/data/box.h5", *extra])
+
+
+def test_expansion_has_the_right_jobs_and_dependencies(tmp_path):
+    cfg = _cfg(tmp_path)
+    jobs = {j.id: j for j in expand(cfg, "smoke", [0, 1])}
+    kinds = pd.Series([j.kind for j in jobs.values()]).value_counts().to_dict()
+    # one dataset; an OMC encoder per seed; ours-noOT and ppo trained and evaluated per seed
+    assert kinds == {"collect": 1, "pretrain": 2, "train": 4, "evaluate": 4}
+    for j in jobs.values():
+        assert all(d in jobs for d in j.deps)
+        if j.kind == "train" and j.method == "ours-noOT":
+            assert [jobs[d].kind for d in j.deps] == ["pretrain"]
+        if j.kind == "train" and j.method == "ppo":
+            assert j.deps == ()  # end to end: needs neither data nor an oracle
+        if j.kind == "evaluate":
+            assert [jobs[d].kind for d in j.deps] == ["train"]
+    order = list(jobs)
+    assert all(order.index(d) < order.index(j.id) for j in jobs.values() for d in j.deps)
+    # Variants that share an artifact share its job: one oracle per seed for all five masking probabilities,
+    # one encoder per probability and seed.
+    mask = expand(cfg, "mask-prob", [0])
+    assert sum(j.kind == "train" and j.method == "oracle" for j in mask) == 1
+    assert sum(j.kind == "pretrain" for j in mask) == 6  # five OMC encoders and CURL's
+    with pytest.raises(ConfigError, match="known grids"):
+        expand(cfg, "dropout", [0])
+
+
+def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is_missing(tmp_path, monkeypatch):
+    # A variant whose data cannot be written (a folder under a file): its collect job fails, its pretrain, train
+    # and evaluate jobs are blocked, and PPO still trains and evaluates.
+    (tmp_path / "blocker").write_text("a file, not a folder")
+    bad = Variant("broken data", "ours-noOT", (f"data.file={tmp_path}/blocker/box.h5",))
+    monkeypatch.setitem(GRIDS, "test", (bad, Variant("PPO", "ppo")))
+    cfg = _cfg(tmp_path / "a")
+    res = run_sweep(cfg, "test", [0], backend="local", progress=False)
+    (failed,) = res.failed
+    assert failed.kind == "collect" and "blocker" in res.errors[failed.id]
+    assert res.logs[failed.id].exists() and "Traceback" in res.logs[failed.id].read_text()
+    assert res.counts() == {"failed": 1, "blocked": 3, "done": 2}
+    assert "FAILED collect" in repr(res)
+    assert set(res.episodes.label) == {"PPO"} and len(res.episodes) == 4 * cfg.eval.episodes
+    # Run again: the finished training is found, not redone, and evaluation gives the same rows.
+    final = next(cfg.run_root.glob("runs/rl/ppo-*/seed0/final.pt"))
+    stamp = final.stat().st_mtime_ns
+    again = run_sweep(cfg, "test", [0], backend="local", progress=False)
+    assert final.stat().st_mtime_ns == stamp
+    train = next(j for j in again.jobs if j.kind == "train" and j.method == "ppo")
+    assert again.status[train.id] == "skipped"
+    pd.testing.assert_frame_equal(res.episodes, again.episodes)
+
+
+def test_planner_variants_and_bad_backends_are_refused(tmp_path, monkeypatch):
+    monkeypatch.setitem(GRIDS, "planner", (Variant("apf", "hybrid-apf"),))
+    with pytest.raises(ConfigError, match="planner"):
+        expand(_cfg(tmp_path), "planner", [0])
+    with pytest.raises(ConfigError, match="backend"):
+        run_sweep(_cfg(tmp_path), "smoke", [0], backend="dask")
+
+
+def _episodes(res):
+    return res.episodes.sort_values(["label", "scene", "episode"]).reset_index(drop=True).drop(columns="checkpoint")
+
+
+@pytest.mark.slow
+def test_embedded_ray_gives_the_local_results(tmp_path):
+    local = run_sweep(_cfg(tmp_path / "local"), "smoke", [0], backend="local", progress=False)
+    ray_res = run_sweep(_cfg(tmp_path / "ray"), "smoke", [0], backend="ray", num_cpus=2, progress=False)
+    assert ray_res.counts() == local.counts() and not ray_res.failed
+    pd.testing.assert_frame_equal(_episodes(local), _episodes(ray_res))
+
+
+@pytest.mark.slow
+def test_sweep_on_a_separate_ray_head_by_address(tmp_path):
+    ray_bin = shutil.which("ray", path=os.path.dirname(sys.executable))
+    port = "6391"
+    env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
+    subprocess.run([ray_bin, "start", "--head", "--port", port, "--num-cpus", "2", "--include-dashboard=false"],
+                   check=True, capture_output=True, env=env)  # fmt: skip
+    try:
+        os.environ["RAY_AUTH_MODE"] = "disabled"
+        res = run_sweep(_cfg(tmp_path), "smoke", [0], backend="ray", address=f"127.0.0.1:{port}", progress=False)
+        assert not res.failed and len(res.episodes) == 2 * 4 * _cfg(tmp_path).eval.episodes
+    finally:
+        os.environ.pop("RAY_AUTH_MODE", None)
+        subprocess.run([ray_bin, "stop", "--force"], capture_output=True, env=env)
+
+
+@pytest.mark.slow
+def test_killed_driver_resumes_without_redoing_finished_jobs(tmp_path, repo_root):
+    root = tmp_path / "killed"
+    cfg = _cfg(root)
+    cmd = [sys.executable, "-m", "omcrl", "sweep", "smoke", "--preset", "smoke", "--backend", "local", "--seeds", "0",
+           "--set", f"results_dir={root}", "--set", f"data.file={root}/data/box.h5"]  # fmt: skip
+    proc = subprocess.Popen(cmd, cwd=repo_root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 600
+    while not list(cfg.run_root.glob("runs/pretrain/*/seed0/encoder.pt")) and time.time() < deadline:
+        time.sleep(0.2)
+    proc.kill()  # kill -9 of the driver, after pretraining finished
+    proc.wait()
+    enc = next(cfg.run_root.glob("runs/pretrain/*/seed0/encoder.pt"))
+    stamp = enc.stat().st_mtime_ns
+    res = run_sweep(cfg, "smoke", [0], backend="local", progress=False)
+    assert enc.stat().st_mtime_ns == stamp and not res.failed
+    pre = next(j for j in res.jobs if j.kind == "pretrain")
+    assert res.status[pre.id] == "skipped"
+    clean = run_sweep(_cfg(tmp_path / "clean"), "smoke", [0], backend="local", progress=False)
+    pd.testing.assert_frame_equal(_episodes(res), _episodes(clean))
+
+
+def test_job_cpus_follow_what_a_job_keeps_busy():
+    cfg = load_config("smoke", overrides=["rl.n_envs=3", "pretrain.num_threads=2", "eval.workers=1"])
+    mk = lambda kind: sweep.Job("x", kind, "ours", 0, ())  # noqa: E731
+    assert [sweep.job_cpus(cfg, mk(k)) for k in ("train", "pretrain", "evaluate")] == [3, 2, 1]
