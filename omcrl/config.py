@@ -248,6 +248,19 @@ class EvalConfig:
 
 
 @dataclass
+class SweepConfig:
+    """Ablation sweeps (paper VI-C; :mod:`omcrl.sweep`): budgets of the runs a sweep trains."""
+
+    rl_steps: int = _f(
+        0,
+        lo=0,
+        hi=10**10,
+        doc="env steps of each sweep run (0: rl.total_steps); the α decay is scaled by the same ratio",
+    )
+    pretrain_iterations: int = _f(0, lo=0, hi=10**9, doc="pretraining iterations of sweep encoders (0: as pretrain)")
+
+
+@dataclass
 class Config:
     """Everything a run needs. ``seed`` is explicit: the same seed gives the same result on the CPU."""
 
@@ -260,6 +273,7 @@ class Config:
     pretrain: PretrainConfig = field(default_factory=PretrainConfig)
     rl: RLConfig = field(default_factory=RLConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
+    sweep: SweepConfig = field(default_factory=SweepConfig)
 
     @property
     def results_root(self) -> Path:

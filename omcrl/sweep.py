@@ -160,16 +160,33 @@ def _base_overrides(cfg: Config) -> list[str]:
     return list(overrides_from_config(cfg))
 
 
+def budget_overrides(cfg: Config) -> tuple[str, ...]:
+    """Overrides that give sweep runs the budgets of ``cfg.sweep`` (none at 0): RL env steps, with the α decay
+    scaled by the same ratio so guidance fades over the same share of training, and pretraining iterations."""
+    out = []
+    if cfg.sweep.rl_steps:
+        ratio = cfg.sweep.rl_steps / cfg.rl.total_steps
+        out += [
+            f"rl.total_steps={cfg.sweep.rl_steps}",
+            f"rl.alpha_decay_steps={max(1, round(cfg.rl.alpha_decay_steps * ratio))}",
+        ]
+    if cfg.sweep.pretrain_iterations:
+        out.append(f"pretrain.iterations={cfg.sweep.pretrain_iterations}")
+    return tuple(out)
+
+
 def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[Job]:
     """The jobs of ``grid`` at ``seeds`` (default ``cfg.seeds``), in an order that respects dependencies.
 
-    Every variant's config is resolved (and validated) here, before any work starts.
+    Every variant's config is resolved (and validated) here, before any work starts. Budgets come from
+    ``cfg.sweep`` (:func:`budget_overrides`), applied before the variant's own overrides.
     """
     from omcrl.pretrain.train import pretrain_run
     from omcrl.rl.methods import encoder_config, get_method
     from omcrl.rl.train import oracle_run
 
     seeds = list(seeds if seeds is not None else cfg.seeds)
+    budget = budget_overrides(cfg)
     jobs: dict[str, Job] = {}
 
     def add(job: Job) -> str:
@@ -177,6 +194,7 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
         return job.id
 
     for v in grid_variants(grid):
+        v = Variant(v.label, v.method, (*budget, *v.overrides))
         spec = get_method(v.method)
         if not spec.learned:
             raise ConfigError(f"sweep {grid}: variant {v.label!r} uses planner {v.method!r}; sweeps train methods")
@@ -387,3 +405,33 @@ def sweep_stage(
     if grid is None:
         raise ConfigError(f"stage 'sweep' needs a grid name, one of {list(GRIDS)}")
     return run_sweep(cfg, grid, seeds, progress=progress, **kw)
+
+
+def run_ablations(
+    cfg: Config,
+    grids: Sequence[str],
+    seeds: Sequence[int] | None = None,
+    *,
+    backend: str = "ray",
+    address: str | None = None,
+    progress: bool = True,
+) -> dict[str, dict[str, Any]]:
+    """Run each grid (:func:`run_sweep`) and write its table (:func:`omcrl.eval.ablation.write_ablation`).
+
+    Returns ``{grid: {"result": SweepResult, "table": aggregate table, "paths": written files}}``; a grid whose
+    evaluations all failed has an empty table and no files.
+    """
+    from omcrl.eval.ablation import ablation_table, write_ablation
+
+    for g in grids:
+        grid_variants(g)  # every name checked before the first job runs
+    out: dict[str, dict[str, Any]] = {}
+    for g in grids:
+        res = run_sweep(cfg, g, seeds, backend=backend, address=address, progress=progress)
+        if len(res.episodes):
+            table = ablation_table(res.episodes)
+            paths = write_ablation(res.episodes, cfg.run_root / "tables", g)
+        else:
+            table, paths = pd.DataFrame(), {}
+        out[g] = {"result": res, "table": table, "paths": paths}
+    return out

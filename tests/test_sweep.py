@@ -132,3 +132,35 @@ def test_job_cpus_follow_what_a_job_keeps_busy():
     cfg = load_config("smoke", overrides=["rl.n_envs=3", "pretrain.num_threads=2", "eval.workers=1"])
     mk = lambda kind: sweep.Job("x", kind, "ours", 0, ())  # noqa: E731
     assert [sweep.job_cpus(cfg, mk(k)) for k in ("train", "pretrain", "evaluate")] == [3, 2, 1]
+
+
+def _synthetic_episodes(labels, scenes=("box", "tree"), n=6, seeds=(0, 1)):
+    rows = []
+    for k, lab in enumerate(labels):
+        for sc in scenes:
+            for s in seeds:
+                for i in range(n):
+                    ok = (i + k) % 3 != 0
+                    rows.append({"method": "ours", "label": lab, "scene": sc, "train_seed": s, "episode": i,
+                                 "success": ok, "collision": not ok, "final_distance": 0.2 if ok else 3.0,
+                                 "min_distance": 0.2 if ok else 2.0, "path_length": 6.0, "optimal_path_length": 5.0,
+                                 "steps": 60})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_ablation_tables_and_figures(tmp_path):
+    from omcrl.eval.ablation import ablation_table, write_ablation
+    from omcrl.viz.ablation import FIGURES, plot_ablation
+
+    ep = _synthetic_episodes(["linear", "exp", "fixed"])
+    paths = write_ablation(ep, tmp_path, "decay", reps=200)
+    assert {"ablation_decay.md", "table3.md", "table3.tex", "table3.csv"} <= set(paths)
+    long = pd.read_csv(paths["table3.csv"])
+    sr = long[(long.metric == "SR") & (long.scene == "box")].set_index("method")["mean"]
+    # success when (episode + variant index) % 3 != 0: 4 of 6 episodes for every variant
+    assert sr.round(1).to_dict() == {"linear": 66.7, "exp": 66.7, "fixed": 66.7}
+    assert "**" in paths["table3.md"].read_text() and "\\toprule" in paths["table3.tex"].read_text()
+    table = ablation_table(_synthetic_episodes(["rho=0.1", "rho=0.5", "CURL"]), reps=100)
+    for grid in (*FIGURES, "decay"):
+        name, fig = plot_ablation(grid, table)
+        assert fig.axes and name

@@ -1,0 +1,124 @@
+"""Ablation figures (paper VI-C): Fig. 7 lines over ρ, Fig. 8 radar, Fig. 9 grouped bars, Fig. 10 heatmap.
+
+Every function takes the long table of :func:`omcrl.eval.ablation.ablation_table` (index (variant, scene),
+columns ``<metric>``, ``<metric>_lo``, ``<metric>_hi``) and returns its Figure.
+"""
+
+from __future__ import annotations
+
+import re
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from omcrl.eval.table1 import HIGHER_IS_BETTER
+
+FIG_METRICS = ("NE", "SR", "SPL", "CR")
+
+
+def _scenes(table: pd.DataFrame) -> list[str]:
+    return list(dict.fromkeys(table.index.get_level_values("scene")))
+
+
+def _variants(table: pd.DataFrame) -> list[str]:
+    return list(dict.fromkeys(table.index.get_level_values("method")))
+
+
+def plot_mask_prob(table: pd.DataFrame, reference: str = "CURL") -> plt.Figure:
+    """Fig. 7: NE, SR, SPL, CR against the masking probability ρ per scene, CURL as a dashed line."""
+    rho = {v: float(m.group(1)) for v in _variants(table) if (m := re.match(r"rho=([0-9.]+)", v))}
+    order = sorted(rho, key=rho.get)
+    fig, axes = plt.subplots(1, len(FIG_METRICS), figsize=(3.2 * len(FIG_METRICS), 3.0))
+    for ax, metric in zip(axes, FIG_METRICS):
+        for i, sc in enumerate(_scenes(table)):
+            y = [table.loc[(v, sc), metric] for v in order]
+            lo = [table.loc[(v, sc), f"{metric}_lo"] for v in order]
+            hi = [table.loc[(v, sc), f"{metric}_hi"] for v in order]
+            x = [rho[v] for v in order]
+            ax.plot(x, y, "o-", color=f"C{i}", label=sc)
+            ax.fill_between(x, lo, hi, color=f"C{i}", alpha=0.15)
+            if (reference, sc) in table.index:
+                ax.axhline(table.loc[(reference, sc), metric], color=f"C{i}", ls="--", lw=1)
+        ax.set_xlabel("masking probability ρ")
+        ax.set_title(metric)
+    axes[0].legend(fontsize=7, title=f"dashed: {reference}", title_fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def normalised(table: pd.DataFrame) -> pd.DataFrame:
+    """Per scene and metric, variants scaled to [0, 1] with 1 = best (lower-is-better metrics flipped)."""
+    out = {}
+    for sc in _scenes(table):
+        for metric in FIG_METRICS:
+            v = table.xs(sc, level="scene")[metric]
+            span = v.max() - v.min()
+            s = (v - v.min()) / span if span > 0 else v * 0 + 1.0
+            out[(sc, metric)] = s if HIGHER_IS_BETTER[metric] else 1 - s
+    return pd.DataFrame(out)
+
+
+def plot_radar(table: pd.DataFrame) -> plt.Figure:
+    """Fig. 8: one radar per scene over the normalised metrics (1 = best), one polygon per variant."""
+    norm = normalised(table)
+    scenes = _scenes(table)
+    ang = np.linspace(0, 2 * np.pi, len(FIG_METRICS), endpoint=False)
+    fig, axes = plt.subplots(1, len(scenes), subplot_kw={"polar": True}, figsize=(3.0 * len(scenes), 3.2))
+    for ax, sc in zip(np.atleast_1d(axes), scenes):
+        for i, v in enumerate(norm.index):
+            r = [norm.loc[v, (sc, m)] for m in FIG_METRICS]
+            ax.plot(np.r_[ang, ang[0]], np.r_[r, r[0]], color=f"C{i}", label=v)
+            ax.fill(np.r_[ang, ang[0]], np.r_[r, r[0]], color=f"C{i}", alpha=0.1)
+        ax.set_xticks(ang, FIG_METRICS, fontsize=7)
+        ax.set_yticks([])
+        ax.set_title(sc, fontsize=9)
+    np.atleast_1d(axes)[0].legend(fontsize=7, loc="lower left", bbox_to_anchor=(-0.3, -0.3))
+    fig.tight_layout()
+    return fig
+
+
+def plot_bars(table: pd.DataFrame, metric: str = "SR") -> plt.Figure:
+    """Fig. 9: ``metric`` per scene (groups) and variant (bars) with 95 % CIs."""
+    scenes, variants = _scenes(table), _variants(table)
+    fig, ax = plt.subplots(figsize=(1.5 + 1.6 * len(scenes), 3.2))
+    w = 0.8 / len(variants)
+    for i, v in enumerate(variants):
+        x = np.arange(len(scenes)) + (i - (len(variants) - 1) / 2) * w
+        y = np.array([table.loc[(v, s), metric] for s in scenes])
+        err = np.array([[y[j] - table.loc[(v, s), f"{metric}_lo"], table.loc[(v, s), f"{metric}_hi"] - y[j]]
+                        for j, s in enumerate(scenes)]).T  # fmt: skip
+        ax.bar(x, y, w, yerr=err, capsize=3, label=v)
+    ax.set_xticks(np.arange(len(scenes)), scenes)
+    ax.set_ylabel(metric)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def plot_heatmap(table: pd.DataFrame) -> plt.Figure:
+    """Fig. 10: variants × (scene, metric), normalised per column (1 = best), raw values printed."""
+    norm = normalised(table)
+    fig, ax = plt.subplots(figsize=(0.55 * norm.shape[1] + 2.0, 0.5 * norm.shape[0] + 1.6))
+    ax.imshow(norm.to_numpy(float), cmap="viridis", vmin=0, vmax=1, aspect="auto")
+    for i, v in enumerate(norm.index):
+        for j, (sc, m) in enumerate(norm.columns):
+            ax.text(j, i, f"{table.loc[(v, sc), m]:.2g}", ha="center", va="center", fontsize=6, color="w")
+    ax.set_yticks(range(len(norm.index)), norm.index)
+    ax.set_xticks(range(norm.shape[1]), [f"{sc}\n{m}" for sc, m in norm.columns], fontsize=6)
+    fig.tight_layout()
+    return fig
+
+
+FIGURES = {
+    "mask-prob": ("fig7_mask_prob", plot_mask_prob),
+    "dual-transformer": ("fig8_dual_transformer", plot_radar),
+    "projection": ("fig9_projection", plot_bars),
+    "oracle-teacher": ("fig10_oracle_teacher", plot_heatmap),
+}
+
+
+def plot_ablation(grid: str, table: pd.DataFrame) -> tuple[str, plt.Figure]:
+    """The paper's figure for ``grid`` (bars for a grid without one): (file name, Figure)."""
+    name, fn = FIGURES.get(grid, (f"ablation_{grid}", plot_bars))
+    return name, fn(table)
