@@ -19,6 +19,7 @@ from omcrl.models.features import make_pixel_features
 from omcrl.rl import CheckpointError, RunConfigMismatch, load_policy, train_method
 from omcrl.rl.methods import (
     METHODS,
+    TABLE1_METHODS,
     encoder_path,
     final_policy_path,
     oracle_path,
@@ -46,7 +47,7 @@ def grid(tmp_path_factory):
     cfg = _cfg(root)
     collect.run(cfg, progress=False)
     digests = {}
-    for m in ("ours", "curl", "curl-phi"):
+    for m in [m for m, s in METHODS.items() if s.features == "frozen"]:  # ablation variants included
         pretrain_method(cfg, m, progress=False)
         digests[m] = file_digest(encoder_path(cfg, m))
     results = {m: train_method(cfg, m, progress=False) for m in LEARNED}
@@ -64,13 +65,14 @@ def test_every_learned_method_trains_and_its_checkpoint_evaluates(grid):
     assert len({r.run_dir for r in results.values()}) == len(LEARNED)
     episodes, missing = evaluate_grid(cfg, scenes=["box"])
     assert missing == []
-    assert set(episodes.method) == set(METHODS) and len(episodes) == len(METHODS)
+    # Table I: every method but the ablation variants (trained above too, evaluated by the sweeps).
+    assert set(episodes.method) == set(TABLE1_METHODS) and len(episodes) == len(TABLE1_METHODS)
     assert episodes.groupby("method").eval_seed.first().nunique() == 1  # the same episode for all
     table, sig, paths = write_table1(episodes, grid["root"] / "tables", reps=200)
-    assert set(sig.method) == set(METHODS) - {"ours"}
+    assert set(sig.method) == set(TABLE1_METHODS) - {"ours"}
     md = paths["md"].read_text()
     assert "| Ours |" in md and "**" in md
-    assert paths["tex"].read_text().count("\\\\") == len(METHODS) + 2
+    assert paths["tex"].read_text().count("\\\\") == len(TABLE1_METHODS) + 2
 
 
 def test_end_to_end_methods_train_their_encoder_and_frozen_ones_do_not(grid):
@@ -181,7 +183,7 @@ def test_guide_of_the_wrong_shape_is_refused_before_training(grid, tmp_path):
 def test_training_runs_and_seeds_field(grid):
     cfg = grid["cfg"]
     runs = training_runs(cfg)
-    assert set(runs) == set(LEARNED) and all(list(v) == [0] for v in runs.values())
+    assert set(runs) == {m for m in TABLE1_METHODS if METHODS[m].learned} and all(list(v) == [0] for v in runs.values())
     assert training_runs(cfg.with_seed(0), seeds=[5]) == {}
     with pytest.raises(ConfigError, match="seeds"):
         load_config("smoke", overrides=["seeds=[]"])
