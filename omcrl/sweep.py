@@ -43,11 +43,16 @@ from omcrl.config import Config, ConfigError, config_hash, load_config
 
 @dataclass(frozen=True)
 class Variant:
-    """One arm of a grid: a method of :mod:`omcrl.rl.methods` with config overrides (``section.field=value``)."""
+    """One arm of a grid: a method of :mod:`omcrl.rl.methods` with config overrides (``section.field=value``).
+
+    ``student_only`` overrides change the method's own training but not its oracle teacher (the oracle's APF
+    guidance reads the same ``rl.alpha_*`` fields, and the paper's decay ablation varies only the student's).
+    """
 
     label: str
     method: str
     overrides: tuple[str, ...] = ()
+    student_only: tuple[str, ...] = ()
 
 
 GRIDS: dict[str, tuple[Variant, ...]] = {
@@ -76,9 +81,11 @@ GRIDS: dict[str, tuple[Variant, ...]] = {
     ),
     # Table III: the decay of the guidance weight α.
     "decay": (
-        Variant("linear", "ours", ("rl.alpha_schedule=linear",)),
-        Variant("exp", "ours", ("rl.alpha_schedule=exp", "rl.alpha_exp_factor=0.95", "rl.alpha_exp_every=1000")),
-        Variant("fixed", "ours", ("rl.alpha_schedule=fixed",)),
+        Variant("linear", "ours", student_only=("rl.alpha_schedule=linear",)),
+        Variant(
+            "exp", "ours", student_only=("rl.alpha_schedule=exp", "rl.alpha_exp_factor=0.95", "rl.alpha_exp_every=1000")
+        ),
+        Variant("fixed", "ours", student_only=("rl.alpha_schedule=fixed",)),
     ),
     # The smallest grid (CI): one frozen-encoder method and one end-to-end method.
     "smoke": (Variant("ours w/o OT", "ours-noOT"), Variant("PPO", "ppo")),
@@ -98,6 +105,7 @@ class Job:
     overrides: tuple[str, ...]
     deps: tuple[str, ...] = ()
     label: str = ""
+    oracle_overrides: tuple[str, ...] | None = None  # where a train/evaluate job finds its oracle (None: overrides)
 
     @property
     def log_name(self) -> str:
@@ -194,27 +202,32 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
         return job.id
 
     for v in grid_variants(grid):
-        v = Variant(v.label, v.method, (*budget, *v.overrides))
+        oracle_ov = (*budget, *v.overrides)
+        v = Variant(v.label, v.method, (*oracle_ov, *v.student_only))
         spec = get_method(v.method)
         if not spec.learned:
             raise ConfigError(f"sweep {grid}: variant {v.label!r} uses planner {v.method!r}; sweeps train methods")
         for s in seeds:
             c = _config(cfg, v.overrides, s)
+            co = _config(cfg, oracle_ov, s)
             deps: list[str] = []
             if spec.features == "frozen":
                 col = add(Job(f"collect:{c.data_path}", "collect", v.method, s, v.overrides))
                 enc_run = pretrain_run(encoder_config(c, spec))
                 deps.append(add(Job(f"pretrain:{enc_run.dir}", "pretrain", v.method, s, v.overrides, (col,))))
             if spec.guide == "oracle" or spec.features == "oracle":
-                deps.append(add(Job(f"train:{oracle_run(c).dir}", "train", "oracle", s, v.overrides)))
+                deps.append(add(Job(f"train:{oracle_run(co).dir}", "train", "oracle", s, oracle_ov)))
             if spec.features != "oracle":
                 ident = {"method": v.method, "rl": asdict(c.rl), "env": asdict(c.env), "deps": deps, "seed": s}
                 if spec.features == "pixel":
                     ident["pixel"] = {"crop": c.pretrain.crop_to, "feature_dim": c.pretrain.feature_dim}
-                tid = add(Job(f"train:{v.method}:{config_hash(ident)}", "train", v.method, s, v.overrides, tuple(deps)))
+                tid = add(
+                    Job(f"train:{v.method}:{config_hash(ident)}", "train", v.method, s, v.overrides, tuple(deps),
+                        oracle_overrides=oracle_ov)
+                )  # fmt: skip
             else:
                 tid = deps[-1]
-            add(Job(f"evaluate:{v.label}:{tid}", "evaluate", v.method, s, v.overrides, (tid,), v.label))
+            add(Job(f"evaluate:{v.label}:{tid}", "evaluate", v.method, s, v.overrides, (tid,), v.label, oracle_ov))
     return list(jobs.values())
 
 
@@ -243,6 +256,7 @@ def run_job(preset_cfg: dict, job: Job, log_path: str) -> dict:
         print(f"[sweep] {job.kind} {job.method} seed {job.seed} {list(job.overrides)} ({job.id})", flush=True)
         base = load_config(preset_cfg["preset"], overrides=preset_cfg["overrides"])
         cfg = _config(base, job.overrides, job.seed)
+        oracle_cfg = None if job.oracle_overrides is None else _config(base, job.oracle_overrides, job.seed)
         if cfg.eval.workers == 0 and job.kind == "evaluate":
             cfg.eval.workers = job_cpus(cfg, job)
         rows: list[dict] = []
@@ -258,12 +272,12 @@ def run_job(preset_cfg: dict, job: Job, log_path: str) -> dict:
         elif job.kind == "train":
             from omcrl.rl.methods import train_method
 
-            skipped = bool(train_method(cfg, job.method, progress=False).skipped)
+            skipped = bool(train_method(cfg, job.method, progress=False, oracle_cfg=oracle_cfg).skipped)
         else:
             from omcrl.eval.stage import evaluate_methods
             from omcrl.rl.methods import final_policy_path
 
-            path = final_policy_path(cfg, job.method)
+            path = final_policy_path(cfg, job.method, oracle_cfg)
             if path is None:
                 raise FileNotFoundError(f"{job.method} seed {job.seed}: no finished run to evaluate")
             df = evaluate_methods(cfg, {job.method: path})

@@ -42,6 +42,13 @@ def test_expansion_has_the_right_jobs_and_dependencies(tmp_path):
     mask = expand(cfg, "mask-prob", [0])
     assert sum(j.kind == "train" and j.method == "oracle" for j in mask) == 1
     assert sum(j.kind == "pretrain" for j in mask) == 6  # five OMC encoders and CURL's
+    # The decay ablation varies the student's schedule only: one oracle per seed teaches all three students.
+    decay = expand(cfg, "decay", [0, 1])
+    oracles = [j for j in decay if j.kind == "train" and j.method == "oracle"]
+    students = [j for j in decay if j.kind == "train" and j.method == "ours"]
+    assert len(oracles) == 2 and len(students) == 6
+    assert all(not any("alpha_schedule" in o for o in j.overrides) for j in oracles)
+    assert all(any(o in j.deps for o in (x.id for x in oracles)) for j in students)
     with pytest.raises(ConfigError, match="known grids"):
         expand(cfg, "dropout", [0])
 

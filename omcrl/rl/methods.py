@@ -155,11 +155,14 @@ def train_method(
     progress: bool = True,
     overwrite: bool = False,
     make_env: Callable[[int], Any] | None = None,
+    oracle_cfg: Config | None = None,
 ) -> Result:
     """Train one learned method of the comparison at ``cfg.seed`` (skip if finished, resume if interrupted).
 
     Prerequisites are found, not trained: a frozen encoder must have been pretrained
-    (:func:`pretrain_method`) and a method guided by the oracle needs the oracle's run finished. A missing one
+    (:func:`pretrain_method`) and a method guided by the oracle needs the oracle's run finished: the oracle of
+    ``oracle_cfg`` when given (an ablation that changes the student's α schedule keeps the comparison's oracle),
+    else of ``cfg``. A missing one
     raises :class:`CheckpointError` naming the file and the command that makes it, before anything is trained.
     """
     spec = get_method(method)
@@ -170,7 +173,7 @@ def train_method(
     oracle = None
     if spec.guide == "oracle":
         oracle = _require(
-            oracle_path(cfg),
+            oracle_path(oracle_cfg or cfg),
             "oracle checkpoint",
             f"python -m omcrl train --method oracle --preset {cfg.preset} --seed {cfg.seed}",
         )
@@ -191,7 +194,7 @@ def _apf_factory(cfg: Config) -> Callable[[], Any]:
     return hybrid_apf
 
 
-def final_policy_path(cfg: Config, method: str) -> Path | None:
+def final_policy_path(cfg: Config, method: str, oracle_cfg: Config | None = None) -> Path | None:
     """``final.pt`` of a learned method's finished run at ``cfg.seed``, or None when it is not there.
 
     The run is derived from the current config and upstream artifacts exactly as :func:`train_method` derives
@@ -201,7 +204,7 @@ def final_policy_path(cfg: Config, method: str) -> Path | None:
     if spec.features == "oracle":
         p = oracle_path(cfg)
         return p if p.exists() else None
-    oracle = oracle_path(cfg) if spec.guide == "oracle" else None
+    oracle = oracle_path(oracle_cfg or cfg) if spec.guide == "oracle" else None
     enc = encoder_path(cfg, spec) if spec.features == "frozen" else None
     if (oracle is not None and not oracle.exists()) or (enc is not None and not enc.exists()):
         return None
