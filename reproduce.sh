@@ -13,6 +13,8 @@
 # pyproject.toml changed since the last install, or when `import omcrl, torch, pybullet` fails.
 # Extra arguments go to pytest (--test) or to `python -m omcrl notebooks` (other modes), e.g.
 #   ./reproduce.sh --test -k config         ./reproduce.sh --quick --set rl.total_steps=50000
+#   ./reproduce.sh --quick --skip 06        the chain without the ablation sweeps (notebook 06: hours more)
+#   ./reproduce.sh --quick --only 05,07     only these notebooks (their inputs must exist)
 # Environment: PYTHON=/path/to/python3.11 to choose the interpreter for a new .venv;
 # TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu for the CPU-only torch build (see the README).
 set -euo pipefail

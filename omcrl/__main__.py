@@ -170,10 +170,20 @@ def build_parser() -> argparse.ArgumentParser:
             sp.add_argument("--backend", default="ray", choices=("ray", "local"), help="Ray tasks or in-process")
             sp.add_argument("--address", default=None, help="a Ray cluster (auto, ray://host:port); default: embedded")
             sp.add_argument("--num-cpus", type=int, default=None, help="CPUs of an embedded Ray (default: cores)")
+            sp.add_argument("--plan", action="store_true", help="print the jobs and their estimated cost; run nothing")
+            sp.add_argument("--rates", default=None, help="with --plan: JSON {rate_key: units/s} (default: measured)")
+        if name == "notebooks":
+            sp.add_argument("--only", default=None, metavar="NN,..", help="run only these notebooks, e.g. 05,07")
+            sp.add_argument("--skip", default=None, metavar="NN,..", help="leave these out, e.g. 06 (the ablations)")
         if name == "export":
             sp.add_argument("--policy", default=None, help="a run folder or its final.pt (required)")
             sp.add_argument("--out", default=None, help="the ONNX file (default: policy.onnx beside final.pt)")
     return ap
+
+
+def _csv(text: str | None) -> list[str] | None:
+    """``"05,07"`` -> ``["05", "07"]``; None stays None."""
+    return None if text is None else [t.strip() for t in text.split(",") if t.strip()]
 
 
 def _expected_errors() -> tuple[type[BaseException], ...]:
@@ -236,9 +246,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             result = func(cfg, method=args.method)
         elif args.stage == "export":
             result = func(cfg, policy=args.policy, out=args.out)
+        elif args.stage == "notebooks":
+            result = func(cfg, only=_csv(args.only), skip=_csv(args.skip))
         elif args.stage == "sweep":
             seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else None
             kw = {"backend": args.backend, "address": args.address, "num_cpus": args.num_cpus}
+            if args.plan:
+                kw = {"plan": True, "rates": args.rates}
             result = func(cfg, args.grid, seeds=seeds, **kw)
         else:
             result = func(cfg)

@@ -444,13 +444,43 @@ def overrides_from_config(cfg: Any) -> list[str]:
     return list(diff(cfg.to_dict(), base, ""))
 
 
-def run(cfg: Any) -> None:
-    """CLI stage ``notebooks``: run the whole chain for ``cfg.preset``, passing on every non-default field, then
-    write and print the summary (:mod:`omcrl.summary`)."""
+def select_notebooks(only: Sequence[str] | None = None, skip: Sequence[str] | None = None) -> list[str]:
+    """The chain in numeric order, restricted to ``only`` and without ``skip`` (names or number prefixes).
+
+    Every entry must name exactly one notebook, so a typo fails here, before anything runs.
+
+    Examples
+    --------
+    >>> select_notebooks(skip=["06"])[:2]  # doctest: +SKIP
+    ['00_scenes', '01_collect_data']
+    """
+    names = discover_notebooks()
+
+    def resolve(items: Sequence[str], flag: str) -> set[str]:
+        out = set()
+        for it in items:
+            try:
+                out.add(notebook_path(it).stem)
+            except NotebookNotFoundError as e:
+                raise NotebookNotFoundError(f"{flag} {it}: {e}") from None
+        return out
+
+    keep = resolve(only, "--only") if only else set(names)
+    drop = resolve(skip, "--skip") if skip else set()
+    chain = [n for n in names if n in keep and n not in drop]
+    if not chain:
+        raise NotebookNotFoundError(f"--only {list(only or [])} --skip {list(skip or [])} leaves no notebook to run")
+    return chain
+
+
+def run(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[str] | None = None) -> None:
+    """CLI stage ``notebooks``: run the chain for ``cfg.preset`` (all notebooks, or ``only`` / without ``skip``),
+    passing on every non-default field, then write and print the summary (:mod:`omcrl.summary`)."""
     from omcrl.summary import write_summary
 
+    chain = select_notebooks(only, skip)
     overrides = [o for o in overrides_from_config(cfg) if not o.startswith("results_dir=")]
-    run_chain(cfg.preset, results_dir=cfg.results_root, overrides=overrides)
+    run_chain(cfg.preset, names=chain, results_dir=cfg.results_root, overrides=overrides)
     path = write_summary(cfg)
     print(path.read_text(encoding="utf-8"))
     print(f"[notebooks] summary: {path}", flush=True)

@@ -125,6 +125,7 @@ class SweepResult:
     logs: dict[str, Path] = field(default_factory=dict)
     episodes: pd.DataFrame = field(default_factory=pd.DataFrame)
     wall_s: float = 0.0
+    seconds: dict[str, float] = field(default_factory=dict)  # job id -> wall time of this invocation (s)
 
     @property
     def failed(self) -> list[Job]:
@@ -231,6 +232,117 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
     return list(jobs.values())
 
 
+ABLATION_GRIDS = tuple(g for g in GRIDS if g != "smoke")
+
+# Work units per job kind (what a rate in :func:`sweep_cost` is per second of).
+UNITS = {"collect": "episodes", "pretrain": "iterations", "train": "env steps", "evaluate": "episodes"}
+
+
+def sweep_plan(cfg: Config, grids: Sequence[str] | None = None, seeds: Sequence[int] | None = None) -> pd.DataFrame:
+    """Every distinct job of ``grids`` (default: all six ablation grids) at ``seeds``, with its work.
+
+    Jobs that several grids share (the same run folder) are counted once, in the order of a valid schedule.
+
+    Returns
+    -------
+    DataFrame, one row per job: ``id, kind, method, seed, grids`` (the grids that need it), ``rate_key``
+    (``collect | pretrain | train:<features> | evaluate``), ``work`` (in :data:`UNITS` of its kind),
+    ``table1`` (True where a Table I run of the same config is the same job), ``deps`` (ids).
+    """
+    from omcrl.rl.methods import TABLE1_METHODS, get_method
+
+    grids = list(grids or ABLATION_GRIDS)
+    for g in grids:
+        grid_variants(g)
+    jobs: dict[str, Job] = {}
+    used: dict[str, list[str]] = {}
+    for g in grids:
+        for j in expand(cfg, g, seeds):
+            jobs.setdefault(j.id, j)
+            used.setdefault(j.id, []).append(g)
+    # The main comparison's jobs under the same budgets: a sweep finds those runs finished when it coincides.
+    # The main comparison runs at the preset's own budgets, not the sweep's.
+    full = load_config(cfg.preset, overrides=[*_base_overrides(cfg), "sweep.rl_steps=0", "sweep.pretrain_iterations=0"])
+    GRIDS["_table1"] = tuple(Variant(m, m) for m in TABLE1_METHODS if get_method(m).learned)
+    try:
+        main = {j.id for j in expand(full, "_table1", seeds) if j.kind != "evaluate"}
+    finally:
+        del GRIDS["_table1"]
+    rows = [
+        {"id": w.id, "kind": w.kind, "method": w.method, "seed": w.seed, "grids": ",".join(used[w.id]),
+         "rate_key": w.rate_key, "work": w.work, "table1": w.id in main, "deps": w.deps}
+        for w in _work_rows(cfg, list(jobs.values()))
+    ]  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+@dataclass(frozen=True)
+class _Work:
+    id: str
+    kind: str
+    method: str
+    seed: int
+    rate_key: str
+    work: int
+    deps: tuple[str, ...]
+
+
+def _work_rows(cfg: Config, jobs: Sequence[Job]) -> list[_Work]:
+    """Each job's rate key and amount of work (see :data:`UNITS`)."""
+    from omcrl.rl.methods import get_method
+
+    out = []
+    for j in jobs:
+        c = _config(cfg, j.overrides, j.seed)
+        if j.kind == "collect":
+            key, work = "collect", c.data.episodes
+        elif j.kind == "pretrain":
+            key, work = "pretrain", c.pretrain.iterations
+        elif j.kind == "train":
+            key, work = f"train:{get_method(j.method).features}", c.rl.total_steps
+        else:
+            key, work = "evaluate", c.eval.episodes * len(c.eval.scenes)
+        out.append(_Work(j.id, j.kind, j.method, j.seed, key, int(work), j.deps))
+    return out
+
+
+def sweep_cost(plan: pd.DataFrame, rates: dict[str, float], nodes: int = 1) -> dict[str, Any]:
+    """Estimated cost of ``plan`` (:func:`sweep_plan`) from measured per-job rates, on ``nodes`` equal machines.
+
+    ``rates`` maps each ``rate_key`` of the plan to units per second on one machine running one job at a time
+    (e.g. a trainer's env steps/s from ``python -m omcrl.bench rl``). Each job occupies one machine; the schedule is
+    greedy in plan order, a job starting when its dependencies are done and a machine is free (what Ray does with
+    one job's worth of CPUs per node).
+
+    Returns
+    -------
+    ``{"jobs", "machine_hours", "wall_hours", "by_key"}``: total machine time and the schedule's makespan (h), and
+    ``{rate_key: (jobs, hours)}``. A rate_key missing from ``rates`` is a ConfigError naming it.
+    """
+    if nodes < 1:
+        raise ConfigError(f"sweep_cost: nodes must be >= 1, got {nodes}")
+    missing = sorted(set(plan["rate_key"]) - set(rates))
+    if missing:
+        raise ConfigError(f"sweep_cost: no rate for {missing}; rates given for {sorted(rates)}")
+    free = [0.0] * nodes
+    end: dict[str, float] = {}
+    by_key: dict[str, list[float]] = {}
+    for r in plan.itertuples():
+        sec = r.work / float(rates[r.rate_key])
+        i = min(range(nodes), key=free.__getitem__)
+        start = max([free[i], *(end.get(d, 0.0) for d in r.deps)])
+        end[r.id] = free[i] = start + sec
+        k = by_key.setdefault(r.rate_key, [0, 0.0])
+        k[0] += 1
+        k[1] += sec / 3600
+    return {
+        "jobs": len(plan),
+        "machine_hours": sum(v[1] for v in by_key.values()),
+        "wall_hours": max(end.values(), default=0.0) / 3600,
+        "by_key": {k: (int(v[0]), v[1]) for k, v in by_key.items()},
+    }
+
+
 def job_cpus(cfg: Config, job: Job) -> int:
     """CPUs a job keeps busy: its env processes (training, collection), threads (pretraining) or workers."""
     from omcrl.utils.runtime import cpu_count
@@ -322,6 +434,7 @@ def run_sweep(
             res.status[job.id], res.errors[job.id] = "failed", err
         else:
             res.status[job.id] = out["status"]
+            res.seconds[job.id] = float(out["seconds"])
             rows.extend(out["rows"])
         bar.update(1, **_postfix(res, running))
 
@@ -342,7 +455,47 @@ def run_sweep(
     bar.close()
     res.wall_s = time.perf_counter() - t0
     res.episodes = pd.DataFrame(rows)
+    _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
     return res
+
+
+def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
+    """Keep each job's measured wall time in ``jobs.csv`` beside the sweep's logs.
+
+    A job that was cached this time keeps the time it took when it really ran, so re-runs do not erase what was
+    measured. :func:`measured_rates` reads these files.
+    """
+    from omcrl.utils.io import atomic_write_text
+
+    plan = {r.id: r for r in _work_rows(cfg, res.jobs)}
+    old = pd.read_csv(path) if path.exists() else pd.DataFrame(columns=["id"])
+    kept = {r["id"]: r for r in old.to_dict("records")}
+    for j in res.jobs:
+        st = res.status.get(j.id)
+        if st == "done" or (st == "skipped" and j.id not in kept):
+            w = plan[j.id]
+            kept[j.id] = {"id": j.id, "kind": j.kind, "method": j.method, "seed": j.seed, "status": st,
+                          "seconds": round(res.seconds.get(j.id, float("nan")), 2), "rate_key": w.rate_key,
+                          "work": w.work}  # fmt: skip
+    atomic_write_text(path, pd.DataFrame(list(kept.values())).to_csv(index=False))
+
+
+def measured_rates(cfg: Config, grids: Sequence[str] | None = None) -> pd.DataFrame:
+    """Rates (work units per second, see :data:`UNITS`) of the jobs that really ran in this preset's sweeps.
+
+    Reads ``runs/sweeps/<grid>/jobs.csv`` for ``grids`` (default: every grid that has one); cached jobs are left
+    out. Returns one row per ``rate_key``: ``jobs``, ``median_s`` (per job), ``rate`` (median of work / seconds).
+    """
+    root = cfg.run_root / "sweeps"
+    files = [root / g / "jobs.csv" for g in grids] if grids else sorted(root.glob("*/jobs.csv"))
+    frames = [pd.read_csv(f) for f in files if f.exists()]
+    if not frames:
+        return pd.DataFrame(columns=["rate_key", "jobs", "median_s", "rate"])
+    df = pd.concat(frames).drop_duplicates("id")
+    df = df[(df["status"] == "done") & (df["seconds"] > 0)]
+    df = df.assign(rate=df["work"] / df["seconds"])
+    out = df.groupby("rate_key").agg(jobs=("id", "size"), median_s=("seconds", "median"), rate=("rate", "median"))
+    return out.reset_index()
 
 
 def _postfix(res: SweepResult, running: set[str]) -> dict[str, Any]:
@@ -412,12 +565,66 @@ def _run_ray(
             ray.shutdown()
 
 
+def describe_plan(
+    cfg: Config,
+    grids: Sequence[str] | None = None,
+    seeds: Sequence[int] | None = None,
+    rates: dict[str, float] | None = None,
+    nodes: Sequence[int] = (1, 4, 16),
+) -> str:
+    """A plain-text account of :func:`sweep_plan`: jobs and work per kind, what the main comparison already ran,
+    and, with ``rates`` (units/s per rate_key on one machine), :func:`sweep_cost` on each number of ``nodes``."""
+    plan = sweep_plan(cfg, grids, seeds)
+    seeds = list(seeds if seeds is not None else cfg.seeds)
+    lines = [
+        f"sweep plan, preset {cfg.preset}, seeds {seeds}, grids {list(grids or ABLATION_GRIDS)}: {len(plan)} jobs "
+        f"({int(plan['table1'].sum())} of them are runs of the main comparison, found finished once Table I ran)",
+        "  rate_key        jobs  work",
+    ]
+    for key, g in plan.groupby("rate_key", sort=False):
+        unit = UNITS[g["kind"].iloc[0]]
+        lines.append(f"  {key:<15} {len(g):>4}  {int(g['work'].sum()):,} {unit} ({int(g['table1'].sum())} shared)")
+    if rates:
+        new = plan[~plan["table1"]]
+        for n in nodes:
+            c = sweep_cost(new, rates, n)
+            lines.append(
+                f"  on {n} machine(s): {c['machine_hours']:.1f} machine-hours, {c['wall_hours']:.1f} h wall "
+                "(the jobs not shared with the main comparison)"
+            )
+    return "\n".join(lines)
+
+
 def sweep_stage(
-    cfg: Config, grid: str | None = None, *, seeds: Sequence[int] | None = None, progress: bool = True, **kw: Any
-) -> SweepResult:
-    """CLI stage ``sweep``: ``python -m omcrl sweep <grid> --preset P [--seeds 0,1,2] [--address A] [--backend B]``."""
+    cfg: Config,
+    grid: str | None = None,
+    *,
+    seeds: Sequence[int] | None = None,
+    progress: bool = True,
+    plan: bool = False,
+    rates: str | None = None,
+    **kw: Any,
+) -> SweepResult | str:
+    """CLI stage ``sweep``: ``python -m omcrl sweep <grid|all> --preset P [--seeds 0,1,2] [--address A]
+    [--backend B]``; ``--plan`` prints the jobs and their cost (rates from ``--rates FILE.json``, else from this
+    preset's finished sweeps) and runs nothing."""
     if grid is None:
-        raise ConfigError(f"stage 'sweep' needs a grid name, one of {list(GRIDS)}")
+        raise ConfigError(f"stage 'sweep' needs a grid name, one of {[*GRIDS, 'all']}")
+    grids = list(ABLATION_GRIDS) if grid == "all" else [grid]
+    for g in grids:
+        grid_variants(g)
+    if plan:
+        if rates is not None:
+            r = json.loads(Path(rates).read_text(encoding="utf-8"))
+            if not isinstance(r, dict) or not all(isinstance(v, int | float) and v > 0 for v in r.values()):
+                raise ConfigError(f"--rates {rates}: expected a JSON object of positive rates per rate_key, got {r!r}")
+        else:
+            m = measured_rates(cfg)
+            r = dict(zip(m["rate_key"], m["rate"], strict=True)) or None
+        return describe_plan(cfg, grids, seeds, r)
+    if grid == "all":
+        out = run_ablations(cfg, grids, seeds, progress=progress, **kw)
+        return "\n".join(repr(v["result"]) for v in out.values())
     return run_sweep(cfg, grid, seeds, progress=progress, **kw)
 
 
@@ -428,6 +635,7 @@ def run_ablations(
     *,
     backend: str = "ray",
     address: str | None = None,
+    num_cpus: int | None = None,
     progress: bool = True,
 ) -> dict[str, dict[str, Any]]:
     """Run each grid (:func:`run_sweep`) and write its table (:func:`omcrl.eval.ablation.write_ablation`).
@@ -441,7 +649,7 @@ def run_ablations(
         grid_variants(g)  # every name checked before the first job runs
     out: dict[str, dict[str, Any]] = {}
     for g in grids:
-        res = run_sweep(cfg, g, seeds, backend=backend, address=address, progress=progress)
+        res = run_sweep(cfg, g, seeds, backend=backend, address=address, num_cpus=num_cpus, progress=progress)
         if len(res.episodes):
             table = ablation_table(res.episodes)
             paths = write_ablation(res.episodes, cfg.run_root / "tables", g)

@@ -91,6 +91,27 @@ def test_missing_notebook_is_named(tmp_path):
         run_notebook("99_nothing", "smoke", results_dir=tmp_path)
 
 
+def test_chain_selection_only_and_skip():
+    full = nbr.select_notebooks()
+    assert full == NOTEBOOKS
+    no_ablations = nbr.select_notebooks(skip=["06"])
+    assert "06_ablations" not in no_ablations and len(no_ablations) == len(NOTEBOOKS) - 1
+    assert nbr.select_notebooks(only=["07_tables", "05"]) == ["05_train_baselines", "07_tables"]  # numeric order
+    with pytest.raises(NotebookNotFoundError, match="--skip 6x"):
+        nbr.select_notebooks(skip=["6x"])
+    with pytest.raises(NotebookNotFoundError, match="leaves no notebook"):
+        nbr.select_notebooks(only=["05"], skip=["05"])
+
+
+def test_cli_bad_skip_fails_before_any_work(tmp_path, capsys):
+    from omcrl.__main__ import main
+
+    rc = main(["notebooks", "--preset", "smoke", "--skip", "66", "--set", f"results_dir={tmp_path}"])
+    assert rc == 1
+    assert "--skip 66" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
 # ---------------------------------------------------------------- running (starts real kernels)
 def test_run_notebook_injects_parameters(tmp_path):
     src = _write(

@@ -75,6 +75,50 @@ def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is
     train = next(j for j in again.jobs if j.kind == "train" and j.method == "ppo")
     assert again.status[train.id] == "skipped"
     pd.testing.assert_frame_equal(res.episodes, again.episodes)
+    # Job times: the re-run's cache hit keeps the time the training took when it really ran.
+    times = pd.read_csv(cfg.run_root / "sweeps" / "test" / "jobs.csv").set_index("id")
+    assert times.loc[train.id, "status"] == "done"
+    assert times.loc[train.id, "seconds"] == pytest.approx(res.seconds[train.id], abs=0.01)
+    assert times.loc[train.id, "work"] == cfg.rl.total_steps
+    rates = sweep.measured_rates(cfg).set_index("rate_key")
+    assert rates.loc["train:pixel", "rate"] == pytest.approx(cfg.rl.total_steps / res.seconds[train.id], rel=1e-3)
+    assert failed.id not in times.index  # a failed job measured nothing
+
+
+def test_plan_counts_shared_jobs_once_and_knows_the_main_comparison(tmp_path):
+    paper = load_config("paper", overrides=[f"results_dir={tmp_path}"])
+    plan = sweep.sweep_plan(paper, ["projection", "oracle-teacher"], [0])
+    assert plan["id"].is_unique
+    ours = plan[(plan.kind == "train") & (plan.method == "ours")]
+    assert len(ours) == 1 and ours.iloc[0].grids == "projection,oracle-teacher"
+    # At the paper's budgets ours' encoder and training are the main comparison's runs; ours w/o phi is new.
+    assert bool(ours.iloc[0].table1)
+    assert not plan[(plan.kind == "train") & (plan.method == "ours-noPhi")].iloc[0].table1
+    assert ours.iloc[0].work == paper.rl.total_steps and ours.iloc[0].rate_key == "train:frozen"
+    # The quick preset's sweep budgets differ from Table I's: no training is shared.
+    quick = load_config("quick", overrides=[f"results_dir={tmp_path}"])
+    qplan = sweep.sweep_plan(quick, ["projection"], [0])
+    assert not qplan[qplan.kind == "train"].table1.any()
+    assert set(qplan[qplan.kind == "train"].work) == {quick.sweep.rl_steps}
+
+
+def test_cost_schedules_jobs_after_their_dependencies():
+    rows = [
+        ("c", "collect", 10, ()),  # 10 s
+        ("p1", "pretrain", 100, ("c",)),  # 100 s each
+        ("p2", "pretrain", 100, ("c",)),
+        ("t1", "train:frozen", 50, ("p1",)),  # 50 s each
+        ("t2", "train:frozen", 50, ("p2",)),
+    ]
+    plan = pd.DataFrame([{"id": i, "rate_key": k, "work": w, "deps": d} for i, k, w, d in rows])
+    rates = {"collect": 1.0, "pretrain": 1.0, "train:frozen": 1.0}
+    one, two = sweep.sweep_cost(plan, rates, 1), sweep.sweep_cost(plan, rates, 2)
+    assert one["machine_hours"] == pytest.approx(310 / 3600) == two["machine_hours"]
+    assert one["wall_hours"] == pytest.approx(310 / 3600)
+    assert two["wall_hours"] == pytest.approx(160 / 3600)  # c, then p1 | p2, then t1 | t2
+    assert two["by_key"]["pretrain"] == (2, pytest.approx(200 / 3600))
+    with pytest.raises(ConfigError, match="no rate for"):
+        sweep.sweep_cost(plan, {"collect": 1.0}, 1)
 
 
 def test_planner_variants_and_bad_backends_are_refused(tmp_path, monkeypatch):
