@@ -311,8 +311,8 @@ def sweep_cost(plan: pd.DataFrame, rates: dict[str, float], nodes: int = 1) -> d
 
     ``rates`` maps each ``rate_key`` of the plan to units per second on one machine running one job at a time
     (e.g. a trainer's env steps/s from ``python -m omcrl.bench rl``). Each job occupies one machine; the schedule is
-    greedy in plan order, a job starting when its dependencies are done and a machine is free (what Ray does with
-    one job's worth of CPUs per node).
+    event-driven, a job starting when its dependencies are done and a machine is free (what Ray does with
+    one job's worth of CPUs per node): whenever a machine is free it takes the first ready job.
 
     Returns
     -------
@@ -321,24 +321,39 @@ def sweep_cost(plan: pd.DataFrame, rates: dict[str, float], nodes: int = 1) -> d
     """
     if nodes < 1:
         raise ConfigError(f"sweep_cost: nodes must be >= 1, got {nodes}")
+    if not len(plan):
+        return {"jobs": 0, "machine_hours": 0.0, "wall_hours": 0.0, "by_key": {}}
     missing = sorted(set(plan["rate_key"]) - set(rates))
     if missing:
         raise ConfigError(f"sweep_cost: no rate for {missing}; rates given for {sorted(rates)}")
-    free = [0.0] * nodes
-    end: dict[str, float] = {}
+    import heapq
+
+    sec = {r.id: r.work / float(rates[r.rate_key]) for r in plan.itertuples()}
+    deps = {r.id: set(r.deps) & set(sec) for r in plan.itertuples()}
     by_key: dict[str, list[float]] = {}
     for r in plan.itertuples():
-        sec = r.work / float(rates[r.rate_key])
-        i = min(range(nodes), key=free.__getitem__)
-        start = max([free[i], *(end.get(d, 0.0) for d in r.deps)])
-        end[r.id] = free[i] = start + sec
         k = by_key.setdefault(r.rate_key, [0, 0.0])
         k[0] += 1
-        k[1] += sec / 3600
+        k[1] += sec[r.id] / 3600
+    # Event-driven list scheduling: whenever a machine is free, it takes the first job (plan order) that is ready.
+    waiting, done, now, free = list(sec), set(), 0.0, nodes
+    running: list[tuple[float, str]] = []
+    while waiting or running:
+        for jid in [j for j in waiting if deps[j] <= done]:
+            if not free:
+                break
+            waiting.remove(jid)
+            heapq.heappush(running, (now + sec[jid], jid))
+            free -= 1
+        if not running:
+            raise ConfigError(f"sweep_cost: jobs {waiting[:3]} wait for dependencies that never finish")
+        now, jid = heapq.heappop(running)
+        done.add(jid)
+        free += 1
     return {
         "jobs": len(plan),
         "machine_hours": sum(v[1] for v in by_key.values()),
-        "wall_hours": max(end.values(), default=0.0) / 3600,
+        "wall_hours": now / 3600,
         "by_key": {k: (int(v[0]), v[1]) for k, v in by_key.items()},
     }
 
@@ -586,6 +601,8 @@ def describe_plan(
         lines.append(f"  {key:<15} {len(g):>4}  {int(g['work'].sum()):,} {unit} ({int(g['table1'].sum())} shared)")
     if rates:
         new = plan[~plan["table1"]]
+        by = sweep_cost(new, rates, 1)["by_key"]
+        lines.append("  machine-hours of the new jobs: " + ", ".join(f"{k} {h:,.1f}" for k, (_, h) in by.items()))
         for n in nodes:
             c = sweep_cost(new, rates, n)
             lines.append(
