@@ -215,3 +215,31 @@ def test_ablation_tables_and_figures(tmp_path):
     for grid in (*FIGURES, "decay"):
         name, fig = plot_ablation(grid, table)
         assert fig.axes and name
+
+
+def test_ablation_findings_give_verdicts_in_the_unseen_scenes():
+    from omcrl.eval.ablation import ablation_findings, findings_summary
+
+    ep = _synthetic_episodes(["linear", "exp", "fixed"], scenes=("box", "tree"), n=30)
+    # exp always fails in tree: linear > exp holds there; linear and fixed are the same (undecided).
+    ep.loc[(ep.label == "exp") & (ep.scene == "tree"), "success"] = False
+    # fixed always succeeds in tree: linear > fixed is reversed there.
+    ep.loc[(ep.label == "fixed") & (ep.scene == "tree"), "success"] = True
+    f = ablation_findings({"decay": ep, "sequential": ep.iloc[:0]}, reps=300)
+    assert set(f.scene) == {"tree"}  # box, the training scene, is not an evaluation scene
+    v = f.set_index("claim")["verdict"].to_dict()
+    assert v == {"linear > exp": "holds", "linear > fixed": "reversed"}
+    s = findings_summary(f).iloc[0]
+    assert (s.holds, s.reversed, s.verdict) == (1, 1, "partly")
+    same = ablation_findings({"decay": _synthetic_episodes(["linear", "exp", "fixed"], n=30)}, reps=300)
+    assert findings_summary(same).iloc[0].verdict == "undecided"
+
+
+def test_findings_are_written(tmp_path):
+    from omcrl.eval.ablation import write_findings
+
+    ep = _synthetic_episodes(["linear", "exp", "fixed"], n=30)
+    f, s, paths = write_findings({"decay": ep}, tmp_path, reps=200)
+    assert pd.read_csv(paths["csv"]).shape == f.shape
+    md = paths["md"].read_text()
+    assert "6 linear decay beats exponential and fixed" in md and "linear > exp" in md and "undecided" in md

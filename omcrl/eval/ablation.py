@@ -50,3 +50,96 @@ def write_ablation(episodes: pd.DataFrame, directory: str | Path, grid: str, rep
             atomic_write_text(path, text)
             paths[f"{name}.{suffix}"] = path
     return paths
+
+
+# The paper's six ablation findings (VI-C) as orderings "a > b" in SR between variants (labels of
+# :data:`omcrl.sweep.GRIDS`), checked in every evaluation scene, as the paper reports ablations there.
+ABLATION_CLAIMS: tuple[tuple[str, str, str, str], ...] = (
+    *(("1 masking: rho = 0.5 is best", "mask-prob", "rho=0.5", f"rho={r}") for r in (0.1, 0.3, 0.7, 0.9)),
+    ("2 sequential input does not help CURL", "sequential", "CURL", "CURL-cons"),
+    ("3 a second Transformer hurts", "dual-transformer", "ours", "ours-dualT"),
+    ("4 phi helps ours and CURL; ours stays ahead", "projection", "ours", "ours w/o phi"),
+    ("4 phi helps ours and CURL; ours stays ahead", "projection", "CURL w/ phi", "CURL"),
+    ("4 phi helps ours and CURL; ours stays ahead", "projection", "ours w/o phi", "CURL"),
+    ("4 phi helps ours and CURL; ours stays ahead", "projection", "ours", "CURL w/ phi"),
+    ("5 the oracle teacher helps ours and NPE", "oracle-teacher", "ours", "ours w/o OT"),
+    ("5 the oracle teacher helps ours and NPE", "oracle-teacher", "NPE w/ OT", "NPE"),
+    ("5 the oracle teacher helps ours and NPE", "oracle-teacher", "ours w/o OT", "NPE w/ OT"),
+    ("6 linear decay beats exponential and fixed", "decay", "linear", "exp"),
+    ("6 linear decay beats exponential and fixed", "decay", "linear", "fixed"),
+)
+
+
+def ablation_findings(
+    episodes: dict[str, pd.DataFrame], scenes: list[str] | None = None, reps: int = 2000
+) -> pd.DataFrame:
+    """Does each ordering of :data:`ABLATION_CLAIMS` hold here?
+
+    Parameters
+    ----------
+    episodes : ``{grid: sweep episodes}`` (``SweepResult.episodes``, with ``label``); grids not given are skipped.
+    scenes : scenes to check (default: every evaluated scene but ``box``, the training scene).
+
+    Returns
+    -------
+    DataFrame ``finding, grid, claim, scene, diff, lo, hi, verdict``: the SR difference a − b in percentage
+    points with its 95 % two-stage bootstrap CI, and ``holds`` (CI above 0), ``reversed`` (below) or
+    ``undecided``.
+    """
+    from omcrl.eval.stats import compare_sr
+
+    rows = []
+    for finding, grid, a, b in ABLATION_CLAIMS:
+        ep = episodes.get(grid)
+        if ep is None or ep.empty or not {a, b} <= set(ep["label"]):
+            continue
+        sub = ep[ep["label"].isin([a, b])].drop(columns=["method"]).rename(columns={"label": "method"})
+        sc = scenes or [s for s in dict.fromkeys(sub["scene"]) if s != "box"]
+        sig = compare_sr(sub, reference=a, scenes=sc, reps=reps)
+        for r in sig.itertuples():
+            verdict = "holds" if r.lo > 0 else ("reversed" if r.hi < 0 else "undecided")
+            rows.append({"finding": finding, "grid": grid, "claim": f"{a} > {b}", "scene": r.scene, "diff": r.diff,
+                         "lo": r.lo, "hi": r.hi, "verdict": verdict})  # fmt: skip
+    return pd.DataFrame(rows, columns=["finding", "grid", "claim", "scene", "diff", "lo", "hi", "verdict"])
+
+
+def findings_summary(findings: pd.DataFrame) -> pd.DataFrame:
+    """One line per finding: how many (claim, scene) checks hold, are reversed or undecided, and a verdict
+    ``holds`` (every check holds), ``does not hold`` (any reversed, none holds), ``partly`` or ``undecided``."""
+    out = []
+    for finding, g in findings.groupby("finding", sort=False):
+        n = g["verdict"].value_counts()
+        h, r, u = (int(n.get(k, 0)) for k in ("holds", "reversed", "undecided"))
+        verdict = (
+            "holds" if h == len(g) else "does not hold" if r and not h else "undecided" if u == len(g) else "partly"
+        )
+        out.append({"finding": finding, "checks": len(g), "holds": h, "reversed": r, "undecided": u,
+                    "verdict": verdict})  # fmt: skip
+    return pd.DataFrame(out, columns=["finding", "checks", "holds", "reversed", "undecided", "verdict"])
+
+
+def write_findings(
+    episodes: dict[str, pd.DataFrame], directory: str | Path, reps: int = 2000
+) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, Path]]:
+    """:func:`ablation_findings` and :func:`findings_summary` of ``episodes``, written as
+    ``ablation_findings.csv`` (every check) and ``ablation_findings.md`` (summary, then the checks)."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    f = ablation_findings(episodes, reps=reps)
+    s = findings_summary(f)
+    paths = {"csv": d / "ablation_findings.csv", "md": d / "ablation_findings.md"}
+    atomic_write_text(paths["csv"], f.to_csv(index=False))
+    from omcrl.eval.stage import to_markdown
+
+    ci = [f"{r.diff:+.1f} [{r.lo:+.1f}, {r.hi:+.1f}]" for r in f.itertuples()]
+    detail = f.assign(**{"SR a − b (pp) [95 % CI]": ci})[
+        ["finding", "claim", "scene", "SR a − b (pp) [95 % CI]", "verdict"]
+    ]
+    text = (
+        "The paper's ablation findings (VI-C), checked in SR in every evaluation scene.\n\n"
+        + to_markdown(s.set_index("finding"), "finding")
+        + "\n"
+        + to_markdown(detail.set_index("finding"), "finding")
+    )
+    atomic_write_text(paths["md"], text)
+    return f, s, paths
