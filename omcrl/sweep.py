@@ -498,8 +498,9 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
 def measured_rates(cfg: Config, grids: Sequence[str] | None = None) -> pd.DataFrame:
     """Rates (work units per second, see :data:`UNITS`) of the jobs that really ran in this preset's sweeps.
 
-    Reads ``results/<preset>/sweeps/<grid>/jobs.csv`` for ``grids`` (default: every grid that has one); cached jobs are left
-    out. Returns one row per ``rate_key``: ``jobs``, ``median_s`` (per job), ``rate`` (median of work / seconds).
+    Reads ``results/<preset>/sweeps/<grid>/jobs.csv`` for ``grids`` (default: every grid that has one); cached
+    jobs are left out. Returns one row per ``rate_key``: ``jobs``, ``median_s`` (per job), ``rate`` (median of
+    work / seconds).
     """
     root = cfg.run_root / "sweeps"
     files = [root / g / "jobs.csv" for g in grids] if grids else sorted(root.glob("*/jobs.csv"))
