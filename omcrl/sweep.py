@@ -515,8 +515,9 @@ def measured_rates(cfg: Config, grids: Sequence[str] | None = None) -> pd.DataFr
 
 
 def _postfix(res: SweepResult, running: set[str]) -> dict[str, Any]:
+    # Jobs handed to Ray wait there until their CPUs are free, so "submitted" counts running and queued jobs.
     c = res.counts()
-    return {"done": c.get("done", 0) + c.get("skipped", 0), "running": len(running), "failed": c.get("failed", 0)}
+    return {"done": c.get("done", 0) + c.get("skipped", 0), "submitted": len(running), "failed": c.get("failed", 0)}
 
 
 def _error(e: BaseException, log: Path) -> str:
