@@ -221,3 +221,37 @@ def test_evaluate_stage_finds_policies_writes_tables_and_caches(chain, monkeypat
     monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))
     again = stage.run(cfg, progress=False)
     pd.testing.assert_frame_equal(again.table, res.table)
+
+
+def test_evaluation_cache_keeps_each_checkpoint_under_one_label(chain, monkeypatch, tmp_path):
+    """A sweep evaluates several checkpoints under one label (the variants of ``ours``): evaluating the second
+    must not evict the first, so a re-run of the first reads its cache."""
+    import omcrl.eval.stage as stage
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", "eval.scenes=[box]", "eval.episodes=2"])
+    first = stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path})
+    second = stage.evaluate_methods(cfg, {"ours": chain["student"].final_path})
+    assert len(list((cfg.run_root / "eval" / "ours" / "seed0").glob("box-*.csv"))) == 2
+    monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))
+    _same_episodes(stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path}), first)
+    _same_episodes(stage.evaluate_methods(cfg, {"ours": chain["student"].final_path}), second)
+
+
+def test_evaluation_cache_reads_files_written_before_the_key_was_in_the_name(chain, monkeypatch, tmp_path):
+    import omcrl.eval.stage as stage
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", "eval.scenes=[box]", "eval.episodes=2"])
+    first = stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path})
+    folder = cfg.run_root / "eval" / "ours" / "seed0"
+    (new,) = folder.glob("box-*.csv")
+    new.rename(folder / "box.csv")
+    new.with_suffix(".json").rename(folder / "box.json")
+    monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))
+    _same_episodes(stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path}), first)
+
+
+def _same_episodes(cached: pd.DataFrame, fresh: pd.DataFrame) -> None:
+    """Cached episodes equal fresh ones; trajectories are stored rounded to the millimetre."""
+    pd.testing.assert_frame_equal(cached.drop(columns="trajectory"), fresh.drop(columns="trajectory"))
+    for a, b in zip(cached.trajectory, fresh.trajectory, strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=6e-4)

@@ -5,7 +5,7 @@
 in ``cfg.eval.scenes`` for ``cfg.eval.episodes`` episodes each (the same evaluation seeds for every method),
 and writes under ``<run_root>/``::
 
-    eval/<method>/seed<k>/<scene>.csv   one row per episode (cache, keyed by checkpoint, env config and seeds)
+    eval/<method>/seed<k>/<scene>-<key>.csv  one row per episode (cache; key: checkpoint, env config, seeds)
     tables/<name>_episodes.csv     all episodes of this evaluation
     tables/<name>.csv              method × scene metrics (long form: NE OS SR SPL CR TTS episodes)
     tables/<name>.md               the paper's Table I layout (methods × (scene, metric))
@@ -99,22 +99,33 @@ def _load(method: str, source: Any) -> tuple[Any, str]:
     return source, (file_digest(Path(ckpt)) if ckpt and Path(ckpt).is_file() else "")
 
 
-def _read_cache(path: Path, key: str) -> pd.DataFrame | None:
-    meta = path.with_suffix(".json")
-    if not key or not path.exists() or not meta.exists():
-        return None
-    if json.loads(meta.read_text()).get("key") != key:
-        return None
-    df = pd.read_csv(path)
-    if "trajectory" in df:
-        df["trajectory"] = [[tuple(p) for p in json.loads(t)] for t in df["trajectory"]]
-    return df
+def _cache_file(folder: Path, stem: str, key: str) -> Path:
+    """The cache file of one evaluation (``<stem>-<key[:12]>.csv``). The key is part of the name so that
+    evaluations of different checkpoints under one label (a sweep's variants of ``ours``, or Table I's ``ours``
+    beside them) never evict each other."""
+    return folder / f"{stem}-{key[:12]}.csv"
 
 
-def _write_cache(path: Path, key: str, df: pd.DataFrame) -> None:
+def _read_cache(folder: Path, stem: str, key: str) -> pd.DataFrame | None:
+    """The cached episodes of ``key`` under ``folder``, or None. Also reads the key-less ``<stem>.csv`` of
+    caches written before the key entered the name, when its stored key matches."""
+    if not key:
+        return None
+    for path in (_cache_file(folder, stem, key), folder / f"{stem}.csv"):
+        meta = path.with_suffix(".json")
+        if path.exists() and meta.exists() and json.loads(meta.read_text()).get("key") == key:
+            df = pd.read_csv(path)
+            if "trajectory" in df:
+                df["trajectory"] = [[tuple(p) for p in json.loads(t)] for t in df["trajectory"]]
+            return df
+    return None
+
+
+def _write_cache(folder: Path, stem: str, key: str, df: pd.DataFrame) -> None:
     out = df.copy()
     if "trajectory" in out:
         out["trajectory"] = [json.dumps([[round(x, 3), round(y, 3)] for x, y in t]) for t in out["trajectory"]]
+    path = _cache_file(folder, stem, key)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, out.to_csv(index=False))
     atomic_write_text(path.with_suffix(".json"), json.dumps({"key": key}))
@@ -139,8 +150,8 @@ def evaluate_methods(
     methods : ``{label: source}``, source = a policy checkpoint path, ``"HybridAPF"`` or a policy object with
         ``act(obs, info)``.
     scenes, episodes : default ``cfg.eval.scenes`` and ``cfg.eval.episodes``.
-    cache : read/write ``<run_root>/eval/<label>/seed<k>/<scene>.csv`` keyed by checkpoint content, env config
-        and episode seeds.
+    cache : read/write ``<run_root>/eval/<label>/seed<k>/<scene>-<key>.csv``, the key a hash of checkpoint content,
+        env config and episode seeds.
     pool : an open :class:`~omcrl.eval.runner.EvalPool` to run episodes in; default: one of
         ``cfg.eval.workers`` processes for this call (in this process when 1). Results do not depend on it.
 
@@ -167,8 +178,8 @@ def evaluate_methods(
             for scene in scenes:
                 ident = {"policy": pkey, "env": env_key, "scene": scene, "episodes": episodes}
                 key = config_hash({**ident, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
-                path = cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}" / f"{scene}.csv"
-                df = _read_cache(path, key) if cache else None
+                folder = cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}"
+                df = _read_cache(folder, scene, key) if cache else None
                 if df is None:
                     df = evaluate(
                         policy,
@@ -182,7 +193,7 @@ def evaluate_methods(
                         config=cfg.env,
                     )
                     if cache and key:
-                        _write_cache(path, key, df)
+                        _write_cache(folder, scene, key, df)
                 frames.append(df.assign(method=label, scene=scene, train_seed=cfg.seed))
     return pd.concat(frames, ignore_index=True)
 

@@ -98,7 +98,7 @@ def disturbance_episodes(
     """Fly every method in the room under every condition; one row per episode (with its trajectory).
 
     Methods and conditions are checked (and policies loaded) before any episode runs. Results are cached under
-    ``<run_root>/interpret/disturbance/<method>/seed<k>/<condition>.csv``, keyed by the policy file, the room's
+    ``<run_root>/interpret/disturbance/<method>/seed<k>/<condition>-<key>.csv``, keyed by the policy file, the room's
     env config, the condition and the episode seeds.
     """
     from omcrl.eval.runner import EvalPool, evaluate
@@ -122,8 +122,8 @@ def disturbance_episodes(
                         "offset": SEED_OFFSET,
                     }
                 )
-                path = cfg.run_root / "interpret" / "disturbance" / m / f"seed{cfg.seed}" / f"{c}.csv"
-                df = _read_cache(path, key) if cache else None
+                folder = cfg.run_root / "interpret" / "disturbance" / m / f"seed{cfg.seed}"
+                df = _read_cache(folder, c, key) if cache else None
                 if df is None:
                     df = evaluate(
                         pol,
@@ -138,7 +138,7 @@ def disturbance_episodes(
                         disturbance=dist or None,
                     )
                     if cache:
-                        _write_cache(path, key, df)
+                        _write_cache(folder, c, key, df)
                 frames.append(df.assign(method=m, condition=c, train_seed=cfg.seed))
     return pd.concat(frames, ignore_index=True)
 
