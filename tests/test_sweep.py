@@ -217,6 +217,16 @@ def test_ablation_tables_and_figures(tmp_path):
         assert fig.axes and name
 
 
+def test_normalised_metrics_are_fractions_of_the_best_variant():
+    from omcrl.viz.ablation import normalised
+
+    idx = pd.MultiIndex.from_product([["a", "b"], ["box"]], names=["method", "scene"])
+    table = pd.DataFrame({"SR": [40.0, 80.0], "SPL": [0.0, 0.0], "NE": [2.0, 1.0], "CR": [30.0, 0.0]}, index=idx)
+    n = normalised(table)["box"]
+    assert n.loc["a"].to_dict() == {"SR": 0.5, "SPL": 1.0, "NE": 0.5, "CR": 0.0}
+    assert n.loc["b"].to_dict() == {"SR": 1.0, "SPL": 1.0, "NE": 1.0, "CR": 1.0}
+
+
 def test_ablation_findings_give_verdicts_in_the_unseen_scenes():
     from omcrl.eval.ablation import ablation_findings, findings_summary
 

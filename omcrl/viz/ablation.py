@@ -48,14 +48,21 @@ def plot_mask_prob(table: pd.DataFrame, reference: str = "CURL") -> plt.Figure:
 
 
 def normalised(table: pd.DataFrame) -> pd.DataFrame:
-    """Per scene and metric, variants scaled to [0, 1] with 1 = best (lower-is-better metrics flipped)."""
+    """Per scene and metric, each variant as a fraction of the best one (1 = best, in [0, 1]).
+
+    Higher-is-better metrics: ``v / max(v)``; lower-is-better ones: ``min(v) / v``. A ratio rather than a
+    min-max scaling, so that with two variants (Fig. 8) the worse one is not drawn at 0 however close it is.
+    A column whose best value is 0 (SR 0 everywhere, or CR 0 for the best) gives 1 to the variants at that value.
+    """
     out = {}
     for sc in _scenes(table):
         for metric in FIG_METRICS:
-            v = table.xs(sc, level="scene")[metric]
-            span = v.max() - v.min()
-            s = (v - v.min()) / span if span > 0 else v * 0 + 1.0
-            out[(sc, metric)] = s if HIGHER_IS_BETTER[metric] else 1 - s
+            v = table.xs(sc, level="scene")[metric].astype(float)
+            if HIGHER_IS_BETTER[metric]:
+                s = v / v.max() if v.max() > 0 else v * 0 + 1.0
+            else:
+                s = (v.min() / v).where(v > 0, 1.0) if v.min() > 0 else (v == 0).astype(float)
+            out[(sc, metric)] = s.clip(0.0, 1.0)
     return pd.DataFrame(out)
 
 
