@@ -319,6 +319,24 @@ def _section_interpret(d: dict, tables: Path) -> list[str]:
     return out
 
 
+def _section_ablations(d: dict, tables: Path) -> list[str]:
+    import pandas as pd
+
+    from omcrl.eval.ablation import findings_summary
+
+    verdicts = findings_summary(pd.read_csv(tables / "ablation_findings.csv"))
+    if verdicts.empty:
+        out = ["None of the paper's ablation grids has run (a smoke grid checks the machinery only).", ""]
+    else:
+        out = ["The paper's six ablation findings, checked in SR in the unseen scenes (`tables/ablation_findings.md`):"]
+        out += ["", _md_table(verdicts.to_dict("records")), ""]
+    names = sorted(p.name for p in tables.glob("*.md") if p.stem.startswith(("ablation_", "table2", "table3")))
+    names = [n for n in names if n != "ablation_findings.md"]
+    if names:
+        out += ["Tables (Table II = `table2.md`, Table III = `table3.md`): " + ", ".join(f"`{n}`" for n in names), ""]
+    return out
+
+
 # (heading, file in tables/ whose presence means the stage ran, what, notebook, renderer)
 SECTIONS = (
     ("## Data (notebook 01)", "data_summary.json", "data", "01_collect_data", _section_data),
@@ -331,6 +349,7 @@ SECTIONS = (
         "04_train_student",
         _section_student,
     ),
+    ("## Ablations (notebook 06)", "ablation_findings.csv", "ablations", "06_ablations", _section_ablations),
     ("## Table I (notebook 07)", "table1.csv", "Table I", "07_tables", _section_table1),
     (
         "## Interpretability and disturbances (notebook 08)",

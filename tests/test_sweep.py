@@ -253,3 +253,9 @@ def test_findings_are_written(tmp_path):
     assert pd.read_csv(paths["csv"]).shape == f.shape
     md = paths["md"].read_text()
     assert "6 linear decay beats exponential and fixed" in md and "linear > exp" in md and "undecided" in md
+    from omcrl.summary import _section_ablations
+
+    text = "\n".join(_section_ablations({}, tmp_path))
+    assert "| 6 linear decay beats exponential and fixed | 2 |" in text
+    write_findings({}, tmp_path / "none")
+    assert "None of the paper's ablation grids has run" in _section_ablations({}, tmp_path / "none")[0]
