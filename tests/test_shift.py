@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from omcrl.config import ConfigError, load_config
 from omcrl.envs import make_env
@@ -188,3 +189,53 @@ def test_randomized_data_has_its_own_file_and_run_and_the_default_keeps_its_key(
     with pytest.raises(DatasetError, match="data.look='randomized'"):
         collect(own, progress=False)
     assert own.data_path.read_bytes() == before
+
+
+class _ReadsPixels(torch.nn.Module):
+    """A stand-in encoder whose features are the first 5 pixels of channel 0 (f is the identity on them)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.f = torch.nn.Identity()
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.f(x[:, 0, 0, :5].float())
+
+
+def _probe_samples(n_eps: int, steps: int, seed: int, scramble: bool = False) -> dict:
+    """Samples whose pixels encode the probe targets linearly (or, scrambled, belong to other samples)."""
+    from omcrl.pretrain.probe import probe_targets
+
+    rng = np.random.default_rng(seed)
+    n = n_eps * steps
+    priv = rng.normal(0, 2, (n, 6)).astype(np.float32)
+    depth = rng.uniform(0.5, 8.0, (n, 16, 16)).astype(np.float32)
+    t = probe_targets(priv, depth)
+    rgb = np.zeros((n, 3, 16, 16), np.uint8)
+    lo, hi = np.array([0.0, -1, -1, 0, -8]), np.array([12.0, 1, 1, 8, 8])  # one scale for every setting
+    rgb[:, 0, 0, :5] = np.round(np.clip((t - lo) / (hi - lo), 0, 1) * 255)
+    if scramble:
+        rgb = rgb[rng.permutation(n)]
+    return {"rgb": rgb, "privileged": priv, "depth": depth, "episode": np.repeat(np.arange(n_eps), steps)}
+
+
+def test_probe_fitted_in_box_is_tested_in_every_setting():
+    from omcrl.interpret.shift import pilot_samples, probe_across
+    from omcrl.pretrain.probe import TARGETS
+
+    samples = {"box": _probe_samples(10, 40, 0), "same look": _probe_samples(4, 40, 1),
+               "scrambled": _probe_samples(4, 40, 2, scramble=True)}  # fmt: skip
+    df = probe_across(_ReadsPixels(), samples, alpha=1e-3)
+    r2 = df.pivot(index="setting", columns="target", values="r2")
+    assert list(df.setting.unique()) == ["box", "same look", "scrambled"] and set(r2.columns) == set(TARGETS)
+    assert (r2.loc["box"] > 0.99).all() and (r2.loc["same look"] > 0.99).all()  # geometry carries over
+    assert (r2.loc["scrambled"] < 0.1).all()  # features unrelated to the geometry: no better than the mean
+    with pytest.raises(KeyError, match="reference setting 'box'"):
+        probe_across(_ReadsPixels(), {"tree": samples["box"]})
+    with pytest.raises(KeyError, match="lack 'privileged'"):
+        probe_across(_ReadsPixels(), {"box": samples["box"], "tree": {"rgb": samples["box"]["rgb"]}})
+    # The env gives what the probe needs: the privileged vector and the newest depth frame per kept stack.
+    cfg = load_config("smoke")
+    s = pilot_samples("box", 1, seed=3, env_config=cfg.env, max_steps=10, privileged=True)
+    size = cfg.env.image_size
+    assert s["privileged"].shape == (len(s["rgb"]), 6) and s["depth"].shape == (len(s["rgb"]), size, size)

@@ -44,6 +44,7 @@ def pilot_samples(
     max_steps: int = 150,
     masks: bool = False,
     successful_only: bool = False,
+    privileged: bool = False,
 ) -> dict[str, np.ndarray]:
     """Observations along scripted-pilot episodes (Hybrid APF on the true map).
 
@@ -59,18 +60,21 @@ def pilot_samples(
     masks : also return the obstacle pixels of the newest frame (:meth:`NavEnv.obstacle_mask`; one extra render
         per kept step).
     successful_only : keep only the steps of episodes that reached the goal.
+    privileged : also return the privileged vector and the newest depth frame (what the linear probe's targets
+        are computed from, :func:`omcrl.pretrain.probe.probe_targets`).
 
     Returns
     -------
     ``{"rgb": (N, 3L, H, W) uint8 stacks the encoder takes, "state": (N, 12) float32, "episode": (N,) int,
-    "mask": (N, H, W) bool (with ``masks``)}``.
+    "mask": (N, H, W) bool (with ``masks``), "privileged": (N, 6) float32 and "depth": (N, H, W) float32 in m
+    (with ``privileged``)}``.
     """
     from omcrl.envs import make_env
     from omcrl.planners import HybridAPF
 
     env = make_env(scene, seed=seed, config=env_config, disturbance=disturbance)
     pilot = HybridAPF(env.cfg).bind(env)
-    keep: dict[str, list] = {"rgb": [], "state": [], "episode": [], "mask": []}
+    keep: dict[str, list] = {"rgb": [], "state": [], "episode": [], "mask": [], "privileged": [], "depth": []}
     try:
         for i in range(episodes):
             obs, info = env.reset(seed=seed + i)
@@ -84,6 +88,9 @@ def pilot_samples(
                     ep["episode"].append(i)
                     if masks:
                         ep["mask"].append(env.obstacle_mask())
+                    if privileged:
+                        ep["privileged"].append(np.asarray(obs["privileged"], np.float32))
+                        ep["depth"].append(np.asarray(obs["depth"][-1], np.float32))
                 obs, _, term, trunc, info = env.step(pilot.act(obs, info))
                 if term or trunc:
                     break
@@ -101,6 +108,9 @@ def pilot_samples(
     }
     if masks:
         out["mask"] = np.stack(keep["mask"])
+    if privileged:
+        out["privileged"] = np.stack(keep["privileged"])
+        out["depth"] = np.stack(keep["depth"])
     return out
 
 
@@ -202,6 +212,58 @@ def shift_table(encoders: Mapping[str, Any], frames: Mapping[str, np.ndarray], r
     for name, enc in encoders.items():
         for setting, fr in frames.items():
             rows.append({"encoder": name, "setting": setting, **feature_shift(enc, frames[reference], fr)})
+    return pd.DataFrame(rows)
+
+
+def probe_across(
+    encoder: Any,
+    samples: Mapping[str, Mapping[str, np.ndarray]],
+    reference: str = "box",
+    test_fraction: float = 0.3,
+    alpha: float | None = None,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """The linear probe fitted in ``reference`` and tested in every setting: does the encoder's geometry carry over?
+
+    Parameters
+    ----------
+    encoder : a frozen encoder (``FrozenEncoder`` or a random one) taking the stacks of ``samples``.
+    samples : ``{setting: pilot_samples(..., privileged=True)}``; must hold ``reference``.
+    reference : the setting the probes are fitted in (its episodes split: ``test_fraction`` held out).
+    alpha : ridge penalty; None chooses it per target by cross-validation grouped by episode.
+
+    Returns
+    -------
+    DataFrame ``setting, target, r2, n``: held-out R² per target of :data:`omcrl.pretrain.probe.TARGETS` in each
+    setting (the reference's held-out episodes first). R² below 0 means worse than predicting the mean.
+    """
+    from sklearn.metrics import r2_score
+
+    from omcrl.pretrain.probe import TARGETS, fit_probes, probe_targets
+
+    if reference not in samples:
+        raise KeyError(f"probe_across: reference setting {reference!r} not in samples {sorted(samples)}")
+    missing = [k for k, v in samples.items() if "privileged" not in v or "depth" not in v]
+    if missing:
+        raise KeyError(f"probe_across: settings {missing} lack 'privileged'/'depth' (pilot_samples(privileged=True))")
+
+    def xy(sample: Mapping[str, np.ndarray], idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        z, _ = encode(encoder, sample["rgb"][idx])
+        return z.astype(np.float64), probe_targets(sample["privileged"][idx], sample["depth"][idx])
+
+    ref = samples[reference]
+    eps = np.unique(ref["episode"])
+    rng = np.random.default_rng(seed)
+    test_eps = rng.permutation(eps)[: min(max(1, round(test_fraction * len(eps))), len(eps) - 1)]
+    is_test = np.isin(ref["episode"], test_eps)
+    x_tr, y_tr = xy(ref, np.flatnonzero(~is_test))
+    models = fit_probes(x_tr, y_tr, ref["episode"][~is_test], alpha)
+    rows = []
+    for setting, sample in [(reference, None), *((k, v) for k, v in samples.items() if k != reference)]:
+        idx = np.flatnonzero(is_test) if sample is None else np.arange(len(sample["rgb"]))
+        x, y = xy(ref if sample is None else sample, idx)
+        for i, (t, m) in enumerate(zip(TARGETS, models)):
+            rows.append({"setting": setting, "target": t, "r2": float(r2_score(y[:, i], m.predict(x))), "n": len(x)})
     return pd.DataFrame(rows)
 
 

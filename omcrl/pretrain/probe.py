@@ -65,6 +65,27 @@ def _collect(
     return np.concatenate(feats).astype(np.float64), np.concatenate(targets), np.concatenate(groups)
 
 
+def fit_probes(x: np.ndarray, y: np.ndarray, groups: np.ndarray, alpha: float | None = None) -> list:
+    """One standardised ridge model per target column of ``y`` (N, len(TARGETS)) on features ``x`` (N, d).
+
+    ``alpha`` None chooses the penalty per target from :data:`ALPHAS` by cross-validation grouped by ``groups``
+    (episode ids), when there are at least 3 groups; else ``alpha`` (default 1.0) is used as is.
+    """
+    models = []
+    for i in range(y.shape[1]):
+        model = make_pipeline(StandardScaler(), Ridge(alpha=alpha if alpha is not None else 1.0))
+        if alpha is None and len(np.unique(groups)) >= 3:
+            # Consecutive frames are near-duplicates: folds must split by episode, or the CV picks a penalty
+            # that memorises trajectories and the held-out R² collapses.
+            cv = GroupKFold(n_splits=min(5, len(np.unique(groups))))
+            search = GridSearchCV(model, {"ridge__alpha": ALPHAS}, cv=cv, scoring="r2")
+            model = search.fit(x, y[:, i], groups=groups).best_estimator_
+        else:
+            model.fit(x, y[:, i])
+        models.append(model)
+    return models
+
+
 def probe(
     encoder: torch.nn.Module,
     dataset: TrajectoryDataset,
@@ -107,16 +128,6 @@ def probe(
     encoder.eval()
     x_tr, y_tr, g_tr = _collect(encoder, dataset, train_eps, n_samples - n_test, rng, batch_size)
     x_te, y_te, _ = _collect(encoder, dataset, test_eps, n_test, rng, batch_size)
-    out = {}
-    for i, t in enumerate(TARGETS):
-        model = make_pipeline(StandardScaler(), Ridge(alpha=alpha if alpha is not None else 1.0))
-        if alpha is None and len(np.unique(g_tr)) >= 3:
-            # Consecutive frames are near-duplicates: folds must split by episode, or the CV picks a penalty
-            # that memorises trajectories and the held-out R² collapses.
-            cv = GroupKFold(n_splits=min(5, len(np.unique(g_tr))))
-            search = GridSearchCV(model, {"ridge__alpha": ALPHAS}, cv=cv, scoring="r2")
-            model = search.fit(x_tr, y_tr[:, i], groups=g_tr).best_estimator_
-        else:
-            model.fit(x_tr, y_tr[:, i])
-        out[t] = float(r2_score(y_te[:, i], model.predict(x_te)))
+    models = fit_probes(x_tr, y_tr, g_tr, alpha)
+    out = {t: float(r2_score(y_te[:, i], m.predict(x_te))) for i, (t, m) in enumerate(zip(TARGETS, models))}
     return {**out, "n_train": len(x_tr), "n_test": len(x_te)}
