@@ -234,6 +234,13 @@ def test_probe_fitted_in_box_is_tested_in_every_setting():
         probe_across(_ReadsPixels(), {"tree": samples["box"]})
     with pytest.raises(KeyError, match="lack 'privileged'"):
         probe_across(_ReadsPixels(), {"box": samples["box"], "tree": {"rgb": samples["box"]["rgb"]}})
+    from omcrl.viz.shift import plot_probe_across
+
+    fig = plot_probe_across(df.assign(encoder="pixels"), target="depth_ahead")
+    assert [t.get_text() for t in fig.axes[0].get_xticklabels()] == ["box", "same look", "scrambled"]
+    assert f"{r2.loc['box', 'depth_ahead']:.2f}" in [t.get_text() for t in fig.axes[0].texts]
+    with pytest.raises(ValueError, match="no rows for target 'nope'"):
+        plot_probe_across(df.assign(encoder="pixels"), target="nope")
     # The env gives what the probe needs: the privileged vector and the newest depth frame per kept stack.
     cfg = load_config("smoke")
     s = pilot_samples("box", 1, seed=3, env_config=cfg.env, max_steps=10, privileged=True)

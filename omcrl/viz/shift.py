@@ -32,3 +32,27 @@ def plot_feature_shift(table: pd.DataFrame, metrics: tuple[str, ...] = ("mmd", "
     axes[0][0].legend(fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def plot_probe_across(table: pd.DataFrame, target: str | None = None, floor: float = -2.0) -> plt.Figure:
+    """Heatmap of the box-fitted probe's R² per encoder (rows) and setting (columns), the value printed in each cell.
+
+    ``table`` is :func:`omcrl.interpret.shift.probe_across`'s output with an ``encoder`` column added. ``target``
+    picks one probe target; None averages the five. Colours are clipped at ``floor`` (R² is unbounded below),
+    the printed numbers are not.
+    """
+    sub = table if target is None else table[table["target"] == target]
+    if sub.empty:
+        raise ValueError(f"plot_probe_across: no rows for target {target!r}")
+    wide = sub.groupby(["encoder", "setting"], sort=False)["r2"].mean().unstack("setting")
+    wide = wide[list(dict.fromkeys(sub["setting"]))]
+    fig, ax = plt.subplots(figsize=(1.5 + 1.3 * wide.shape[1], 1.0 + 0.5 * wide.shape[0]))
+    im = ax.imshow(wide.clip(lower=floor).to_numpy(), cmap="RdYlGn", vmin=floor, vmax=1.0, aspect="auto")
+    for (i, j), v in np.ndenumerate(wide.to_numpy()):
+        ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=8)
+    ax.set_xticks(range(wide.shape[1]), wide.columns, rotation=30, ha="right", fontsize=8)
+    ax.set_yticks(range(wide.shape[0]), wide.index, fontsize=8)
+    ax.set_title(f"probe fitted in the reference, R² ({target or 'mean of the targets'})", fontsize=9)
+    fig.colorbar(im, ax=ax, fraction=0.03)
+    fig.tight_layout()
+    return fig
