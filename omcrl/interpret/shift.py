@@ -239,7 +239,7 @@ def probe_across(
     """
     from sklearn.metrics import r2_score
 
-    from omcrl.pretrain.probe import TARGETS, fit_probes, probe_targets
+    from omcrl.pretrain.probe import TARGETS, fit_probes, probe_targets, split_episodes
 
     if reference not in samples:
         raise KeyError(f"probe_across: reference setting {reference!r} not in samples {sorted(samples)}")
@@ -252,16 +252,15 @@ def probe_across(
         return z.astype(np.float64), probe_targets(sample["privileged"][idx], sample["depth"][idx])
 
     ref = samples[reference]
-    eps = np.unique(ref["episode"])
-    rng = np.random.default_rng(seed)
-    test_eps = rng.permutation(eps)[: min(max(1, round(test_fraction * len(eps))), len(eps) - 1)]
+    test_eps, _ = split_episodes(np.unique(ref["episode"]), test_fraction, np.random.default_rng(seed))
     is_test = np.isin(ref["episode"], test_eps)
     x_tr, y_tr = xy(ref, np.flatnonzero(~is_test))
     models = fit_probes(x_tr, y_tr, ref["episode"][~is_test], alpha)
+    tests = [(reference, ref, np.flatnonzero(is_test))]
+    tests += [(k, v, np.arange(len(v["rgb"]))) for k, v in samples.items() if k != reference]
     rows = []
-    for setting, sample in [(reference, None), *((k, v) for k, v in samples.items() if k != reference)]:
-        idx = np.flatnonzero(is_test) if sample is None else np.arange(len(sample["rgb"]))
-        x, y = xy(ref if sample is None else sample, idx)
+    for setting, sample, idx in tests:
+        x, y = xy(sample, idx)
         for i, (t, m) in enumerate(zip(TARGETS, models)):
             rows.append({"setting": setting, "target": t, "r2": float(r2_score(y[:, i], m.predict(x))), "n": len(x)})
     return pd.DataFrame(rows)

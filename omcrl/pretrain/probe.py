@@ -65,6 +65,15 @@ def _collect(
     return np.concatenate(feats).astype(np.float64), np.concatenate(targets), np.concatenate(groups)
 
 
+def split_episodes(
+    episodes: np.ndarray, test_fraction: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """(held-out, training) episode ids: a random ``test_fraction`` of ``episodes`` (at least one each side)."""
+    perm = rng.permutation(episodes)
+    k = min(max(1, round(test_fraction * len(episodes))), len(episodes) - 1)
+    return perm[:k], perm[k:]
+
+
 def fit_probes(x: np.ndarray, y: np.ndarray, groups: np.ndarray, alpha: float | None = None) -> list:
     """One standardised ridge model per target column of ``y`` (N, len(TARGETS)) on features ``x`` (N, d).
 
@@ -121,9 +130,7 @@ def probe(
             f"(encoder crop_from), got {dataset.image_size}"
         )
     rng = np.random.default_rng(seed)
-    perm = rng.permutation(len(dataset))
-    n_test_eps = min(max(1, round(test_fraction * len(dataset))), len(dataset) - 1)
-    test_eps, train_eps = perm[:n_test_eps], perm[n_test_eps:]
+    test_eps, train_eps = split_episodes(np.arange(len(dataset)), test_fraction, rng)
     n_test = max(1, round(test_fraction * n_samples))
     encoder.eval()
     x_tr, y_tr, g_tr = _collect(encoder, dataset, train_eps, n_samples - n_test, rng, batch_size)

@@ -61,8 +61,8 @@ def normalised(table: pd.DataFrame) -> pd.DataFrame:
             if HIGHER_IS_BETTER[metric]:
                 s = v / v.max() if v.max() > 0 else v * 0 + 1.0
             else:
-                s = (v.min() / v).where(v > 0, 1.0) if v.min() > 0 else (v == 0).astype(float)
-            out[(sc, metric)] = s.clip(0.0, 1.0)
+                s = v.min() / v if v.min() > 0 else (v == 0).astype(float)
+            out[(sc, metric)] = s
     return pd.DataFrame(out)
 
 
