@@ -47,6 +47,10 @@ STAGES: dict[str, tuple[str, str]] = {
         "omcrl.interpret.stage:run",
         "disturbance tests in a simulated room, Grad-CAM mass on obstacles, feature stability (notebook 08)",
     ),
+    "transfer": (
+        "omcrl.interpret.transfer:run",
+        "why a box-trained student fails zero-shot: geometry vs look, blind student, feature shift, probe across",
+    ),
     "sweep": (
         "omcrl.sweep:sweep_stage",
         "run a named ablation grid over seeds: sweep GRID [--seeds 0,1,2] [--backend ray|local] [--address A]",

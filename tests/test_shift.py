@@ -246,3 +246,34 @@ def test_probe_fitted_in_box_is_tested_in_every_setting():
     s = pilot_samples("box", 1, seed=3, env_config=cfg.env, max_steps=10, privileged=True)
     size = cfg.env.image_size
     assert s["privileged"].shape == (len(s["rgb"]), 6) and s["depth"].shape == (len(s["rgb"]), size, size)
+
+
+def test_disturbed_evaluations_have_their_own_cache_and_undisturbed_keys_do_not_change(tmp_path):
+    from omcrl.eval.stage import evaluate_methods
+
+    cfg = load_config("smoke", overrides={"results_dir": str(tmp_path), "eval": {"workers": 1}})
+    own = evaluate_methods(cfg, {"HybridAPF": "HybridAPF"}, ["box"], 2)
+    folder = tmp_path / "smoke" / "eval" / "HybridAPF" / "seed0"
+    (plain,) = folder.glob("box-*.csv")
+    look = {"appearance": "furniture", "appearance_parts": "surroundings"}
+    swapped = evaluate_methods(cfg, {"HybridAPF": "HybridAPF"}, ["box"], 2, disturbance=look)
+    (cached,) = folder.glob("box-furniture-surroundings-*.csv")
+    # The undisturbed cache keeps its file; the swapped look is another evaluation of the same layouts.
+    assert sorted(p.name for p in folder.glob("*.csv")) == sorted([plain.name, cached.name])
+    np.testing.assert_allclose(own["optimal_path_length"], swapped["optimal_path_length"])
+    mtime = cached.stat().st_mtime_ns
+    again = evaluate_methods(cfg, {"HybridAPF": "HybridAPF"}, ["box"], 2, disturbance=look)
+    assert cached.stat().st_mtime_ns == mtime  # read from the cache
+    cols = ["final_distance", "success", "collision", "steps", "path_length"]
+    np.testing.assert_allclose(again[cols].to_numpy(float), swapped[cols].to_numpy(float), rtol=1e-6)
+
+
+def test_transfer_stage_names_the_missing_run_before_any_work(tmp_path):
+    from omcrl.interpret import transfer
+    from omcrl.rl.policy import CheckpointError
+
+    cfg = load_config("smoke", overrides={"results_dir": str(tmp_path)})
+    with pytest.raises(CheckpointError, match="train --method ours --preset smoke --seed 0"):
+        transfer.run(cfg)
+    assert not (tmp_path / "smoke" / "tables").exists()
+    assert transfer.pilot_episodes(cfg) == 2 and transfer.pilot_episodes(load_config("quick")) == 12

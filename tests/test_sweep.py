@@ -259,3 +259,68 @@ def test_findings_are_written(tmp_path):
     assert "| 6 linear decay beats exponential and fixed | 2 |" in text
     write_findings({}, tmp_path / "none")
     assert "None of the paper's ablation grids has run" in _section_ablations({}, tmp_path / "none")[0]
+
+
+def test_scaled_overrides_multiply_the_value_before_them():
+    from omcrl.sweep import _config, _scaled
+
+    cfg = load_config("smoke")
+    n, it = cfg.data.episodes, cfg.pretrain.iterations
+    assert _scaled(cfg, ["data.episodes*=3", "pretrain.iterations*=0.5", "seed=2"]) == [
+        f"data.episodes={3 * n}",
+        f"pretrain.iterations={round(it * 0.5)}",
+        "seed=2",
+    ]
+    # Sequential: a scale applies to what the overrides before it set.
+    assert _config(cfg, ["data.episodes=10", "data.episodes*=2"], 0).data.episodes == 20
+    for bad, msg in (
+        ("data.epsiodes*=2", "does not exist"),
+        ("data.episodes*=many", "expected a number"),
+        ("data.look*=2", "numeric field"),
+    ):
+        with pytest.raises(ConfigError, match=msg):
+            _scaled(cfg, [bad])
+
+
+def test_remedy_grids_run_at_full_budget_beside_the_table1_student():
+    from omcrl.pretrain.train import pretrain_run
+    from omcrl.rl.methods import encoder_config
+    from omcrl.sweep import ABLATION_GRIDS, REMEDY_GRIDS
+
+    cfg = load_config("quick")  # its sweep budgets (50 k steps, 750 iterations) differ from its full ones
+    assert not set(REMEDY_GRIDS) & set(ABLATION_GRIDS)  # `sweep all` stays the paper's six grids
+    jobs = expand(cfg, "remedy-data", [0])
+    pre = {j.label or j.overrides: j for j in jobs if j.kind == "pretrain"}
+    ids = {j.id for j in jobs}
+    # The default student is the Table I run: same encoder folder, no budget overrides anywhere.
+    assert f"pretrain:{pretrain_run(encoder_config(cfg, 'ours')).dir}" in ids
+    assert all(not any(o.startswith(("rl.total_steps", "pretrain.iterations")) for o in j.overrides) for j in jobs)
+    (x3,) = [j for j in jobs if j.kind == "collect" and j.overrides]
+    assert x3.id.endswith("box-x3.h5")
+    assert len(pre) == 2 and sum(j.kind == "train" and j.method == "oracle" for j in jobs) == 1
+    # The paper's d changes the oracle's width too: that remedy needs its own oracle.
+    d = expand(cfg, "remedy-d", [0])
+    assert sum(j.kind == "train" and j.method == "oracle" for j in d) == 2
+
+
+def test_remedy_verdicts_compare_with_the_default_and_check_the_target(tmp_path):
+    from omcrl.eval.ablation import remedy_verdicts, write_remedies
+
+    ep = _synthetic_episodes(["default", "more data"], scenes=("box", "furniture", "tree"), n=30)
+    ep.loc[(ep.label == "default") & (ep.scene == "furniture"), "success"] = False
+    ep.loc[(ep.label == "more data") & (ep.scene == "tree"), "success"] = False
+    checks, summary = remedy_verdicts(ep, reps=300)
+    c = checks.set_index(["label", "scene"])
+    assert c.loc[("more data", "furniture"), "change"] == "better" and c.loc[("more data", "furniture"), "diff"] > 60
+    assert c.loc[("more data", "tree"), "change"] == "worse"
+    assert c.loc[("more data", "box"), "change"] == "unresolved"
+    s = summary.set_index("label")
+    assert s.loc["default", "target"] == "not met" and s.loc["default", "in"] == "furniture"
+    assert s.loc["more data", "target"] == "not met" and s.loc["more data", "lowest unseen SR"] == 0
+    ok = _synthetic_episodes(["default", "more data"], scenes=("box", "tree"), n=30)
+    assert remedy_verdicts(ok, reps=200)[1].set_index("label").loc["more data", "target"] == "met"  # 67 % ≥ 50 %
+    _, _, paths = write_remedies(ep, tmp_path, "remedy-data", reps=200)
+    md = paths["md"].read_text()
+    assert "| more data |" in md and "not met" in md and "variant − default" in md
+    with pytest.raises(KeyError, match="reference variant"):
+        remedy_verdicts(ep[ep.label != "default"], reps=50)

@@ -143,3 +143,97 @@ def write_findings(
     )
     atomic_write_text(paths["md"], text)
     return f, s, paths
+
+
+# The zero-shot target of the generalisation issue: SR at least this (%) in every unseen scene.
+ZERO_SHOT_TARGET = 50.0
+
+
+def remedy_verdicts(
+    episodes: pd.DataFrame, reference: str = "default", target: float = ZERO_SHOT_TARGET, reps: int = 2000
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """How each remedy of a ``remedy-*`` sweep (:data:`omcrl.sweep.REMEDY_VARIANTS`) changes the zero-shot SR.
+
+    Parameters
+    ----------
+    episodes : a sweep's evaluation episodes (``label`` = variant, ``scene``, ``train_seed``, ``success`` ...).
+    reference : the label of the unchanged student.
+    target : SR (%) the issue asks for in every unseen scene.
+
+    Returns
+    -------
+    (checks, summary). ``checks``: one row per variant and scene, ``label, scene, seeds, SR, SR_lo, SR_hi``
+    (% with the two-stage bootstrap 95 % CI) and, for the remedies, ``diff, diff_lo, diff_hi`` (variant −
+    reference in percentage points) and ``change`` (``better`` / ``worse`` where the CI excludes 0, else
+    ``unresolved``). ``summary``: one row per variant, its lowest SR over the unseen scenes (every scene but
+    box) and ``target``: ``met`` (every unseen SR ≥ target), ``met within CI`` (every upper bound ≥ target),
+    or ``not met``.
+    """
+    from omcrl.eval.stats import compare_sr
+
+    ep = episodes.drop(columns=["method"], errors="ignore").rename(columns={"label": "method"})
+    if reference not in set(ep["method"]):
+        raise KeyError(f"remedy_verdicts: no episodes of the reference variant {reference!r}")
+    agg = aggregate(ep, ("method", "scene"), reps=reps)
+    sig = compare_sr(ep, reference=reference, reps=reps)
+    rows = []
+    for (label, scene), r in agg.iterrows():
+        row = {"label": label, "scene": scene, "seeds": int(r["seeds"]), "SR": r["SR"], "SR_lo": r["SR_lo"],
+               "SR_hi": r["SR_hi"]}  # fmt: skip
+        d = sig[(sig.scene == scene) & (sig.method == label)]
+        if len(d):
+            # compare_sr gives reference − variant; a remedy is read as variant − reference.
+            diff, lo, hi = (0.0 - float(d[c].iloc[0]) for c in ("diff", "hi", "lo"))
+            row.update(diff=diff, diff_lo=lo, diff_hi=hi,
+                       change="better" if lo > 0 else "worse" if hi < 0 else "unresolved")  # fmt: skip
+        rows.append(row)
+    checks = pd.DataFrame(rows)
+    summary = []
+    for label, g in checks[checks.scene != "box"].groupby("label", sort=False):
+        met = "met" if (g.SR >= target).all() else "met within CI" if (g.SR_hi >= target).all() else "not met"
+        worst = g.loc[g.SR.idxmin()]
+        summary.append({"label": label, "seeds": int(g.seeds.min()), "lowest unseen SR": float(worst.SR),
+                        "in": worst.scene, "target": met})  # fmt: skip
+    return checks, pd.DataFrame(summary, columns=["label", "seeds", "lowest unseen SR", "in", "target"])
+
+
+def write_remedies(
+    episodes: pd.DataFrame, directory: str | Path, grid: str, reps: int = 2000
+) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, Path]]:
+    """:func:`remedy_verdicts` written as ``remedy_<grid>.csv`` (every check) and ``remedy_<grid>.md``."""
+    from omcrl.eval.stage import to_markdown
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    checks, summary = remedy_verdicts(episodes, reps=reps)
+    paths = {"csv": d / f"remedy_{grid}.csv", "md": d / f"remedy_{grid}.md"}
+    atomic_write_text(paths["csv"], checks.to_csv(index=False))
+
+    def ci(v: float, lo: float, hi: float, sign: str = "") -> str:
+        return "" if pd.isna(v) else f"{v:{sign}.0f} [{lo:{sign}.0f}, {hi:{sign}.0f}]"
+
+    table = checks.assign(
+        **{
+            "SR % [95 % CI]": [ci(r.SR, r.SR_lo, r.SR_hi) for r in checks.itertuples()],
+            "vs default (pp)": [
+                ci(getattr(r, "diff", float("nan")), getattr(r, "diff_lo", 0), getattr(r, "diff_hi", 0), "+")
+                for r in checks.itertuples()
+            ],
+        }
+    )
+    wide = table.pivot(index="label", columns="scene", values="SR % [95 % CI]").loc[list(dict.fromkeys(checks.label))]
+    wide = wide[list(dict.fromkeys(checks.scene))]
+    diffs = table[table["vs default (pp)"] != ""]
+    text = (
+        f"Remedies (`{grid}`): the guided student with one change each, trained in box only, SR over "
+        f"{int(checks.seeds.max())} seed(s); target ≥ {ZERO_SHOT_TARGET:.0f} % in every unseen scene.\n\n"
+        + to_markdown(wide, "variant")
+        + "\n"
+        + to_markdown(summary.set_index("label"), "variant")
+    )
+    if len(diffs):
+        dw = diffs.pivot(index="label", columns="scene", values="vs default (pp)")
+        dw = dw.loc[list(dict.fromkeys(diffs.label)), list(dict.fromkeys(diffs.scene))]
+        text += "\nChange against the default (variant − default, pp, 95 % CI):\n\n" + to_markdown(dw, "variant")
+    atomic_write_text(paths["md"], text)
+    return checks, summary, paths

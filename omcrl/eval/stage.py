@@ -140,6 +140,7 @@ def evaluate_methods(
     cache: bool = True,
     progress: bool = False,
     pool: EvalPool | None = None,
+    disturbance: Mapping[str, Any] | None = None,
 ) -> pd.DataFrame:
     """Evaluate each method in each scene on the same evaluation seeds; one row per episode.
 
@@ -154,6 +155,8 @@ def evaluate_methods(
         env config and episode seeds.
     pool : an open :class:`~omcrl.eval.runner.EvalPool` to run episodes in; default: one of
         ``cfg.eval.workers`` processes for this call (in this process when 1). Results do not depend on it.
+    disturbance : passed to every env (e.g. ``{"appearance": "box"}``: each scene's layouts in box's look, see
+        :class:`omcrl.envs.Disturbance`); part of the cache key, and of the cache file's name.
 
     Every method, and every training seed ``cfg.seed``, is evaluated on the same episodes: episode ``i`` resets
     with seed ``cfg.eval.seed_offset + i`` (paired comparisons across methods and seeds).
@@ -177,9 +180,12 @@ def evaluate_methods(
             policy, pkey = _load(label, source)
             for scene in scenes:
                 ident = {"policy": pkey, "env": env_key, "scene": scene, "episodes": episodes}
+                if disturbance:  # only when set: undisturbed evaluations keep their keys
+                    ident["disturbance"] = dict(disturbance)
                 key = config_hash({**ident, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
                 folder = cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}"
-                df = _read_cache(folder, scene, key) if cache else None
+                stem = scene if not disturbance else f"{scene}-" + "-".join(f"{v}" for v in disturbance.values())
+                df = _read_cache(folder, stem, key) if cache else None
                 if df is None:
                     df = evaluate(
                         policy,
@@ -191,9 +197,10 @@ def evaluate_methods(
                         progress=progress,
                         workers=pool or 1,
                         config=cfg.env,
+                        **({"disturbance": dict(disturbance)} if disturbance else {}),
                     )
                     if cache and key:
-                        _write_cache(folder, scene, key, df)
+                        _write_cache(folder, stem, key, df)
                 frames.append(df.assign(method=label, scene=scene, train_seed=cfg.seed))
     return pd.concat(frames, ignore_index=True)
 

@@ -296,6 +296,7 @@ def with_fixed_features(policy: Any, z: np.ndarray) -> Any:
     out.agent = copy.deepcopy(policy.agent)
     out.agent.features.__dict__["encoder"] = _FixedFeatures(z)
     out.name = f"{policy.name}+fixed-features"
+    out.checkpoint = ""  # not the file's policy any more: no evaluation cache may take it for it
     return out
 
 

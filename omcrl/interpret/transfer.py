@@ -1,0 +1,213 @@
+"""The zero-shot diagnosis as a stage (``python -m omcrl transfer --preset P``; docs/generalization.md).
+
+Why does a student trained in box fail in an unseen scene? ``run(cfg)`` measures, for the Table I runs at
+``cfg.seeds`` (the encoders at ``cfg.seed``):
+
+    tables/transfer_appearance.{csv,md}  SR of ``ours`` with each scene's layouts in its own and in another look
+                                         (geometry vs appearance; ``Disturbance.appearance``), 95 % CIs
+    tables/transfer_blind.{csv,md}       SR of ``ours`` with its visual features fixed at the mean box feature
+                                         (does goal seeking survive without vision?) beside its SR with vision
+    tables/transfer_shift.{csv,md}       feature shift from box (MMD², Fréchet, saturated units) of OMC, CURL and a
+                                         random encoder, per setting
+    tables/transfer_probe.{csv,md}       the pretraining probe fitted on box pilot frames and tested per setting
+
+Frames come from scripted-pilot flights (Hybrid APF on the true map) with seeds from :data:`PILOT_SEED`, disjoint
+from training and evaluation; the SR tables use Table I's evaluation episodes, so their own-look rows are Table I's
+cached evaluations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from omcrl.config import Config
+
+PILOT_SEED = 5_000_000
+# (setting, layout scene, disturbance): what the shift and probe tables compare with box. "box, other layouts"
+# is a second box sample (the sampling floor); the two look-swapped settings hold geometry fixed.
+SETTINGS: tuple[tuple[str, str, dict | None], ...] = (
+    ("box", "box", None),
+    ("box, other layouts", "box", None),
+    ("box layout, furniture look", "box", {"appearance": "furniture"}),
+    ("furniture", "furniture", None),
+    ("furniture layout, box look", "furniture", {"appearance": "box"}),
+    ("barrier", "barrier", None),
+    ("tree", "tree", None),
+)
+# (layout, look, part swapped): the student's SR with geometry and appearance varied separately.
+SWAPS: tuple[tuple[str, str, str], ...] = (
+    ("box", "box", "all"),
+    ("box", "furniture", "all"),
+    ("box", "furniture", "surroundings"),
+    ("box", "furniture", "obstacles"),
+    ("furniture", "furniture", "all"),
+    ("furniture", "box", "all"),
+    ("furniture", "box", "surroundings"),
+    ("furniture", "box", "obstacles"),
+    ("barrier", "barrier", "all"),
+    ("barrier", "box", "all"),
+    ("tree", "tree", "all"),
+    ("tree", "box", "all"),
+)
+
+
+@dataclass(repr=False)
+class TransferResult:
+    """The four diagnosis tables, the pilot samples behind the last two, and the files written."""
+
+    appearance: pd.DataFrame
+    blind: pd.DataFrame
+    shift: pd.DataFrame
+    probe: pd.DataFrame
+    samples: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    paths: dict[str, Path] = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        with pd.option_context("display.width", 160, "display.max_columns", 20):
+            probe = self.probe.groupby(["encoder", "setting"], sort=False)["r2"].mean().unstack(0)
+            parts = [
+                "-- geometry vs appearance (SR %)",
+                self.appearance.round(1).to_string(index=False),
+                "-- with the mean box feature instead of vision (SR %)",
+                self.blind.round(1).to_string(index=False),
+                "-- feature shift from box",
+                self.shift.round(3).to_string(index=False),
+                "-- box-fitted probe, mean R² over the targets",
+                probe.round(2).to_string(),
+            ]
+        return "\n".join(parts + [f"{k}: {v}" for k, v in self.paths.items()])
+
+
+def pilot_episodes(cfg: Config) -> int:
+    """Pilot episodes per setting (the box reference flies twice as many): a quarter of the evaluation episodes,
+    at least 2 (quick: 12)."""
+    return max(2, cfg.eval.episodes // 4)
+
+
+def setting_samples(cfg: Config, episodes: int | None = None) -> dict[str, dict[str, np.ndarray]]:
+    """:func:`omcrl.interpret.shift.pilot_samples` (with the probe's privileged targets) of every setting in
+    :data:`SETTINGS`. Box and "box, other layouts" fly different seeds; every other setting flies the seeds of
+    "box, other layouts", so the two look-swapped settings share their geometry with a scene of their own."""
+    from omcrl.interpret.shift import pilot_samples
+
+    n = int(episodes if episodes is not None else pilot_episodes(cfg))
+    out = {}
+    for name, scene, dist in SETTINGS:
+        seed, k = (PILOT_SEED + 100, 2 * n) if name == "box" else (PILOT_SEED, n)
+        out[name] = pilot_samples(scene, k, seed, env_config=cfg.env, disturbance=dist, privileged=True)
+    return out
+
+
+def appearance_table(cfg: Config, seeds: Sequence[int] | None = None, method: str = "ours") -> pd.DataFrame:
+    """SR/CR/NE of ``method`` for every (layout, look, part) of :data:`SWAPS`, over ``seeds`` (default
+    ``cfg.seeds``), on Table I's evaluation episodes, with 95 % two-stage bootstrap CIs."""
+    from omcrl.eval.stage import evaluate_methods
+    from omcrl.eval.stats import aggregate
+
+    frames = []
+    for s in seeds if seeds is not None else cfg.seeds:
+        c = cfg.with_seed(s)
+        path = _policy(c, method)
+        for layout, look, part in SWAPS:
+            dist = None if look == layout else {"appearance": look, "appearance_parts": part}
+            df = evaluate_methods(c, {method: path}, [layout], disturbance=dist)
+            frames.append(df.assign(setting=f"{layout} | {look} | {part}"))
+    ep = pd.concat(frames, ignore_index=True)
+    agg = aggregate(ep, ("setting",))
+    rows = []
+    for (layout, look, part), (_, r) in zip(SWAPS, agg.iterrows(), strict=True):
+        shown = look if part == "all" else f"{look} {part}"
+        rows.append({"layout": layout, "look": shown, "own look": look == layout, "seeds": int(r.seeds),
+                     "SR": r.SR, "SR_lo": r.SR_lo, "SR_hi": r.SR_hi, "CR": r.CR, "NE": r.NE})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def blind_table(
+    cfg: Config, reference: dict[str, np.ndarray], seeds: Sequence[int] | None = None, method: str = "ours"
+) -> pd.DataFrame:
+    """SR of ``method`` with vision and with its features fixed at the mean feature of ``reference`` (box pilot
+    samples: ``{"rgb": (N, 3L, H, W) uint8}``), per evaluation scene, over ``seeds`` (default ``cfg.seeds``)."""
+    from omcrl.eval.stage import evaluate_methods
+    from omcrl.eval.stats import aggregate
+    from omcrl.interpret.shift import encode, with_fixed_features
+    from omcrl.rl import load_policy
+
+    frames = []
+    for s in seeds if seeds is not None else cfg.seeds:
+        c = cfg.with_seed(s)
+        path = _policy(c, method)
+        policy = load_policy(path, name=method)
+        z, _ = encode(policy.agent.features.encoder, reference["rgb"])
+        blind = with_fixed_features(policy, z.mean(0))
+        frames.append(evaluate_methods(c, {"with vision": path}).assign(method="with vision"))
+        frames.append(evaluate_methods(c, {"mean box feature": blind}, cache=False).assign(method="mean box feature"))
+    agg = aggregate(pd.concat(frames, ignore_index=True), ("scene", "method"))
+    return agg.reset_index()[["scene", "method", "seeds", "SR", "SR_lo", "SR_hi", "CR", "NE"]]
+
+
+def encoders(cfg: Config, methods: Sequence[str] = ("ours", "curl")) -> dict[str, Any]:
+    """The frozen encoders of ``methods`` at ``cfg.seed`` and a random one of ``methods[0]``'s shape.
+    A missing one raises :class:`~omcrl.rl.policy.CheckpointError` naming the command that makes it."""
+    from omcrl.interpret.stage import encoders_for_stability
+
+    return encoders_for_stability(cfg, methods)
+
+
+def run(
+    cfg: Config,
+    *,
+    methods: Sequence[str] = ("ours", "curl"),
+    episodes: int | None = None,
+    progress: bool = True,
+) -> TransferResult:
+    """CLI stage ``transfer``: the four tables of the module docstring under ``<run_root>/tables``.
+
+    Every input (the ``ours`` runs at ``cfg.seeds``, the encoders of ``methods`` at ``cfg.seed``) is found before
+    any episode runs. ``episodes``: pilot episodes per setting (default :func:`pilot_episodes`).
+    """
+    from omcrl.eval.stage import to_markdown
+    from omcrl.interpret.shift import probe_across, shift_table
+    from omcrl.utils.io import atomic_write_text
+
+    for s in cfg.seeds:
+        _policy(cfg.with_seed(s), "ours")  # fail early, before the long parts
+    enc = encoders(cfg, methods)
+    samples = setting_samples(cfg, episodes)
+    appearance = appearance_table(cfg)
+    blind = blind_table(cfg, samples["box"])
+    shift = shift_table(enc, {k: v["rgb"] for k, v in samples.items()}, reference="box")
+    probe = pd.concat([probe_across(e, samples, seed=cfg.seed).assign(encoder=k) for k, e in enc.items()])
+    out = cfg.run_root / "tables"
+    out.mkdir(parents=True, exist_ok=True)
+    probe_wide = probe.groupby(["setting", "encoder"], sort=False)["r2"].mean().unstack("encoder")
+    paths: dict[str, Path] = {}
+    for name, df, md in (
+        ("appearance", appearance, to_markdown(appearance.round(2).set_index("layout"), "layout")),
+        ("blind", blind, to_markdown(blind.round(2).set_index("scene"), "scene")),
+        ("shift", shift, to_markdown(shift.round(3).set_index("encoder"), "encoder")),
+        ("probe", probe, to_markdown(probe_wide.round(2).loc[list(dict.fromkeys(probe.setting))], "setting")),
+    ):
+        paths[f"transfer_{name}.csv"] = out / f"transfer_{name}.csv"
+        paths[f"transfer_{name}.md"] = out / f"transfer_{name}.md"
+        atomic_write_text(paths[f"transfer_{name}.csv"], df.to_csv(index=False))
+        atomic_write_text(paths[f"transfer_{name}.md"], md)
+    return TransferResult(appearance, blind, shift, probe, samples, paths)
+
+
+def _policy(cfg: Config, method: str) -> Path:
+    from omcrl.rl.methods import final_policy_path
+    from omcrl.rl.policy import CheckpointError
+
+    path = final_policy_path(cfg, method)
+    if path is None:
+        raise CheckpointError(
+            f"transfer: no finished {method} run at seed {cfg.seed}; run first: "
+            f"python -m omcrl train --method {method} --preset {cfg.preset} --seed {cfg.seed}"
+        )
+    return path
