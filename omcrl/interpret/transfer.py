@@ -90,34 +90,40 @@ def pilot_episodes(cfg: Config) -> int:
     return max(2, cfg.eval.episodes // 4)
 
 
-def setting_samples(cfg: Config, episodes: int | None = None) -> dict[str, dict[str, np.ndarray]]:
+def setting_samples(
+    cfg: Config, episodes: int | None = None, *, progress: bool = False
+) -> dict[str, dict[str, np.ndarray]]:
     """:func:`omcrl.interpret.shift.pilot_samples` (with the probe's privileged targets) of every setting in
     :data:`SETTINGS`. Box and "box, other layouts" fly different seeds; every other setting flies the seeds of
     "box, other layouts", so the two look-swapped settings share their geometry with a scene of their own."""
     from omcrl.interpret.shift import pilot_samples
+    from omcrl.utils.progress import track
 
     n = int(episodes if episodes is not None else pilot_episodes(cfg))
     out = {}
-    for name, scene, dist in SETTINGS:
+    for name, scene, dist in track(SETTINGS, desc="transfer/pilot frames", unit="setting", enabled=progress):
         seed, k = (PILOT_SEED + 100, 2 * n) if name == "box" else (PILOT_SEED, n)
         out[name] = pilot_samples(scene, k, seed, env_config=cfg.env, disturbance=dist, privileged=True)
     return out
 
 
-def appearance_table(cfg: Config, seeds: Sequence[int] | None = None, method: str = "ours") -> pd.DataFrame:
+def appearance_table(
+    cfg: Config, seeds: Sequence[int] | None = None, method: str = "ours", *, progress: bool = False
+) -> pd.DataFrame:
     """SR/CR/NE of ``method`` for every (layout, look, part) of :data:`SWAPS`, over ``seeds`` (default
     ``cfg.seeds``), on Table I's evaluation episodes, with 95 % two-stage bootstrap CIs."""
     from omcrl.eval.stage import evaluate_methods
     from omcrl.eval.stats import aggregate
+    from omcrl.utils.progress import track
 
     frames = []
-    for s in seeds if seeds is not None else cfg.seeds:
+    seeds = list(seeds if seeds is not None else cfg.seeds)
+    jobs = [(s, *swap) for s in seeds for swap in SWAPS]
+    for s, layout, look, part in track(jobs, desc="transfer/looks", unit="eval", enabled=progress):
         c = cfg.with_seed(s)
-        path = _policy(c, method)
-        for layout, look, part in SWAPS:
-            dist = None if look == layout else {"appearance": look, "appearance_parts": part}
-            df = evaluate_methods(c, {method: path}, [layout], disturbance=dist)
-            frames.append(df.assign(setting=f"{layout} | {look} | {part}"))
+        dist = None if look == layout else {"appearance": look, "appearance_parts": part}
+        df = evaluate_methods(c, {method: _policy(c, method)}, [layout], disturbance=dist)
+        frames.append(df.assign(setting=f"{layout} | {look} | {part}"))
     ep = pd.concat(frames, ignore_index=True)
     agg = aggregate(ep, ("setting",))
     rows = []
@@ -178,8 +184,8 @@ def run(
     for s in cfg.seeds:
         _policy(cfg.with_seed(s), "ours")  # fail early, before the long parts
     enc = encoders(cfg, methods)
-    samples = setting_samples(cfg, episodes)
-    appearance = appearance_table(cfg)
+    samples = setting_samples(cfg, episodes, progress=progress)
+    appearance = appearance_table(cfg, progress=progress)
     blind = blind_table(cfg, samples["box"])
     shift = shift_table(enc, {k: v["rgb"] for k, v in samples.items()}, reference="box")
     probe = pd.concat([probe_across(e, samples, seed=cfg.seed).assign(encoder=k) for k, e in enc.items()])
