@@ -337,6 +337,32 @@ def _section_ablations(d: dict, tables: Path) -> list[str]:
     return out
 
 
+def _section_transfer(d: dict, tables: Path) -> list[str]:
+    import pandas as pd
+
+    look = pd.read_csv(tables / "transfer_appearance.csv")
+    rows = [
+        {
+            "layout": r.layout,
+            "look": r.look,
+            "seeds": r.seeds,
+            "SR [95% CI]": f"{r.SR:.0f} [{r.SR_lo:.0f}, {r.SR_hi:.0f}]",
+        }
+        for r in look.itertuples()
+    ]
+    out = ["Student `ours` with each scene's layouts in its own look and in another (`tables/transfer_*.md`):", ""]
+    out += [_md_table(rows), ""]
+    if (tables / "transfer_blind.csv").exists():
+        blind = pd.read_csv(tables / "transfer_blind.csv")
+        wide = blind.pivot(index="method", columns="scene", values="SR")
+        wide = wide.loc[list(dict.fromkeys(blind.method)), list(dict.fromkeys(blind.scene))]
+        out += ["SR with vision and with the mean box feature instead (goal seeking without vision):", ""]
+        out += [_md_table(wide.round(0).reset_index().to_dict("records")), ""]
+    for p in sorted(tables.glob("remedy_*.md")):
+        out += [f"Remedies, `{p.name}`:", "", p.read_text(encoding="utf-8").strip(), ""]
+    return out
+
+
 # (heading, file in tables/ whose presence means the stage ran, what, notebook, renderer)
 SECTIONS = (
     ("## Data (notebook 01)", "data_summary.json", "data", "01_collect_data", _section_data),
@@ -357,6 +383,13 @@ SECTIONS = (
         "interpretability",
         "08_interpretability",
         _section_interpret,
+    ),
+    (
+        "## Zero-shot diagnosis and remedies (notebook 08, `transfer`, `sweep remedy-*`)",
+        "transfer_appearance.csv",
+        "zero-shot diagnosis",
+        "08_interpretability",
+        _section_transfer,
     ),
     ("## Deployment (notebook 09)", "deploy_summary.json", "deployment", "09_deploy_tello", _section_deploy),
 )

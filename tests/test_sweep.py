@@ -324,3 +324,12 @@ def test_remedy_verdicts_compare_with_the_default_and_check_the_target(tmp_path)
     assert "| more data |" in md and "not met" in md and "variant − default" in md
     with pytest.raises(KeyError, match="reference variant"):
         remedy_verdicts(ep[ep.label != "default"], reps=50)
+    # The summary shows the remedies beside the transfer diagnosis.
+    from omcrl.summary import _section_transfer
+
+    pd.DataFrame(
+        [{"layout": "box", "look": "furniture", "own look": False, "seeds": 2, "SR": 3.0, "SR_lo": 0.0, "SR_hi": 8.0,
+          "CR": 60.0, "NE": 4.0}]
+    ).to_csv(tmp_path / "transfer_appearance.csv", index=False)  # fmt: skip
+    text = "\n".join(_section_transfer({}, tmp_path))
+    assert "| box | furniture | 2 | 3 [0, 8] |" in text and "Remedies, `remedy_remedy-data.md`" in text
