@@ -266,6 +266,8 @@ def test_disturbed_evaluations_have_their_own_cache_and_undisturbed_keys_do_not_
     assert cached.stat().st_mtime_ns == mtime  # read from the cache
     cols = ["final_distance", "success", "collision", "steps", "path_length"]
     np.testing.assert_allclose(again[cols].to_numpy(float), swapped[cols].to_numpy(float), rtol=1e-6)
+    # A planner has no checkpoint: the cached rows say "" like the fresh ones (not NaN).
+    assert list(again.checkpoint) == list(swapped.checkpoint) == ["", ""]
 
 
 def test_transfer_stage_names_the_missing_run_before_any_work(tmp_path):

@@ -115,6 +115,9 @@ def _read_cache(folder: Path, stem: str, key: str) -> pd.DataFrame | None:
         meta = path.with_suffix(".json")
         if path.exists() and meta.exists() and json.loads(meta.read_text()).get("key") == key:
             df = pd.read_csv(path)
+            # CSV writes "" and NaN alike; a planner's empty checkpoint must come back as "", like a fresh row.
+            if "checkpoint" in df:
+                df["checkpoint"] = df["checkpoint"].fillna("").astype(str)
             if "trajectory" in df:
                 df["trajectory"] = [[tuple(p) for p in json.loads(t)] for t in df["trajectory"]]
             return df
