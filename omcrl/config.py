@@ -28,7 +28,10 @@ PRESET_DIR = Path(__file__).parent / "presets"
 ROOT_ENV = "OMCRL_ROOT"
 # Fields added after runs existed, with the value that means "as before": at that value they are left out of run
 # identities and hashes, so existing runs keep their keys (see omcrl.pretrain.train.pretrain_run).
-NEUTRAL_DEFAULTS: dict[str, dict[str, Any]] = {"data": {"look": "own"}, "pretrain": {"color_jitter": 0.0}}
+NEUTRAL_DEFAULTS: dict[str, dict[str, Any]] = {
+    "data": {"look": "own"},
+    "pretrain": {"color_jitter": 0.0, "seq_stride": 1},
+}
 
 
 def drop_neutral(section: str, values: dict) -> dict:
@@ -167,6 +170,9 @@ class PretrainConfig:
     warmup_steps: int = _f(6000, lo=0, hi=10000000, doc="linear warm-up then inverse-sqrt decay for xi")
     iterations: int = _f(2000, lo=1, hi=100000000, doc="optimisation steps")
     cons_stride: int = _f(1, lo=1, hi=100, doc="CURL-cons: step gap between the two consecutive stacks")
+    seq_stride: int = _f(
+        1, lo=1, hi=100, doc="OMC: env steps between consecutive stacks of a sequence (1 = consecutive, the paper)"
+    )
     color_jitter: float = _f(
         0.0,
         lo=0.0,

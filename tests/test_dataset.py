@@ -171,6 +171,21 @@ def test_sampler_never_crosses_episodes_and_pads_start(tmp_path):
     assert s.sample_stacks(5).shape == (5, 3 * L, 10, 10)
 
 
+def test_sequence_stride_spaces_the_stacks_and_stays_inside_the_episode(tmp_path):
+    p = make_synthetic_dataset(tmp_path / "d.h5", n_episodes=3, length=[5, 12, 9], image_size=12, pattern="ids")
+    s = SequenceSampler(open_dataset(p), batch_size=16, seq_len=3, frame_stack=2, crop=(12, 12), seed=0, seq_stride=4)
+    for _ in range(10):
+        x, idx = s.sample_sequences(return_index=True)
+        for b, (ep, t0) in enumerate(idx):
+            # The newest frame of each stack is t0, t0 + 4, t0 + 8; the window of 9 steps fits the episode.
+            np.testing.assert_array_equal(x[b, :, -2, 0, 0].numpy(), t0 + 4 * np.arange(3))
+            assert ep != 0 and t0 + 8 < s.ds.episode_lengths[ep]  # episode 0 (5 steps) is too short
+    with pytest.raises(DatasetError, match=r"no episode has >= 25 steps \(seq_len=3, seq_stride=12"):
+        SequenceSampler(open_dataset(p), 2, 3, crop=(12, 12), seq_stride=12)
+    with pytest.raises(ValueError, match="seq_stride"):
+        SequenceSampler(open_dataset(p), 2, 3, crop=(12, 12), seq_stride=0)
+
+
 def test_crop_offset_shared_by_frames_of_a_stack(tmp_path):
     S = 12
     yy, xx = np.mgrid[:S, :S]

@@ -246,6 +246,7 @@ def test_interrupted_run_resumes_to_identical_result(data, tmp_path):
             {"use_projection": False, "dual_transformer": True, "batch_negatives": False, "mask_prob": 0.3},
             "omc-rho0.3-nophi-dualT-seqneg",
         ),
+        ({"seq_stride": 2}, "omc-stride2"),
     ],
 )
 def test_variants_run(data, tmp_path, pre, name):
@@ -326,12 +327,12 @@ def test_color_jitter_changes_colours_not_masks_and_is_seeded():
     assert not torch.allclose(out, color_jitter(seq, 0.5, torch.Generator().manual_seed(1)))
 
 
-def test_color_jitter_default_keeps_run_keys(tmp_path):
-    from omcrl.pretrain.train import pretrain_run
+@pytest.mark.parametrize("field, value", [("color_jitter", 0.4), ("seq_stride", 3)])
+def test_fields_added_later_keep_run_keys_at_their_default(tmp_path, field, value):
+    from omcrl.pretrain.train import _hashes, pretrain_run
 
     base = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
-    on = load_config("smoke", overrides=[f"results_dir={tmp_path}", "pretrain.color_jitter=0.4"])
-    assert "color_jitter" not in pretrain_run(base).identity["pretrain"]
-    assert (
-        pretrain_run(on).identity["pretrain"]["color_jitter"] == 0.4 and pretrain_run(on).key != pretrain_run(base).key
-    )
+    on = load_config("smoke", overrides=[f"results_dir={tmp_path}", f"pretrain.{field}={value}"])
+    assert field not in pretrain_run(base).identity["pretrain"]
+    assert pretrain_run(on).identity["pretrain"][field] == value and pretrain_run(on).key != pretrain_run(base).key
+    assert _hashes(on, "fp") != _hashes(base, "fp")  # a resumed checkpoint of the other setting is not taken

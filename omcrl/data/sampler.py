@@ -21,12 +21,15 @@ class SequenceSampler:
     ----------
     dataset : an open :class:`TrajectoryDataset`.
     batch_size : B, sequences per batch.
-    seq_len : T, consecutive stacks per sequence. Episodes shorter than T are never used for sequences.
+    seq_len : T, stacks per sequence. Episodes shorter than a window ((T - 1) · seq_stride + 1 steps) are never
+        used for sequences.
     frame_stack : L, frames per stack (default: the dataset's).
     crop : ``(crop_from, crop_to)``; ``crop_from`` must equal the stored image size. Each stack gets its own
         random crop offset, shared by its L frames (CURL-style).
     seed : same seed → same batches.
     cache_episodes : keep the rgb of this many most recently used episodes in memory (0 = read every time).
+    seq_stride : env steps between consecutive stacks of a sequence (1 = consecutive steps, the paper's
+        sequences; k > 1 samples the trajectory at 1/k of the control rate).
 
     Notes
     -----
@@ -43,9 +46,14 @@ class SequenceSampler:
         crop: tuple[int, int] | None = None,
         seed: int = 0,
         cache_episodes: int = 0,
+        seq_stride: int = 1,
     ) -> None:
         self.ds = dataset
         self.B, self.T = int(batch_size), int(seq_len)
+        if int(seq_stride) < 1:
+            raise ValueError(f"seq_stride: expected an integer >= 1, got {seq_stride}")
+        self.stride = int(seq_stride)
+        span = (self.T - 1) * self.stride + 1  # env steps one sequence covers
         self.L = int(frame_stack or dataset.frame_stack)
         crop_from, crop_to = crop if crop is not None else (dataset.image_size, dataset.image_size)
         if int(crop_from) != dataset.image_size:
@@ -62,10 +70,11 @@ class SequenceSampler:
         lengths = dataset.episode_lengths
         if len(lengths) == 0:
             raise DatasetError(f"dataset {dataset.path}: contains no complete episode")
-        self._seq_w = np.clip(lengths - self.T + 1, 0, None).astype(np.float64)
+        self._seq_w = np.clip(lengths - span + 1, 0, None).astype(np.float64)
         if self._seq_w.sum() == 0:
             raise DatasetError(
-                f"dataset {dataset.path}: no episode has >= seq_len={self.T} steps (longest has {int(lengths.max())})"
+                f"dataset {dataset.path}: no episode has >= {span} steps (seq_len={self.T}, seq_stride={self.stride}; "
+                f"longest has {int(lengths.max())})"
             )
         self._step_w = lengths.astype(np.float64)
 
@@ -110,7 +119,7 @@ class SequenceSampler:
     def sample_sequences(
         self, batch_size: int | None = None, return_index: bool = False
     ) -> torch.Tensor | tuple[torch.Tensor, np.ndarray]:
-        """B sequences of T consecutive stacks: uint8 (B, T, 3L, crop_to, crop_to).
+        """B sequences of T stacks ``seq_stride`` steps apart: uint8 (B, T, 3L, crop_to, crop_to).
 
         With ``return_index`` also returns int64 (B, 2) rows of (episode, first step).
         """
@@ -119,7 +128,7 @@ class SequenceSampler:
         starts = np.array([self.rng.integers(0, int(self._seq_w[e])) for e in eps], dtype=np.int64)
         out = []
         for ep, t0 in zip(eps, starts):
-            out.append(self._crop(self._stacks(int(ep), np.arange(t0, t0 + self.T))))
+            out.append(self._crop(self._stacks(int(ep), t0 + self.stride * np.arange(self.T))))
         x = torch.from_numpy(np.stack(out))
         return (x, np.stack([eps, starts], axis=1)) if return_index else x
 

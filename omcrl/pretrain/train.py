@@ -62,7 +62,7 @@ class PretrainResult:
 def method_name(p: PretrainConfig) -> str:
     """Run folder name: the method plus every ablation flag that differs from the paper's OMC setting.
 
-    ``omc``, ``omc-rho0.3``, ``omc-nophi``, ``omc-dualT``, ``omc-seqneg``, ``curl`` (no φ, as in CURL),
+    ``omc``, ``omc-rho0.3``, ``omc-nophi``, ``omc-dualT``, ``omc-seqneg``, ``omc-stride3``, ``curl`` (no φ, as in CURL),
     ``curl-phi``, ``curl_cons``, ``curl_cons-stride3``.
     """
     name = p.method
@@ -75,6 +75,8 @@ def method_name(p: PretrainConfig) -> str:
             name += "-dualT"
         if not p.batch_negatives:
             name += "-seqneg"
+        if p.seq_stride != 1:
+            name += f"-stride{p.seq_stride}"
     else:
         if p.use_projection:
             name += "-phi"
@@ -215,7 +217,14 @@ def run(
     rgb_bytes = ds.n_steps * 3 * ds.image_size**2
     cache = len(ds) if rgb_bytes <= _CACHE_BYTES else 0
     sampler = SequenceSampler(
-        ds, p.batch_size, p.seq_len, L, crop=(p.crop_from, p.crop_to), seed=cfg.seed, cache_episodes=cache
+        ds,
+        p.batch_size,
+        p.seq_len,
+        L,
+        crop=(p.crop_from, p.crop_to),
+        seed=cfg.seed,
+        cache_episodes=cache,
+        seq_stride=p.seq_stride if p.method == "omc" else 1,
     )
     gen = torch.Generator().manual_seed(cfg.seed + 1)
     start, rows = 0, []
