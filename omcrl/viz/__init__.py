@@ -22,6 +22,14 @@ def save_figure(fig: Any, directory: str | Path, name: str, dpi: int = 120) -> P
     return path
 
 
+def steps_axis(axis: Any) -> None:
+    """Label a matplotlib axis (``ax.xaxis`` or ``ax.yaxis``) of env steps in thousands ("50k"): full step counts
+    run into each other on a figure's width."""
+    from matplotlib.ticker import FuncFormatter
+
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v / 1000:g}k" if v else "0"))
+
+
 def __getattr__(name: str) -> Any:  # ``omcrl.viz.data`` etc. without importing every submodule up front
     try:
         return importlib.import_module(f"{__name__}.{name}")

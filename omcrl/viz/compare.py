@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from omcrl.runs import metric_series
+from omcrl.viz import steps_axis
 from omcrl.viz.pretrain import smooth
 
 CURVE_METRICS = (("episodic_return", "episodic reward"), ("success_rate", "training success rate"))
@@ -83,6 +84,7 @@ def plot_learning_curves(
             ax.plot(x, y, style, color=f"C{i}", label=f"{labels.get(method, method)} ({n} seed{'s' if n > 1 else ''})")
             ax.fill_between(x, lo, hi, color=f"C{i}", alpha=0.18, lw=0)
         ax.set(xlabel="env steps", title=title)
+        steps_axis(ax.xaxis)
         if metric == "success_rate":
             ax.set(ylim=(-0.02, 1.02), ylabel="fraction of episodes")
         else:
@@ -136,6 +138,7 @@ def plot_sample_efficiency(eff: pd.DataFrame, budget: float, threshold: float = 
         ylim=(0, budget * 1.25),
     )
     ax.tick_params(axis="x", rotation=30)
+    steps_axis(ax.yaxis)
     fig.tight_layout()
     return fig
 

@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from omcrl.viz import steps_axis
 from omcrl.viz.pretrain import final_value, read_metrics, smooth
 
 # (panel title, metrics drawn in it); several metrics in one panel are told apart by line style.
@@ -66,6 +67,7 @@ def plot_training_curves(
                 ax.plot(s, smooth(v, window), color=f"C{i}", ls=style, label=tag)
     for ax, (ptitle, names) in zip(axes.flat, panels):
         ax.set(xlabel="env steps", title=ptitle)
+        steps_axis(ax.xaxis)
         if "success_rate" in names:
             ax.set_ylim(-0.03, 1.03)
         if any(nm.endswith("loss") for nm in names):
