@@ -99,8 +99,8 @@ def test_write_table1_layout_bold_and_dashes(tmp_path):
     table, sig, paths = write_table1(df, tmp_path, reps=200)
     md = paths["md"].read_text()
     rows = {line.split("|")[1].strip(): line for line in md.splitlines() if line.startswith("| ")}
-    # The oracle is privileged: its 100% is not the bold best; ours is.
-    assert "**70.0 ±" in rows["Ours"] and "**" not in rows["Oracle"].split("|")[3]
+    # The oracle is privileged: its 100% is not the bold best; ours is, and the best learned method too (italics).
+    assert "**_70.0 ±" in rows["Ours"] and "**" not in rows["Oracle"].split("|")[3]
     assert rows["PPO"].rstrip(" |").endswith("–")  # no success -> no TTS
     long = pd.read_csv(paths["csv"])
     assert set(long.metric) == {"NE", "OS", "SR", "SPL", "CR", "TTS"} and (long.seeds == 1).all()
@@ -109,6 +109,26 @@ def test_write_table1_layout_bold_and_dashes(tmp_path):
     vs = pd.read_csv(paths["vs_paper_csv"])
     ours_sr = vs[(vs.method == "ours") & (vs.scene == "furniture") & (vs.metric == "SR")].iloc[0]
     assert ours_sr.paper == 91.5 and ours_sr.kit == pytest.approx(70.0)
+
+
+def test_best_learned_method_is_marked_beside_a_better_planner(tmp_path):
+    df = pd.concat(
+        [
+            _episodes("hybrid-apf-perceptive", "tree", [1.0]),
+            _episodes("ours", "tree", [0.5]),
+            _episodes("ppo", "tree", [0.8]),
+        ],
+        ignore_index=True,
+    )
+    _, _, paths = write_table1(df, tmp_path, reps=200)
+    rows = {line.split("|")[1].strip(): line for line in paths["md"].read_text().splitlines() if line.startswith("| ")}
+    sr = {m: row.split("|")[4].strip() for m, row in rows.items()}
+    # The (non-privileged) perceptive planner is best: bold, not italic; PPO is the best learned method: italic.
+    assert sr["Hybrid APF (perceptive)"].startswith("**100.0") and "_" not in sr["Hybrid APF (perceptive)"]
+    assert sr["PPO"].startswith("_80.0") and sr["PPO"].endswith("_") and "**" not in sr["PPO"]
+    assert "_" not in sr["Ours"] and "**" not in sr["Ours"]
+    tex = paths["tex"].read_text()
+    assert "\\underline{80.0" in tex and "\\textbf{100.0" in tex
 
 
 def test_paper_table1_file_is_the_papers_values():

@@ -7,7 +7,8 @@ each planner in every scene on the same evaluation episodes (cached per checkpoi
 
     table1.csv            long form: method, scene, metric, mean, lo, hi, seeds, episodes
     table1.md, .tex       the paper's layout (methods × scenes × NE OS SR SPL CR TTS), mean ± CI half-width,
-                          best non-privileged method in bold, "–" for TTS without a success
+                          best non-privileged method in bold, best learned method in italics (LaTeX:
+                          underlined), "–" for TTS without a success
     table1_vs_paper.csv/.md   the paper's reported values beside ours (paper_table1.csv in this package)
     table1_significance.csv   ours vs every other method, SR difference per scene with CI and p-value
     table1_episodes.csv   every evaluated episode
@@ -134,13 +135,16 @@ def table1_frames(table: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(long, wide) views: long rows method/scene/metric/mean/lo/hi; wide cells 'mean ± half' with bold marks.
 
     Bold (``**x**``) marks the best value per scene and metric among methods that are not privileged (the
-    oracle and the privileged Hybrid APF are upper references, not competitors).
+    oracle and the privileged Hybrid APF are upper references, not competitors). Italics (``_x_``) mark the best
+    learned, non-privileged method: a planner that is not privileged (the perceptive Hybrid APF) takes most bolds,
+    and without a second mark the best learned policy would not stand out.
     """
     from omcrl.rl.methods import METHODS
 
     methods = list(dict.fromkeys(table.index.get_level_values("method")))
     scenes = list(dict.fromkeys(table.index.get_level_values("scene")))
     eligible = [m for m in methods if not (m in METHODS and METHODS[m].privileged)]
+    learned = [m for m in eligible if m in METHODS and METHODS[m].learned]
     long_rows, wide = [], pd.DataFrame(index=methods, columns=pd.MultiIndex.from_product([scenes, METRICS]))
     for (m, sc), row in table.iterrows():
         for metric in METRICS:
@@ -159,13 +163,17 @@ def table1_frames(table: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     for sc in scenes:
         for metric in METRICS:
             best = _best(table, sc, metric, eligible)
+            best_learned = _best(table, sc, metric, learned)
             for m in methods:
                 if (m, sc) not in table.index:
                     wide.loc[m, (sc, metric)] = ""
                     continue
                 r = table.loc[(m, sc)]
                 cell = _fmt(r[metric], r[f"{metric}_lo"], r[f"{metric}_hi"], metric)
-                wide.loc[m, (sc, metric)] = f"**{cell}**" if m in best else cell
+                if cell != "–":
+                    cell = f"_{cell}_" if m in best_learned else cell
+                    cell = f"**{cell}**" if m in best else cell
+                wide.loc[m, (sc, metric)] = cell
     return pd.DataFrame(long_rows), wide
 
 
@@ -193,7 +201,10 @@ def _latex(wide: pd.DataFrame, labels: dict[str, str]) -> str:
 
     def cell(v: str) -> str:
         v = str(v).replace("±", "$\\pm$").replace("–", "--")
-        return f"\\textbf{{{v[2:-2]}}}" if v.startswith("**") else v
+        bold = v.startswith("**")
+        v = v[2:-2] if bold else v
+        v = f"\\underline{{{v[1:-1]}}}" if v.startswith("_") else v
+        return f"\\textbf{{{v}}}" if bold else v
 
     lines = [
         "\\begin{tabular}{l" + "c" * (n * len(scenes)) + "}",
@@ -253,7 +264,8 @@ def write_table1(
     note = (
         f"Mean ± half-width of the 95% CI (two-stage bootstrap over {seeds} training seed(s) and {n} evaluation "
         "episodes per seed and scene). NE m, OS/SR/CR %, SPL 0-1, TTS steps over successful episodes (– none). "
-        "Bold: best non-privileged method (the oracle and the privileged Hybrid APF are references).\n\n"
+        "Bold: best non-privileged method (the oracle and the privileged Hybrid APF are references). "
+        "Italics: best learned method.\n\n"
     )
     sig = compare_sr(episodes, reference, reps=reps) if reference in set(episodes["method"]) else pd.DataFrame()
     vp = vs_paper(table)
