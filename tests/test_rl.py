@@ -219,6 +219,20 @@ def test_ppo_learns_point_reach(tmp_path):
     assert again.skipped and again.steps == res.steps
 
 
+def test_same_seed_same_run_and_another_seed_differs(tmp_path):
+    """Two fresh runs with one seed log identical metrics (wall-clock ones aside); another seed does not."""
+    timing = {"steps_per_s", "rollout_s", "update_s"}
+
+    def logged(name: str, seed: int) -> pd.DataFrame:
+        cfg = rl_cfg(tmp_path, total_steps=1024).with_seed(seed)
+        m = pd.read_csv(train_ppo(cfg, vec(), name=name, progress=False).metrics_path)
+        return m[~m.metric.isin(timing)].reset_index(drop=True)
+
+    a, b, other = logged("a", 0), logged("b", 0), logged("c", 1)
+    pd.testing.assert_frame_equal(a, b)
+    assert not a["value"].equals(other["value"])
+
+
 def test_guided_ppo_follows_planner_same_step_autoreset(tmp_path):
     # A perfect planner as guide with α fixed high: the KL term alone should pull the policy to the goal,
     # and the same-step autoreset path (final_obs bootstrap) must work too.
