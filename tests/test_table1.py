@@ -87,18 +87,16 @@ def test_compare_sr_detects_a_real_difference_and_not_a_null_one():
     assert claims.loc["curl > ppo", "verdict"] == "holds"
 
 
-def test_write_table1_layout_bold_and_dashes(tmp_path):
-    df = pd.concat(
-        [
-            _episodes("oracle", "furniture", [1.0]),
-            _episodes("ours", "furniture", [0.7]),
-            _episodes("ppo", "furniture", [0.0]),
-        ],
-        ignore_index=True,
-    )
-    table, sig, paths = write_table1(df, tmp_path, reps=200)
+def _written(tmp_path, scene: str, sr: dict[str, float]) -> tuple[dict[str, str], dict]:
+    """Write Table I for one seed of the given methods' SR in ``scene``; markdown rows by label, and the paths."""
+    df = pd.concat([_episodes(m, scene, [v]) for m, v in sr.items()], ignore_index=True)
+    _, _, paths = write_table1(df, tmp_path, reps=200)
     md = paths["md"].read_text()
-    rows = {line.split("|")[1].strip(): line for line in md.splitlines() if line.startswith("| ")}
+    return {line.split("|")[1].strip(): line for line in md.splitlines() if line.startswith("| ")}, paths
+
+
+def test_write_table1_layout_bold_and_dashes(tmp_path):
+    rows, paths = _written(tmp_path, "furniture", {"oracle": 1.0, "ours": 0.7, "ppo": 0.0})
     # The oracle is privileged: its 100% is not the bold best; ours is, and the best learned method too (italics).
     assert "**_70.0 ±" in rows["Ours"] and "**" not in rows["Oracle"].split("|")[3]
     assert rows["PPO"].rstrip(" |").endswith("–")  # no success -> no TTS
@@ -112,16 +110,7 @@ def test_write_table1_layout_bold_and_dashes(tmp_path):
 
 
 def test_best_learned_method_is_marked_beside_a_better_planner(tmp_path):
-    df = pd.concat(
-        [
-            _episodes("hybrid-apf-perceptive", "tree", [1.0]),
-            _episodes("ours", "tree", [0.5]),
-            _episodes("ppo", "tree", [0.8]),
-        ],
-        ignore_index=True,
-    )
-    _, _, paths = write_table1(df, tmp_path, reps=200)
-    rows = {line.split("|")[1].strip(): line for line in paths["md"].read_text().splitlines() if line.startswith("| ")}
+    rows, paths = _written(tmp_path, "tree", {"hybrid-apf-perceptive": 1.0, "ours": 0.5, "ppo": 0.8})
     sr = {m: row.split("|")[4].strip() for m, row in rows.items()}
     # The (non-privileged) perceptive planner is best: bold, not italic; PPO is the best learned method: italic.
     assert sr["Hybrid APF (perceptive)"].startswith("**100.0") and "_" not in sr["Hybrid APF (perceptive)"]
