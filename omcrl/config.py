@@ -29,7 +29,7 @@ ROOT_ENV = "OMCRL_ROOT"
 # Fields added after runs existed, with the value that means "as before": at that value they are left out of run
 # identities and hashes, so existing runs keep their keys (see omcrl.pretrain.train.pretrain_run).
 NEUTRAL_DEFAULTS: dict[str, dict[str, Any]] = {
-    "data": {"look": "own"},
+    "data": {"look": "own", "policy": "none"},
     "pretrain": {"color_jitter": 0.0, "seq_stride": 1},
 }
 
@@ -143,6 +143,12 @@ class DataConfig:
         "own",
         choices=("own", "randomized"),
         doc="own: the scene's look; randomized: a random generic look per layout (a deviation, docs/DEVIATIONS.md §2)",
+    )
+    policy: str = _f(
+        "none",
+        choices=("none", "oracle"),
+        doc="who flies the 'policy' share of data.mix: none (a policy passed to collect.run) or oracle (this "
+        "config's oracle at its seed, trained in box; the data then differs per seed and gets a file of its own)",
     )
 
 
@@ -298,6 +304,8 @@ class Config:
         path = resolve_path(self.data.file.format(preset=self.preset))
         if self.data.look != "own":  # another look is other data: never the same file as the default's
             path = path.with_name(f"{path.stem}-{self.data.look}{path.suffix}")
+        if self.data.policy == "oracle":  # flown partly by this seed's oracle: one file per seed
+            path = path.with_name(f"{path.stem}-oracle-seed{self.seed}{path.suffix}")
         return path
 
     def with_seed(self, seed: int) -> Config:
@@ -458,6 +466,11 @@ def validate(cfg: Config) -> Config:
         )
     if sum(weights.values()) <= 0:
         raise ConfigError(f"config field 'data.mix': got {show(mix)}, weights must not all be zero")
+    if cfg.data.policy != "none" and weights.get("policy", 0.0) <= 0:
+        raise ConfigError(
+            f"config field 'data.policy': got {cfg.data.policy!r}, but data.mix gives the 'policy' share no weight "
+            f"({show(mix)}); set e.g. data.mix={{pilot: 0.4, random: 0.2, policy: 0.4}}"
+        )
     try:
         cfg.data.file.format(preset=cfg.preset)
     except (KeyError, IndexError, ValueError) as e:

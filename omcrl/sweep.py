@@ -102,6 +102,10 @@ REMEDY_VARIANTS: dict[str, Variant] = {
     # Masked top-1 still rises at x3 (docs/generalization.md, remedy 5): is a longer pretraining the fix?
     "remedy-budget6": Variant("pretraining x6", "ours", ("pretrain.iterations*=6",)),
     "remedy-d": Variant("paper d", "ours", ("pretrain.feature_dim=384", "pretrain.proj_hidden=384")),
+    # Section IV-B's third source, policy data: half the box episodes flown by the seed's oracle, same count.
+    "remedy-policy": Variant(
+        "oracle-flown data", "ours", ("data.mix={pilot: 0.35, random: 0.15, policy: 0.5}", "data.policy=oracle")
+    ),
     # The paper (VI-C) finds a lower sampling frequency steadies CURL-cons; OMC's sequences at 1/3 of the rate.
     "remedy-stride": Variant("sequence stride 3", "ours", ("pretrain.seq_stride=3",)),
     "remedy-jitter": Variant("colour jitter 0.4 (deviation)", "ours", ("pretrain.color_jitter=0.4",)),
@@ -260,12 +264,27 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
             c = _config(cfg, v.overrides, s)
             co = _config(cfg, oracle_ov, s)
             deps: list[str] = []
+            oracle_job = f"train:{oracle_run(co).dir}"
             if spec.features == "frozen":
-                col = add(Job(f"collect:{c.data_path}", "collect", v.method, s, v.overrides))
+                # Data flown partly by the oracle (data.policy=oracle) waits for that oracle.
+                by_oracle = c.data.policy == "oracle"
+                if by_oracle:
+                    add(Job(oracle_job, "train", "oracle", s, oracle_ov))
+                col = add(
+                    Job(
+                        f"collect:{c.data_path}",
+                        "collect",
+                        v.method,
+                        s,
+                        v.overrides,
+                        (oracle_job,) if by_oracle else (),
+                        oracle_overrides=oracle_ov if by_oracle else None,
+                    )
+                )
                 enc_run = pretrain_run(encoder_config(c, spec))
                 deps.append(add(Job(f"pretrain:{enc_run.dir}", "pretrain", v.method, s, v.overrides, (col,))))
             if spec.guide == "oracle" or spec.features == "oracle":
-                deps.append(add(Job(f"train:{oracle_run(co).dir}", "train", "oracle", s, oracle_ov)))
+                deps.append(add(Job(oracle_job, "train", "oracle", s, oracle_ov)))
             if spec.features != "oracle":
                 ident = {"method": v.method, "rl": asdict(c.rl), "env": asdict(c.env), "deps": deps, "seed": s}
                 if spec.features == "pixel":
@@ -440,7 +459,11 @@ def run_job(preset_cfg: dict, job: Job, log_path: str) -> dict:
         if job.kind == "collect":
             from omcrl.data import collect
 
-            skipped = bool(collect.run(cfg, progress=False).skipped)
+            # The oracle that flies the policy share is the variant's teacher (without student-only overrides).
+            flyer = (
+                collect.oracle_policy(oracle_cfg) if oracle_cfg is not None and cfg.data.policy == "oracle" else None
+            )
+            skipped = bool(collect.run(cfg, flyer, progress=False).skipped)
         elif job.kind == "pretrain":
             from omcrl.rl.methods import pretrain_method
 

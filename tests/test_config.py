@@ -136,3 +136,15 @@ def test_stage_loader_reports_missing_stage():
     with pytest.raises(StageUnavailable, match="no_such_function"):
         load_stage("nofunc", fake)
     assert callable(load_stage("config"))
+
+
+def test_data_policy_oracle_needs_a_policy_share_and_keeps_default_keys():
+    with pytest.raises(ConfigError, match=r"data.policy.*no weight"):
+        load_config("smoke", overrides=["data.policy=oracle"])
+    with pytest.raises(ConfigError, match="data.policy"):
+        load_config("smoke", overrides=["data.policy=expert"])
+    from omcrl.pretrain.train import pretrain_run
+
+    # At its neutral default the new field leaves existing runs' keys alone.
+    base = load_config("quick")
+    assert "policy" not in pretrain_run(base).identity["data"]

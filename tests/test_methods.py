@@ -221,3 +221,20 @@ def test_pretraining_identity_ignores_where_the_data_lives(grid, tmp_path):
     moved = _cfg(grid["root"], f"data.file={tmp_path}/elsewhere.h5")
     assert pretrain_run(moved).dir == pretrain_run(cfg).dir
     assert pretrain_run(_cfg(grid["root"], "data.episodes=7")).dir != pretrain_run(cfg).dir
+
+
+def test_data_flown_by_the_trained_oracle(grid):
+    # data.policy=oracle: the policy share of the mix is flown by this seed's oracle, into a file of its own.
+    cfg = grid["cfg"]
+    oc = _cfg(grid["root"], "data.episodes=2", "data.max_steps=10", "data.mix={policy: 1.0}", "data.policy=oracle")
+    assert oc.data_path.name == "box-oracle-seed0.h5" and oc.with_seed(1).data_path.name == "box-oracle-seed1.h5"
+    assert oracle_path(oc) == oracle_path(cfg)  # the data fields are not the oracle's identity
+    res = collect.run(oc, progress=False)
+    assert res.per_source == {"policy": 2} and res.path == oc.data_path and cfg.data_path.exists()
+    from omcrl.pretrain.train import pretrain_run
+
+    assert pretrain_run(oc).key != pretrain_run(cfg).key  # other data, another encoder run
+    # No oracle at seed 7: a clear error before any file is written.
+    with pytest.raises(ConfigError, match=r"oracle of this config at seed 7 is not trained"):
+        collect.run(oc.with_seed(7), progress=False)
+    assert not oc.with_seed(7).data_path.exists()

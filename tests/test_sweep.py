@@ -301,6 +301,18 @@ def test_remedy_grids_run_at_full_budget_beside_the_table1_student():
     # The paper's d changes the oracle's width too: that remedy needs its own oracle.
     d = expand(cfg, "remedy-d", [0])
     assert sum(j.kind == "train" and j.method == "oracle" for j in d) == 2
+    # Oracle-flown data: one file per seed, collected after that seed's (shared) oracle is trained.
+    pol = expand(cfg, "remedy-policy", [0, 1])
+    order = [j.id for j in pol]
+    oracles = {j.seed: j.id for j in pol if j.kind == "train" and j.method == "oracle"}
+    flown = [j for j in pol if j.kind == "collect" and j.overrides]
+    assert len(oracles) == 2 and sorted(j.id.rsplit("/", 1)[1] for j in flown) == [
+        "box-oracle-seed0.h5",
+        "box-oracle-seed1.h5",
+    ]
+    for j in flown:
+        assert j.deps == (oracles[j.seed],) and order.index(oracles[j.seed]) < order.index(j.id)
+        assert j.oracle_overrides is not None
 
 
 def test_remedy_verdicts_compare_with_the_default_and_check_the_target(tmp_path):

@@ -16,7 +16,8 @@ Sources (proportions ``cfg.data.mix``)
 ``random``  temporally correlated exploration: x_t = c·x_{t-1} + √(1−c²)·σ·ε_t (AR(1), c =
             ``cfg.data.random_corr``, σ = 0.6, ε ~ N(0, I)); the action is (0.3 + x₀, 0.5·x₁, x₂) clipped to
             [-1, 1], i.e. a forward bias so the drone travels through the scene instead of spinning in place.
-``policy``  any callable ``policy(obs, info) -> action (3,)`` given to :func:`run` (the oracle later);
+``policy``  any callable ``policy(obs, info) -> action (3,)`` given to :func:`run`, or, with
+            ``cfg.data.policy = "oracle"``, this config's trained oracle at ``cfg.seed`` (deterministic);
             ``obs``/``info`` are those of a single env.
 
 Determinism and ordering
@@ -228,6 +229,25 @@ def _check(cfg: Config, policy: Policy | None) -> None:
         raise ConfigError(f"data.mix gives 'policy' weight {cfg.data.mix['policy']} but no policy was passed")
 
 
+def oracle_policy(cfg: Config) -> Policy:
+    """The act function of this config's trained oracle at ``cfg.seed`` (for ``data.policy=oracle``).
+
+    Raises
+    ------
+    ConfigError : the oracle is not trained (checked before any episode is flown).
+    """
+    from omcrl.rl.methods import oracle_path
+    from omcrl.rl.policy import load_policy
+
+    path = oracle_path(cfg)
+    if not path.exists():
+        raise ConfigError(
+            f"data.policy='oracle': the oracle of this config at seed {cfg.seed} is not trained ({path} does not "
+            f"exist); train it first: python -m omcrl oracle --preset {cfg.preset} --seed {cfg.seed}"
+        )
+    return load_policy(path, "oracle", expect_kind="oracle").act
+
+
 def _open_existing(path: Path, cfg: Config) -> int:
     """Episodes already in ``path`` (0 if absent); raises DatasetError for an unusable file (left as is)."""
     if not path.exists():
@@ -270,6 +290,8 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
     from omcrl.planners.apf import HybridAPF
 
     t_start = time.perf_counter()
+    if policy is None and cfg.data.policy == "oracle":
+        policy = oracle_policy(cfg)
     _check(cfg, policy)
     d = cfg.data
     path = dataset_path(cfg)
