@@ -264,12 +264,10 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
             c = _config(cfg, v.overrides, s)
             co = _config(cfg, oracle_ov, s)
             deps: list[str] = []
-            oracle_job = f"train:{oracle_run(co).dir}"
+            oracle = Job(f"train:{oracle_run(co).dir}", "train", "oracle", s, oracle_ov)
             if spec.features == "frozen":
                 # Data flown partly by the oracle (data.policy=oracle) waits for that oracle.
                 by_oracle = c.data.policy == "oracle"
-                if by_oracle:
-                    add(Job(oracle_job, "train", "oracle", s, oracle_ov))
                 col = add(
                     Job(
                         f"collect:{c.data_path}",
@@ -277,14 +275,14 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
                         v.method,
                         s,
                         v.overrides,
-                        (oracle_job,) if by_oracle else (),
+                        (add(oracle),) if by_oracle else (),
                         oracle_overrides=oracle_ov if by_oracle else None,
                     )
                 )
                 enc_run = pretrain_run(encoder_config(c, spec))
                 deps.append(add(Job(f"pretrain:{enc_run.dir}", "pretrain", v.method, s, v.overrides, (col,))))
             if spec.guide == "oracle" or spec.features == "oracle":
-                deps.append(add(Job(oracle_job, "train", "oracle", s, oracle_ov)))
+                deps.append(add(oracle))
             if spec.features != "oracle":
                 ident = {"method": v.method, "rl": asdict(c.rl), "env": asdict(c.env), "deps": deps, "seed": s}
                 if spec.features == "pixel":
