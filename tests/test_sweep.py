@@ -313,6 +313,12 @@ def test_remedy_grids_run_at_full_budget_beside_the_table1_student():
     for j in flown:
         assert j.deps == (oracles[j.seed],) and order.index(oracles[j.seed]) < order.index(j.id)
         assert j.oracle_overrides is not None
+    # Both remedies together reuse remedy-policy's data files and pretrain an encoder of their own.
+    both = expand(cfg, "remedy-budget6-policy", [0, 1])
+    assert {j.id for j in both if j.kind == "collect"} == {j.id for j in pol if j.kind == "collect"}
+    others = {j.id for g in ("remedy-policy", "remedy-budget6") for j in expand(cfg, g, [0, 1]) if j.overrides}
+    mine = [j for j in both if j.kind == "pretrain" and j.overrides]
+    assert len(mine) == 2 and not {j.id for j in mine} & others
 
 
 def test_remedy_verdicts_compare_with_the_default_and_check_the_target(tmp_path):

@@ -10,6 +10,9 @@ Why does a student trained in box fail in an unseen scene? ``run(cfg)`` measures
     tables/transfer_shift.{csv,md}       feature shift from box (MMD², Fréchet, saturated units) of OMC, CURL and a
                                          random encoder, per setting
     tables/transfer_probe.{csv,md}       the pretraining probe fitted on box pilot frames and tested per setting
+    tables/transfer_geometry.{csv,md}    per scene, the geometry of those evaluation layouts (obstacles, share of
+                                         the arena occupied and blocked at flight altitude, shortest path; mean
+                                         and sd over layouts): how cluttered each scene is, whatever its look
 
 Frames come from scripted-pilot flights (Hybrid APF on the true map) with seeds from :data:`PILOT_SEED`, disjoint
 from training and evaluation; the SR tables use Table I's evaluation episodes, so their own-look rows are Table I's
@@ -65,6 +68,7 @@ class TransferResult:
     blind: pd.DataFrame
     shift: pd.DataFrame
     probe: pd.DataFrame
+    geometry: pd.DataFrame = field(default_factory=pd.DataFrame)
     samples: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     paths: dict[str, Path] = field(default_factory=dict)
 
@@ -80,6 +84,8 @@ class TransferResult:
                 self.shift.round(3).to_string(index=False),
                 "-- box-fitted probe, mean R² over the targets",
                 probe.round(2).to_string(),
+                "-- scene geometry at flight altitude (mean over the evaluation layouts)",
+                self.geometry.round(2).to_string(index=False),
             ]
         return "\n".join(parts + [f"{k}: {v}" for k, v in self.paths.items()])
 
@@ -189,6 +195,7 @@ def run(
     blind = blind_table(cfg, samples["box"])
     shift = shift_table(enc, {k: v["rgb"] for k, v in samples.items()}, reference="box")
     probe = pd.concat([probe_across(e, samples, seed=cfg.seed).assign(encoder=k) for k, e in enc.items()])
+    geometry = geometry_table(cfg)
     out = cfg.run_root / "tables"
     out.mkdir(parents=True, exist_ok=True)
     probe_wide = probe.groupby(["setting", "encoder"], sort=False)["r2"].mean().unstack("encoder")
@@ -198,12 +205,23 @@ def run(
         ("blind", blind, to_markdown(blind.round(2).set_index("scene"), "scene")),
         ("shift", shift, to_markdown(shift.round(3).set_index("encoder"), "encoder")),
         ("probe", probe, to_markdown(probe_wide.round(2).loc[list(dict.fromkeys(probe.setting))], "setting")),
+        ("geometry", geometry, to_markdown(geometry.round(2).set_index("scene"), "scene")),
     ):
         paths[f"transfer_{name}.csv"] = out / f"transfer_{name}.csv"
         paths[f"transfer_{name}.md"] = out / f"transfer_{name}.md"
         atomic_write_text(paths[f"transfer_{name}.csv"], df.to_csv(index=False))
         atomic_write_text(paths[f"transfer_{name}.md"], md)
-    return TransferResult(appearance, blind, shift, probe, samples, paths)
+    return TransferResult(appearance, blind, shift, probe, geometry, samples, paths)
+
+
+def geometry_table(cfg: Config) -> pd.DataFrame:
+    """:func:`omcrl.envs.stats.geometry_summary` of every scene in ``cfg.eval.scenes`` over the evaluation
+    layouts of ``cfg.seeds`` (``cfg.eval.episodes`` each, Table I's episodes); one row per scene."""
+    from omcrl.envs.stats import geometry_stats, geometry_summary
+    from omcrl.eval.runner import eval_seeds
+
+    seeds = [x for s in cfg.seeds for x in eval_seeds(cfg.eval.episodes, s, cfg.eval.seed_offset)]
+    return geometry_summary(pd.concat([geometry_stats(sc, seeds, cfg.env) for sc in cfg.eval.scenes]))
 
 
 def _policy(cfg: Config, method: str) -> Path:
