@@ -310,3 +310,31 @@ def test_geometry_statistics_ignore_the_look():
     own = geometry_stats("furniture", seeds)
     swapped = geometry_stats("furniture", seeds, disturbance={"appearance": "box"})
     pd.testing.assert_frame_equal(own, swapped)
+
+
+def test_by_detour_splits_success_by_how_far_the_path_bends():
+    from omcrl.interpret.transfer import by_detour
+
+    # Two layouts: a clear line (detour 1.0, flown in 3 of 4 episodes) and a wall in the way (1.5, never flown).
+    ep = pd.DataFrame(
+        {
+            "method": "m",
+            "scene": "barrier",
+            "eval_seed": [1, 1, 1, 1, 2, 2, 2, 2],
+            "train_seed": [0, 0, 1, 1, 0, 0, 1, 1],
+            "success": [True, True, True, False, False, False, False, False],
+            "collision": [False, False, False, True, True, True, False, True],
+            "final_distance": 1.0,
+            "min_distance": 1.0,
+            "path_length": 5.0,
+            "optimal_path_length": 5.0,
+            "steps": 100,
+        }
+    )
+    detour = pd.Series([1.0, 1.5], index=pd.MultiIndex.from_tuples([("barrier", 1), ("barrier", 2)]))
+    got = by_detour(ep, detour, reps=100).set_index("detour")
+    assert list(got.index) == ["1.00–1.02", "> 1.30"]  # empty bins are left out, the rest in bin order
+    assert got.loc["1.00–1.02", "SR"] == 75.0 and got.loc["> 1.30", "SR"] == 0.0
+    assert got.loc["> 1.30", "CR"] == 75.0 and (got.layouts == 50.0).all() and (got.episodes == 4).all()
+    with pytest.raises(ValueError, match="no detour for layouts"):
+        by_detour(ep.assign(eval_seed=3), detour)

@@ -13,6 +13,9 @@ Why does a student trained in box fail in an unseen scene? ``run(cfg)`` measures
     tables/transfer_geometry.{csv,md}    per scene, the geometry of those evaluation layouts (obstacles, share of
                                          the arena occupied and blocked at flight altitude, shortest path; mean
                                          and sd over layouts): how cluttered each scene is, whatever its look
+    tables/transfer_detour.{csv,md}      SR/CR of ``ours`` and the ``oracle`` per scene by how far the layout's
+                                         shortest path bends from the straight start-goal line (Table I's
+                                         episodes): which failures no encoder can fix
 
 Frames come from scripted-pilot flights (Hybrid APF on the true map) with seeds from :data:`PILOT_SEED`, disjoint
 from training and evaluation; the SR tables use Table I's evaluation episodes, so their own-look rows are Table I's
@@ -21,6 +24,7 @@ cached evaluations.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -69,6 +73,7 @@ class TransferResult:
     shift: pd.DataFrame
     probe: pd.DataFrame
     geometry: pd.DataFrame = field(default_factory=pd.DataFrame)
+    detour: pd.DataFrame = field(default_factory=pd.DataFrame)
     samples: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     paths: dict[str, Path] = field(default_factory=dict)
 
@@ -86,6 +91,8 @@ class TransferResult:
                 probe.round(2).to_string(),
                 "-- scene geometry at flight altitude (mean over the evaluation layouts)",
                 self.geometry.round(2).to_string(index=False),
+                "-- SR (%) by detour (shortest path / straight line)",
+                self.detour.round(1).to_string(index=False),
             ]
         return "\n".join(parts + [f"{k}: {v}" for k, v in self.paths.items()])
 
@@ -188,7 +195,8 @@ def run(
     from omcrl.utils.io import atomic_write_text
 
     for s in cfg.seeds:
-        _policy(cfg.with_seed(s), "ours")  # fail early, before the long parts
+        for m in ("ours", "oracle"):
+            _policy(cfg.with_seed(s), m)  # fail early, before the long parts
     enc = encoders(cfg, methods)
     samples = setting_samples(cfg, episodes, progress=progress)
     appearance = appearance_table(cfg, progress=progress)
@@ -196,6 +204,7 @@ def run(
     shift = shift_table(enc, {k: v["rgb"] for k, v in samples.items()}, reference="box")
     probe = pd.concat([probe_across(e, samples, seed=cfg.seed).assign(encoder=k) for k, e in enc.items()])
     geometry = geometry_table(cfg)
+    detour = detour_table(cfg)
     out = cfg.run_root / "tables"
     out.mkdir(parents=True, exist_ok=True)
     probe_wide = probe.groupby(["setting", "encoder"], sort=False)["r2"].mean().unstack("encoder")
@@ -206,12 +215,13 @@ def run(
         ("shift", shift, to_markdown(shift.round(3).set_index("encoder"), "encoder")),
         ("probe", probe, to_markdown(probe_wide.round(2).loc[list(dict.fromkeys(probe.setting))], "setting")),
         ("geometry", geometry, to_markdown(geometry.round(2).set_index("scene"), "scene")),
+        ("detour", detour, to_markdown(detour.round(1).set_index("method"), "method")),
     ):
         paths[f"transfer_{name}.csv"] = out / f"transfer_{name}.csv"
         paths[f"transfer_{name}.md"] = out / f"transfer_{name}.md"
         atomic_write_text(paths[f"transfer_{name}.csv"], df.to_csv(index=False))
         atomic_write_text(paths[f"transfer_{name}.md"], md)
-    return TransferResult(appearance, blind, shift, probe, geometry, samples, paths)
+    return TransferResult(appearance, blind, shift, probe, geometry, detour, samples, paths)
 
 
 def geometry_table(cfg: Config) -> pd.DataFrame:
@@ -222,6 +232,71 @@ def geometry_table(cfg: Config) -> pd.DataFrame:
 
     seeds = [x for s in cfg.seeds for x in eval_seeds(cfg.eval.episodes, s, cfg.eval.seed_offset)]
     return geometry_summary(pd.concat([geometry_stats(sc, seeds, cfg.env) for sc in cfg.eval.scenes]))
+
+
+# Bins of a layout's detour, shortest path / straight start-goal line: straight (a clear line, or nearly), a small
+# bend (box's layouts reach 1.09 at most, so training saw these), a real detour, and a long way round.
+DETOUR_BINS: tuple[float, ...] = (1.0, 1.02, 1.1, 1.3, float("inf"))
+
+
+def by_detour(
+    episodes: pd.DataFrame, detour: pd.Series, bins: Sequence[float] = DETOUR_BINS, reps: int = 2000
+) -> pd.DataFrame:
+    """SR and CR per (method, scene, detour bin), with 95 % two-stage bootstrap CIs.
+
+    Parameters
+    ----------
+    episodes : one row per episode (:func:`omcrl.eval.stage.evaluate_methods`): ``method``, ``scene``,
+        ``eval_seed``, ``train_seed`` and the metric columns.
+    detour : shortest path / straight line (≥ 1) per layout, indexed by (scene, seed) as from
+        :func:`omcrl.envs.stats.geometry_stats`; every episode's layout must be in it.
+    bins : right-closed bin edges of the detour ratio.
+
+    Returns
+    -------
+    DataFrame, one row per non-empty group, columns method, scene, detour (bin label), layouts (% of the
+    scene's episodes in the bin), episodes, SR, SR_lo, SR_hi, CR (percent).
+    """
+    from omcrl.eval.stats import aggregate
+
+    keys = pd.MultiIndex.from_arrays([episodes["scene"], episodes["eval_seed"]])
+    missing = ~keys.isin(detour.index)
+    if missing.any():
+        raise ValueError(f"by_detour: no detour for layouts {list(keys[missing][:5])} (scene, eval_seed)")
+    edges = list(bins)
+    labels = [f"{lo:.2f}–{hi:.2f}" if np.isfinite(hi) else f"> {lo:.2f}" for lo, hi in itertools.pairwise(edges)]
+    cut = pd.cut(detour.reindex(keys).to_numpy(), edges, labels=labels, include_lowest=True)
+    if pd.isna(cut).any():
+        raise ValueError(f"by_detour: detour ratios outside the bins {edges}")
+    ep = episodes.assign(detour=np.asarray(cut, dtype=object))
+    agg = aggregate(ep, ("method", "scene", "detour"), reps=reps).reset_index()
+    total = ep.groupby(["method", "scene"]).size()
+    agg["layouts"] = 100.0 * agg.episodes / total.reindex(pd.MultiIndex.from_frame(agg[["method", "scene"]])).values
+    order = {b: i for i, b in enumerate(labels)}
+    agg = agg.sort_values(["method", "scene", "detour"], key=lambda c: c.map(order) if c.name == "detour" else c)
+    cols = ["method", "scene", "detour", "layouts", "episodes", "SR", "SR_lo", "SR_hi", "CR"]
+    return agg[cols].reset_index(drop=True)
+
+
+def detour_table(
+    cfg: Config, methods: Sequence[str] = ("ours", "oracle"), seeds: Sequence[int] | None = None
+) -> pd.DataFrame:
+    """:func:`by_detour` of ``methods`` in every scene of ``cfg.eval.scenes`` over ``seeds`` (default
+    ``cfg.seeds``), on Table I's evaluation episodes (cached evaluations are read, not flown again)."""
+    from omcrl.envs.stats import geometry_stats
+    from omcrl.eval.stage import evaluate_methods
+
+    frames, stats = [], []
+    for s in seeds if seeds is not None else cfg.seeds:
+        c = cfg.with_seed(s)
+        df = evaluate_methods(c, {m: _policy(c, m) for m in methods})
+        frames.append(df)
+        stats += [geometry_stats(sc, sorted(g.eval_seed.unique()), cfg.env) for sc, g in df.groupby("scene")]
+    geo = pd.concat(stats).drop_duplicates(["scene", "seed"]).set_index(["scene", "seed"])
+    ratio = geo.shortest_path_m / geo.straight_line_m
+    order = {m: i for i, m in enumerate(methods)} | {sc: i for i, sc in enumerate(cfg.eval.scenes)}
+    out = by_detour(pd.concat(frames, ignore_index=True), ratio)
+    return out.sort_values(["method", "scene"], key=lambda c: c.map(order), kind="stable").reset_index(drop=True)
 
 
 def _policy(cfg: Config, method: str) -> Path:
