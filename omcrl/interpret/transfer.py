@@ -286,16 +286,18 @@ def detour_table(
     from omcrl.envs.stats import geometry_stats
     from omcrl.eval.stage import evaluate_methods
 
-    frames, stats = [], []
+    frames = []
     for s in seeds if seeds is not None else cfg.seeds:
         c = cfg.with_seed(s)
-        df = evaluate_methods(c, {m: _policy(c, m) for m in methods})
-        frames.append(df)
-        stats += [geometry_stats(sc, sorted(g.eval_seed.unique()), cfg.env) for sc, g in df.groupby("scene")]
-    geo = pd.concat(stats).drop_duplicates(["scene", "seed"]).set_index(["scene", "seed"])
+        frames.append(evaluate_methods(c, {m: _policy(c, m) for m in methods}))
+    episodes = pd.concat(frames, ignore_index=True)
+    # Every training seed flies the same layouts: each layout's geometry is computed once.
+    geo = pd.concat(
+        [geometry_stats(sc, sorted(g.eval_seed.unique()), cfg.env) for sc, g in episodes.groupby("scene")]
+    ).set_index(["scene", "seed"])
     ratio = geo.shortest_path_m / geo.straight_line_m
     order = {m: i for i, m in enumerate(methods)} | {sc: i for i, sc in enumerate(cfg.eval.scenes)}
-    out = by_detour(pd.concat(frames, ignore_index=True), ratio)
+    out = by_detour(episodes, ratio)
     return out.sort_values(["method", "scene"], key=lambda c: c.map(order), kind="stable").reset_index(drop=True)
 
 
