@@ -203,8 +203,9 @@ def run(
     blind = blind_table(cfg, samples["box"])
     shift = shift_table(enc, {k: v["rgb"] for k, v in samples.items()}, reference="box")
     probe = pd.concat([probe_across(e, samples, seed=cfg.seed).assign(encoder=k) for k, e in enc.items()])
-    geometry = geometry_table(cfg)
-    detour = detour_table(cfg)
+    layouts = layout_stats(cfg)  # once, for both tables
+    geometry = geometry_table(cfg, layouts)
+    detour = detour_table(cfg, stats=layouts)
     out = cfg.run_root / "tables"
     out.mkdir(parents=True, exist_ok=True)
     probe_wide = probe.groupby(["setting", "encoder"], sort=False)["r2"].mean().unstack("encoder")
@@ -224,18 +225,27 @@ def run(
     return TransferResult(appearance, blind, shift, probe, geometry, detour, samples, paths)
 
 
-def geometry_table(cfg: Config) -> pd.DataFrame:
-    """:func:`omcrl.envs.stats.geometry_summary` of every scene in ``cfg.eval.scenes`` over the evaluation
-    layouts of ``cfg.seeds`` (``cfg.eval.episodes`` each, Table I's episodes); one row per scene."""
-    from omcrl.envs.stats import geometry_stats, geometry_summary
+def layout_stats(cfg: Config) -> pd.DataFrame:
+    """:func:`omcrl.envs.stats.geometry_stats` of the layouts Table I flies: in every scene of ``cfg.eval.scenes``,
+    the ``cfg.eval.episodes`` episode seeds from ``cfg.eval.seed_offset`` that
+    :func:`omcrl.eval.stage.evaluate_methods` gives every training seed alike (one row per scene and layout)."""
+    from omcrl.envs.stats import geometry_stats
     from omcrl.eval.runner import eval_seeds
 
-    seeds = [x for s in cfg.seeds for x in eval_seeds(cfg.eval.episodes, s, cfg.eval.seed_offset)]
-    return geometry_summary(pd.concat([geometry_stats(sc, seeds, cfg.env) for sc in cfg.eval.scenes]))
+    seeds = eval_seeds(cfg.eval.episodes, 0, cfg.eval.seed_offset)  # evaluate_methods' seeds, for every cfg.seed
+    return pd.concat([geometry_stats(sc, seeds, cfg.env) for sc in cfg.eval.scenes], ignore_index=True)
+
+
+def geometry_table(cfg: Config, stats: pd.DataFrame | None = None) -> pd.DataFrame:
+    """:func:`omcrl.envs.stats.geometry_summary` of Table I's evaluation layouts (``stats``: :func:`layout_stats`,
+    computed when not given); one row per scene."""
+    from omcrl.envs.stats import geometry_summary
+
+    return geometry_summary(layout_stats(cfg) if stats is None else stats)
 
 
 # Bins of a layout's detour, shortest path / straight start-goal line: straight (a clear line, or nearly), a small
-# bend (box's layouts reach 1.09 at most, so training saw these), a real detour, and a long way round.
+# bend (box's evaluation layouts reach 1.08 at most, so training saw these), a real detour, and a long way round.
 DETOUR_BINS: tuple[float, ...] = (1.0, 1.02, 1.1, 1.3, float("inf"))
 
 
@@ -279,11 +289,14 @@ def by_detour(
 
 
 def detour_table(
-    cfg: Config, methods: Sequence[str] = ("ours", "oracle"), seeds: Sequence[int] | None = None
+    cfg: Config,
+    methods: Sequence[str] = ("ours", "oracle"),
+    seeds: Sequence[int] | None = None,
+    stats: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
     """:func:`by_detour` of ``methods`` in every scene of ``cfg.eval.scenes`` over ``seeds`` (default
-    ``cfg.seeds``), on Table I's evaluation episodes (cached evaluations are read, not flown again)."""
-    from omcrl.envs.stats import geometry_stats
+    ``cfg.seeds``), on Table I's evaluation episodes (cached evaluations are read, not flown again); ``stats``:
+    :func:`layout_stats`, computed when not given."""
     from omcrl.eval.stage import evaluate_methods
 
     frames = []
@@ -291,10 +304,7 @@ def detour_table(
         c = cfg.with_seed(s)
         frames.append(evaluate_methods(c, {m: _policy(c, m) for m in methods}))
     episodes = pd.concat(frames, ignore_index=True)
-    # Every training seed flies the same layouts: each layout's geometry is computed once.
-    geo = pd.concat(
-        [geometry_stats(sc, sorted(g.eval_seed.unique()), cfg.env) for sc, g in episodes.groupby("scene")]
-    ).set_index(["scene", "seed"])
+    geo = (layout_stats(cfg) if stats is None else stats).set_index(["scene", "seed"])
     ratio = geo.shortest_path_m / geo.straight_line_m
     order = {m: i for i, m in enumerate(methods)} | {sc: i for i, sc in enumerate(cfg.eval.scenes)}
     out = by_detour(episodes, ratio)
