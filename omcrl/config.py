@@ -257,6 +257,14 @@ class EvalConfig:
         hi=256,
         doc="processes running evaluation episodes in parallel; 0: one per core (results do not depend on it)",
     )
+    lanes: int = _f(
+        8,
+        lo=1,
+        hi=64,
+        doc="envs each evaluation process steps in lock-step with one batched policy forward per step "
+        "(planners: always 1); a batched forward rounds differently, so rows can differ from lanes=1 "
+        "(2 of 600 episode outcomes on the seed-1 quick runs); part of the cache key",
+    )
 
 
 @dataclass

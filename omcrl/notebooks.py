@@ -360,12 +360,13 @@ def run_chain(
         t0 = time.perf_counter()
         if verbose:
             print(f"[notebooks] {n} (preset {preset}) ...", flush=True)
-        with _console_feed(n if verbose else None):
+        with _console_feed(n if verbose else None), _PeakMemory() as mem:
             out = run_notebook(n, preset, parameters=parameters, results_dir=results_dir, overrides=overrides, cwd=cwd)
         wall = time.perf_counter() - t0
         _record_wall_time(out.parent, n, wall)
+        _record(out.parent / "peak_rss_mb.json", n, round(mem.peak_mb))
         if verbose:
-            print(f"[notebooks] {n} done in {format_duration(wall)} -> {out}", flush=True)
+            print(f"[notebooks] {n} done in {format_duration(wall)}, peak {mem.peak_mb:,.0f} MB -> {out}", flush=True)
         done.append(out)
     return done
 
@@ -416,15 +417,57 @@ def _console_feed(name: str | None, poll_s: float = 1.0) -> Iterator[None]:
 
 def _record_wall_time(executed_dir: Path, name: str, wall_s: float) -> None:
     """Keep each notebook's last wall time in ``executed/wall_times.json`` (read by the summary)."""
+    _record(executed_dir / "wall_times.json", name, round(wall_s, 1))
+
+
+def _record(path: Path, name: str, value: float) -> None:
+    """Set ``name`` to ``value`` in the JSON object at ``path`` (atomically; an unreadable file starts anew)."""
     from omcrl.utils.io import atomic_write_text
 
-    path = executed_dir / "wall_times.json"
     try:
-        times = json.loads(path.read_text()) if path.exists() else {}
+        d = json.loads(path.read_text()) if path.exists() else {}
     except (OSError, ValueError):
-        times = {}
-    times[name] = round(wall_s, 1)
-    atomic_write_text(path, json.dumps(dict(sorted(times.items())), indent=1) + "\n")
+        d = {}
+    d[name] = value
+    atomic_write_text(path, json.dumps(dict(sorted(d.items())), indent=1) + "\n")
+
+
+class _PeakMemory:
+    """``with _PeakMemory() as m: ...`` -> ``m.peak_mb``: the peak, sampled every ``poll_s``, of the summed
+    resident memory (MB) of this process's descendants: the notebook's kernel and the env workers and
+    evaluation pools it starts. Pages that forked workers share are counted in each of them, so it is an upper
+    bound on what the stage holds.
+    """
+
+    def __init__(self, poll_s: float = 0.25) -> None:
+        self.poll_s, self.peak_mb = float(poll_s), 0.0
+
+    def sample(self) -> float:
+        import psutil
+
+        total = 0
+        for p in psutil.Process().children(recursive=True):
+            with contextlib.suppress(psutil.Error):
+                total += p.memory_info().rss
+        self.peak_mb = max(self.peak_mb, total / 2**20)
+        return total / 2**20
+
+    def __enter__(self) -> _PeakMemory:
+        import threading
+
+        self._stop = threading.Event()
+
+        def watch() -> None:
+            while not self._stop.wait(self.poll_s):
+                self.sample()
+
+        self._thread = threading.Thread(target=watch, name="omcrl-memory", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
 
 
 def overrides_from_config(cfg: Any) -> list[str]:

@@ -163,14 +163,31 @@ def summary_text(cfg: Config) -> str:
         "",
     ]
     walls = _read_json(root / "executed" / "wall_times.json") or {}
+    peaks = _read_json(root / "executed" / "peak_rss_mb.json") or {}
     if walls:
         rows = [
-            {"notebook": n, "stage": NOTEBOOK_TITLES.get(n, ""), "wall time": _duration(s)}
+            {
+                "notebook": n,
+                "stage": NOTEBOOK_TITLES.get(n, ""),
+                "wall time": _duration(s),
+                "peak memory": f"{peaks[n]:,.0f} MB" if n in peaks else "",
+            }
             for n, s in sorted(walls.items())
         ]
-        rows.append({"notebook": "total", "stage": "", "wall time": _duration(sum(walls.values()))})
+        rows.append(
+            {
+                "notebook": "total",
+                "stage": "",
+                "wall time": _duration(sum(walls.values())),
+                "peak memory": f"{max(peaks.values()):,.0f} MB" if peaks else "",
+            }
+        )
         out += [_md_table(rows), ""]
-        out += ["(last run of each notebook; a stage that reused finished runs is fast.)", ""]
+        out += [
+            "(last run of each notebook; a stage that reused finished runs is fast. Peak memory: the summed "
+            "resident memory of the notebook's processes, sampled every 0.25 s.)",
+            "",
+        ]
     else:
         out += ["No notebook has run through `python -m omcrl notebooks` yet.", ""]
 

@@ -131,8 +131,10 @@ def test_simulated_flight_arrives_and_logs(tmp_path, seeker):
     assert not drone.flying and drone.landed_at is not None and not drone.crashed
     rows = (tmp_path / "flight.csv").read_text().splitlines()
     assert rows[0].startswith("t,tick,x,y") and rows[-1].endswith(",land") and len(rows) == res.ticks + 3
-    lat = [float(r.split(",")[11]) for r in rows[1:-2]]
-    assert max(lat) < 50.0  # ms per decision, far below the 100 ms control period
+    lat = np.array([float(r.split(",")[11]) for r in rows[1:-2]])
+    # The column holds each decision's measured latency; how long it is, is `python -m omcrl.bench deploy`'s
+    # business (against the control period), not a unit test's, whose timing depends on the host's load.
+    assert len(lat) == res.ticks and np.isfinite(lat).all() and (lat > 0).all()
 
 
 @pytest.mark.parametrize("what", ["video", "pose"])

@@ -163,6 +163,9 @@ def test_parallel_evaluation_gives_the_same_rows_as_in_process(tmp_path):
             assert list(two.episode) == list(range(5))
             pd.testing.assert_frame_equal(one, two)
             assert one.steps.sum() > 5  # real episodes, not an empty frame on both sides
+        # batched forwards over lanes: rows may differ from lanes=1 in rounding, never with the workers
+        lanes = evaluate(student, "furniture", 5, lanes=2, **kw)
+        pd.testing.assert_frame_equal(lanes, evaluate(student, "furniture", 5, lanes=2, workers=pool, **kw))
 
 
 def test_parallel_evaluation_refuses_what_cannot_reach_a_worker():
@@ -170,3 +173,49 @@ def test_parallel_evaluation_refuses_what_cannot_reach_a_worker():
         evaluate(GoRight(1.0), "box", 3, workers=pool, make_env=lambda scene, seed: LineEnv(scene, seed))
     with pytest.raises(RuntimeError, match="not open"):
         EvalPool(2).run((None,), [0], "x", False)
+
+
+class StaggeredLineEnv(LineEnv):
+    """LineEnv starting ``seed % 5`` m further back, so episodes end after different numbers of steps."""
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = super().reset(seed=seed, options=options)
+        self.x = -float(seed % 5)
+        return np.array([3.0 - self.x], np.float32), {"pose": np.array([self.x, 0.0, 0.0])}
+
+
+class Proportional:
+    """A policy with ``act_batch`` whose batched actions equal its one-at-a-time actions bit for bit."""
+
+    name, checkpoint = "proportional", "none"
+
+    def __init__(self) -> None:
+        self.batches: list[int] = []
+
+    def act(self, obs, info):
+        return self.act_batch(np.asarray(obs)[None], [info])[0]
+
+    def act_batch(self, obs, infos):
+        self.batches.append(len(obs))
+        x = np.clip(0.25 * np.asarray(obs, np.float32)[:, :1] + 0.1, -1.0, 1.0)
+        return np.concatenate([x, np.zeros((len(obs), 2), np.float32)], axis=1)
+
+
+def test_lanes_run_episodes_in_lock_step_with_the_same_rows():
+    kw = {"seed": 0, "seed_offset": 100, "make_env": StaggeredLineEnv}
+    one = evaluate(pol := Proportional(), "box", 11, **kw)
+    assert set(pol.batches) == {1} and one.steps.nunique() > 2  # episodes of unequal length
+    lanes = evaluate(pol := Proportional(), "box", 11, lanes=3, **kw)
+    # 11 episodes in chunks of 4, 4, 3: three lanes refill from their chunk as episodes end, then drain
+    assert max(pol.batches) == 3 and 1 in pol.batches and 2 in pol.batches
+    assert sum(pol.batches) == one.steps.sum()  # every step of every episode, each once
+    pd.testing.assert_frame_equal(one, lanes)
+    with EvalPool(2) as pool:
+        pd.testing.assert_frame_equal(lanes, evaluate(Proportional(), "box", 11, lanes=3, workers=pool, **kw))
+    # a planner (no act_batch) steps one env whatever lanes says
+    pd.testing.assert_frame_equal(
+        evaluate(GoRight(1.0), "box", 5, make_env=StaggeredLineEnv),
+        evaluate(GoRight(1.0), "box", 5, lanes=4, make_env=StaggeredLineEnv),
+    )
+    with pytest.raises(ValueError, match="lanes must be >= 1, got 0"):
+        evaluate(Proportional(), "box", 3, lanes=0, **kw)

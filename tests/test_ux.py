@@ -87,6 +87,8 @@ def test_notebook_progress_is_one_output_and_console_gets_status(tmp_path, capfd
     assert "without encryption" not in console.err + console.out
     times = json.loads((out.parent / "wall_times.json").read_text())
     assert str(src) in times
+    # The kernel's memory was sampled while it ran (a Python kernel with numpy holds well over 20 MB).
+    assert json.loads((out.parent / "peak_rss_mb.json").read_text())[str(src)] > 20
 
 
 # ---------------------------------------------------------------- paths
@@ -168,6 +170,7 @@ def _fake_results(root: Path) -> None:
     (root / "tables" / "table1.csv").write_text("\n".join(rows) + "\n")
     (root / "executed").mkdir()
     (root / "executed" / "wall_times.json").write_text(json.dumps({"00_scenes": 6.2, "02_pretrain_encoder": 1142.0}))
+    (root / "executed" / "peak_rss_mb.json").write_text(json.dumps({"00_scenes": 412, "02_pretrain_encoder": 1830}))
 
 
 @pytest.mark.parametrize("preset", ["smoke", "quick"])
@@ -183,6 +186,7 @@ def test_summary_lists_every_figure_and_the_table(tmp_path, preset):
         assert f"(figures/{f.name})" in text
     assert "| tree | curl | 90.0 [81.0, 99.0] |" in text
     assert "19m02s" in text and "19m08s" in text  # notebook 02 and the total
+    assert "| 412 MB |" in text and text.count("| 1,830 MB |") == 2  # notebook 02 and the total's peak
     assert "not run yet (notebook 03_train_oracle)" in text  # a missing stage is named, not skipped silently
     assert "| SPL | success weighted by path length |" in text  # the glossary
     assert (SMOKE_NOTE in text) == (preset == "smoke")

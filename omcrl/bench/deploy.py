@@ -5,6 +5,8 @@
 One decision = the policy's forward pass on one (RGB stack, state) observation: encoder + actor, with the
 preprocessing inside (what runs on the on-board or ground computer each control tick). Both runtimes get one
 intra-op thread and the same observations, interleaved in blocks so drift of the host affects both alike.
+``max_vs_period`` is the slowest decision over the control period ``1 / control_hz`` (the loop's budget per tick:
+it must stay well below 1; the control loop logs each tick's latency in its flight CSV).
 Without ``--policy`` a fresh policy with the kit's architecture at ``--image-size`` (quick preset sizes) is
 exported first; the latency does not depend on the weights.
 """
@@ -77,11 +79,13 @@ def measure(run: Path, seconds: float, blocks: int = 10) -> list[dict]:
                 fn()
                 times[name].append((time.perf_counter() - t0) * 1e3)
     rows = []
+    period = 1e3 / float(s["control_hz"])
     for name, t in times.items():
         a = np.asarray(t)
         rows.append({"runtime": name, "image_size": s["image_size"], "frame_stack": s["frame_stack"],
                      "calls": len(a), "median_ms": float(np.median(a)), "p99_ms": float(np.percentile(a, 99)),
-                     "mean_ms": float(a.mean())})  # fmt: skip
+                     "max_ms": float(a.max()), "mean_ms": float(a.mean()), "period_ms": period,
+                     "max_vs_period": float(a.max()) / period})  # fmt: skip
     rows[0]["speedup_vs_torch"] = rows[1]["median_ms"] / rows[0]["median_ms"]
     return rows
 

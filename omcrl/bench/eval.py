@@ -9,7 +9,8 @@ In rounds, side by side (so whatever else the machine does weighs on every row a
 * for each policy (a student on a random-init frozen encoder; the privileged Hybrid APF), the same episodes
   evaluated ``in-process`` (``workers=1``) and ``parallel`` (``workers=0``: one process per core, one
   :class:`~omcrl.eval.runner.EvalPool` kept across rounds as the evaluation stage keeps it), in env steps
-  per second and episodes per second.
+  per second and episodes per second; for the student also ``parallel, <k> lanes`` (``--lanes``): each worker
+  steps k envs in lock-step with one batched forward per step (``evaluate(..., lanes=k)``).
 
 Each rate is the median over rounds; ``vs_(a)`` is a row's rate over (a)'s (target >= 0.8 for ``parallel``).
 Episodes reset with new layouts (and Hybrid APF plans an A* path per episode), so resets are in every rate.
@@ -49,7 +50,9 @@ def _student_policy(cfg: Config, root: Path) -> Path:
     return path
 
 
-def measure(cfg: Config, episodes: int, rounds: int, vec_seconds: float, root: Path) -> list[dict]:
+def measure(
+    cfg: Config, episodes: int, rounds: int, vec_seconds: float, root: Path, lanes: Sequence[int] = (1,)
+) -> list[dict]:
     from omcrl.bench.rl import _vec_env_rate
     from omcrl.envs import make_vec_env
     from omcrl.eval.runner import EvalPool, evaluate
@@ -67,6 +70,7 @@ def measure(cfg: Config, episodes: int, rounds: int, vec_seconds: float, root: P
     acts = np.stack([_walk(np.random.default_rng(0), 100_000)] * n, 1)
     k = 0
     rates: dict[str, list[tuple[float, float]]] = {}
+    shape = {"(a) vec env": (n, 1), "(b) vec env+student": (n, 1)}  # case -> (processes, envs per process)
 
     def vec_block() -> float:
         nonlocal k
@@ -85,15 +89,18 @@ def measure(cfg: Config, episodes: int, rounds: int, vec_seconds: float, root: P
                     b = _vec_env_rate(cfg, vec_steps, lambda s: make_student_features(enc_path, s))
                     row["(b) vec env+student"] = (b, float("nan"))
                 for name, make in makers.items():
-                    for mode, workers in (("in-process", 1), ("parallel", pool)):
+                    modes = [("in-process", 1, 1), ("parallel", pool, 1)]
+                    if name == "student":  # planners step one env per process whatever lanes says
+                        modes += [(f"parallel, {m} lanes", pool, m) for m in lanes if m > 1]
+                    for mode, procs, m in modes:
                         t0 = time.perf_counter()
-                        df = evaluate(make(), cfg.env.scene, episodes, r, workers=workers, config=cfg.env)
+                        df = evaluate(make(), cfg.env.scene, episodes, r, workers=procs, lanes=m, config=cfg.env)
                         dt = time.perf_counter() - t0
                         row[f"{name} {mode}"] = (float(df.steps.sum()) / dt, episodes / dt)
+                        shape[f"{name} {mode}"] = (1 if procs == 1 else pool.workers, m)
                 if r:
                     for case, v in row.items():
                         rates.setdefault(case, []).append(v)
-            workers = pool.workers
     finally:
         vec.close()
     base = float(np.median([v[0] for v in rates["(a) vec env"]]))
@@ -107,7 +114,8 @@ def measure(cfg: Config, episodes: int, rounds: int, vec_seconds: float, root: P
                 "env_steps_per_s": sps,
                 "episodes_per_s": None if np.isnan(eps) else eps,
                 "vs_(a)": sps / base,
-                "workers": {"in-process": 1, "parallel": workers}.get(case.split()[-1], n),
+                "workers": shape[case][0],
+                "envs_per_worker": shape[case][1],
             }
         )
     return out
@@ -119,12 +127,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--episodes", type=int, default=16, help="episodes per evaluation (default: 16)")
     ap.add_argument("--rounds", type=int, default=3, help="measured rounds (default: 3)")
     ap.add_argument("--vec-seconds", type=float, default=5.0, help="vector-env block per round (s)")
+    ap.add_argument(
+        "--lanes", default="2,4", help="comma-separated lane counts of extra 'student parallel' rows (default: 2,4)"
+    )
     args = ap.parse_args(argv)
+    try:
+        lanes = sorted({int(k) for k in args.lanes.split(",") if k.strip()})
+    except ValueError:
+        ap.error(f"--lanes: expected comma-separated integers, got {args.lanes!r}")
+    if any(k < 1 for k in lanes):
+        ap.error(f"--lanes: lane counts must be >= 1, got {args.lanes!r}")
     cfg = load_config(args.preset)
     episodes, rounds, vec_s = (6, 1, 2.0) if args.quick else (args.episodes, args.rounds, args.vec_seconds)
     with tempfile.TemporaryDirectory(prefix="omcrl-bench-eval-") as tmp:
-        rows = measure(cfg, episodes, rounds, vec_s, Path(tmp))
-    par = next(r["vs_(a)"] for r in rows if r["case"] == "student parallel")
+        rows = measure(cfg, episodes, rounds, vec_s, Path(tmp), lanes)
     write_results("eval", rows, args.out, preset=args.preset, episodes=episodes, rounds=rounds, target=0.8)
-    print(f"# student parallel / vec env = {par:.2f} (target >= 0.8)")
+    for r in rows:
+        if r["case"].startswith("student parallel"):
+            print(f"# {r['case']} / vec env = {r['vs_(a)']:.2f} (target >= 0.8)")
     return 0

@@ -56,6 +56,7 @@ def evaluate(
     make_env: Callable[..., Any] | None = None,
     progress: bool = False,
     workers: int | EvalPool = 1,
+    lanes: int = 1,
     **env_kwargs: Any,
 ) -> pd.DataFrame:
     """Run ``episodes`` deterministic episodes of ``policy`` in ``scene``.
@@ -74,6 +75,11 @@ def evaluate(
     workers : processes that run episodes in parallel (1: in this process), or an open :class:`EvalPool` to
         reuse across calls. Every episode is reset with its own seed and the policy is deterministic, so the
         rows are identical for any number of workers (tested).
+    lanes : envs that each process steps in lock-step, with one batched forward of the policy per step
+        (``policy.act_batch``); policies without ``act_batch`` (planners) step one env. A batched forward
+        amortises the encoder's weights over the lanes, but rounds differently from a forward of one
+        observation (action means differ by ~1e-8), so rows can depend on ``lanes``; they never depend on
+        ``workers``: episodes are grouped into the same chunks and lanes in this process as in a pool.
     env_kwargs : forwarded to ``make_env`` (``image_size``, ``config``, ``disturbance``, ...).
 
     Returns
@@ -87,7 +93,12 @@ def evaluate(
     method = method if method is not None else getattr(policy, "name", type(policy).__name__)
     checkpoint = checkpoint if checkpoint is not None else getattr(policy, "checkpoint", "")
     labels = {"method": method, "checkpoint": str(checkpoint)}
-    job = (policy, scene, make_env, env_kwargs, labels)
+    lanes = int(lanes)
+    if lanes < 1:
+        raise ValueError(f"lanes must be >= 1, got {lanes}")
+    if not callable(getattr(policy, "act_batch", None)):
+        lanes = 1  # planners keep per-episode state: one env each
+    job = (policy, scene, make_env, env_kwargs, labels, lanes)
     desc = f"eval/{method}/{scene}"
     if isinstance(workers, EvalPool):
         return workers.run(job, seeds, desc, progress)
@@ -99,26 +110,33 @@ def evaluate(
 
 
 # Episodes per task handed to a worker: small enough to balance episodes of unequal length and to move the
-# progress bar, large enough that sending the policy with each task costs little.
+# progress bar, large enough that sending the policy with each task costs little. With ``lanes`` > 1 a
+# chunk is also the group of episodes that share batched forwards (at least ``lanes`` episodes).
 _CHUNK = 4
 
 
-# A worker keeps its env between tasks of the same scene and env arguments (making one costs ~0.1-0.5 s);
-# every episode is reset with its own seed, so what ran in the env before does not matter.
-_WORKER: dict[str, Any] = {"in_worker": False, "key": None, "env": None}
+def _chunks(items: list, lanes: int) -> list[list]:
+    size = max(_CHUNK, lanes)
+    return [items[lo : lo + size] for lo in range(0, len(items), size)]
 
 
-def _worker_env(scene: str, make_env: Callable[..., Any] | None, env_kwargs: dict, seed: int) -> Any:
+# A worker keeps its envs between tasks of the same scene and env arguments (making one costs ~0.1-0.5 s);
+# every episode is reset with its own seed, so what ran in an env before does not matter.
+_WORKER: dict[str, Any] = {"in_worker": False, "key": None, "envs": []}
+
+
+def _worker_envs(scene: str, make_env: Callable[..., Any] | None, env_kwargs: dict, seed: int, n: int) -> list:
     import pickle
 
     key = pickle.dumps((scene, make_env, env_kwargs))
     if _WORKER["key"] != key:
-        if _WORKER["env"] is not None:
-            _WORKER["env"].close()
-        _WORKER["env"], _WORKER["key"] = None, None
-        _WORKER["env"] = _make(scene, make_env, env_kwargs, seed)
+        for env in _WORKER["envs"]:
+            env.close()
+        _WORKER["envs"], _WORKER["key"] = [], None
         _WORKER["key"] = key
-    return _WORKER["env"]
+    while len(_WORKER["envs"]) < n:
+        _WORKER["envs"].append(_make(scene, make_env, env_kwargs, seed))
+    return _WORKER["envs"][:n]
 
 
 def _make(scene: str, make_env: Callable[..., Any] | None, env_kwargs: dict, seed: int) -> Any:
@@ -128,37 +146,76 @@ def _make(scene: str, make_env: Callable[..., Any] | None, env_kwargs: dict, see
 
 
 def _episodes(job: tuple, items: list[tuple[int, int]], on_episode: Callable[[], Any] | None = None) -> list[dict]:
-    """Rows of the episodes ``items`` = [(episode index, reset seed)] of ``job``, in one env."""
-    policy, scene, make_env, env_kwargs, labels = job
+    """Rows of the episodes ``items`` = [(episode index, reset seed)] of ``job``, in episode order.
+
+    Items run chunk by chunk (:func:`_chunks`); within a chunk ``lanes`` envs step in lock-step, each taking the
+    chunk's next episode when its own ends, with one ``act_batch`` over the running lanes per step.
+    """
+    policy, scene, make_env, env_kwargs, labels, lanes = job
     pooled = _WORKER["in_worker"]
-    env = (_worker_env if pooled else _make)(scene, make_env, env_kwargs, items[0][1])
-    if hasattr(policy, "bind"):
-        policy.bind(env)
-    rows = []
+    n = min(lanes, len(items))
+    if pooled:
+        envs = _worker_envs(scene, make_env, env_kwargs, items[0][1], n)
+    else:
+        envs = [_make(scene, make_env, env_kwargs, items[0][1]) for _ in range(n)]
+    rows: list[dict] = []
     try:
-        for i, s in items:
-            obs, info = env.reset(seed=s)
-            start_episode(policy, info)
-            traj = [_xy(info)] if "pose" in info else []
-            total, done = 0.0, False
-            while not done:
-                action = np.asarray(policy.act(obs, info), dtype=np.float32)
-                obs, reward, term, trunc, info = env.step(action)
-                total += float(reward)
-                if "pose" in info:
-                    traj.append(_xy(info))
-                done = bool(term or trunc)
-            m = info.get("metrics")
-            if m is None:
-                raise RuntimeError(f"env for scene {scene!r} ended an episode without info['metrics']")
-            row = {k: m.get(k) for k in METRIC_FIELDS}
-            row.update(**labels, eval_seed=s, episode=i, **{"return": total}, trajectory=traj)
-            rows.append(row)
-            if on_episode is not None:
-                on_episode()
+        for chunk in _chunks(items, lanes):
+            rows += _chunk_episodes(policy, scene, labels, envs[: min(n, len(chunk))], chunk, on_episode)
     finally:
         if not pooled:
-            env.close()
+            for env in envs:
+                env.close()
+    return sorted(rows, key=lambda r: r["episode"])
+
+
+class _Lane:
+    """One env's running episode: what a row needs when it ends."""
+
+    def __init__(self, env: Any, item: tuple[int, int], policy: Any) -> None:
+        self.env, (self.i, self.seed) = env, item
+        if hasattr(policy, "bind"):
+            policy.bind(env)
+        self.obs, self.info = env.reset(seed=self.seed)
+        start_episode(policy, self.info)
+        self.traj = [_xy(self.info)] if "pose" in self.info else []
+        self.total = 0.0
+
+    def step(self, action: np.ndarray) -> bool:
+        """Step the env; True when the episode ended."""
+        self.obs, reward, term, trunc, self.info = self.env.step(np.asarray(action, dtype=np.float32))
+        self.total += float(reward)
+        if "pose" in self.info:
+            self.traj.append(_xy(self.info))
+        return bool(term or trunc)
+
+    def row(self, scene: str, labels: dict) -> dict:
+        m = self.info.get("metrics")
+        if m is None:
+            raise RuntimeError(f"env for scene {scene!r} ended an episode without info['metrics']")
+        row = {k: m.get(k) for k in METRIC_FIELDS}
+        row.update(**labels, eval_seed=self.seed, episode=self.i, **{"return": self.total}, trajectory=self.traj)
+        return row
+
+
+def _chunk_episodes(
+    policy: Any, scene: str, labels: dict, envs: list, chunk: list, on_episode: Callable[[], Any] | None
+) -> list[dict]:
+    queue, rows = list(chunk), []
+    lanes: list[_Lane | None] = [_Lane(env, queue.pop(0), policy) for env in envs]
+    while any(lane is not None for lane in lanes):
+        live = [lane for lane in lanes if lane is not None]
+        if len(envs) == 1:  # one env: the unbatched call, bit for bit what a lone episode gets
+            actions = [policy.act(live[0].obs, live[0].info)]
+        else:
+            actions = list(policy.act_batch(_stack([lane.obs for lane in live]), [lane.info for lane in live]))
+        for lane, action in zip(live, actions):
+            if lane.step(action):
+                rows.append(lane.row(scene, labels))
+                if on_episode is not None:
+                    on_episode()
+                j = lanes.index(lane)
+                lanes[j] = _Lane(lane.env, queue.pop(0), policy) if queue else None
     return rows
 
 
@@ -221,7 +278,7 @@ class EvalPool:
                 f"({e}); pass workers=1 to evaluate in this process"
             ) from e
         items = list(enumerate(seeds))
-        chunks = [items[lo : lo + _CHUNK] for lo in range(0, len(items), _CHUNK)]
+        chunks = _chunks(items, job[-1])
         futures = [self._ex.submit(_episodes, job, c) for c in chunks]
         rows: list[dict] = []
         with Progress(len(items), desc, unit="ep", enabled=progress) as bar:
@@ -229,6 +286,13 @@ class EvalPool:
                 rows += fut.result()
                 bar.update(len(c))
         return pd.DataFrame(rows)
+
+
+def _stack(obs: list) -> Any:
+    """Observations of the lanes -> one batched observation (a dict of (N, ...) arrays, or an (N, ...) array)."""
+    if isinstance(obs[0], dict):
+        return {k: np.stack([o[k] for o in obs]) for k in obs[0]}
+    return np.stack(obs)
 
 
 def _xy(info: dict) -> tuple[float, float]:

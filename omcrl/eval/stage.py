@@ -185,6 +185,8 @@ def evaluate_methods(
                 ident = {"policy": pkey, "env": env_key, "scene": scene, "episodes": episodes}
                 if disturbance:  # only when set: undisturbed evaluations keep their keys
                     ident["disturbance"] = dict(disturbance)
+                if cfg.eval.lanes != 1 and callable(getattr(policy, "act_batch", None)):
+                    ident["lanes"] = cfg.eval.lanes  # likewise: one env at a time (and planners) keep their keys
                 key = config_hash({**ident, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
                 folder = cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}"
                 stem = scene if not disturbance else f"{scene}-" + "-".join(f"{v}" for v in disturbance.values())
@@ -199,6 +201,7 @@ def evaluate_methods(
                         method=label,
                         progress=progress,
                         workers=pool or 1,
+                        lanes=cfg.eval.lanes,
                         config=cfg.env,
                         **({"disturbance": dict(disturbance)} if disturbance else {}),
                     )

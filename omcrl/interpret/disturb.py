@@ -113,15 +113,16 @@ def disturbance_episodes(
     with EvalPool(cfg.eval.workers) as pool:
         for m, pol in policies.items():
             for c, dist in dists.items():
-                key = config_hash(
-                    {
-                        "policy": file_digest(pol.checkpoint),
-                        "env": asdict(room),
-                        "disturbance": dist,
-                        "episodes": episodes,
-                        "offset": SEED_OFFSET,
-                    }
-                )
+                ident = {
+                    "policy": file_digest(pol.checkpoint),
+                    "env": asdict(room),
+                    "disturbance": dist,
+                    "episodes": episodes,
+                    "offset": SEED_OFFSET,
+                }
+                if cfg.eval.lanes != 1:  # only when set: evaluations one env at a time keep their keys
+                    ident["lanes"] = cfg.eval.lanes
+                key = config_hash(ident)
                 folder = cfg.run_root / "interpret" / "disturbance" / m / f"seed{cfg.seed}"
                 df = _read_cache(folder, c, key) if cache else None
                 if df is None:
@@ -134,6 +135,7 @@ def disturbance_episodes(
                         method=m,
                         progress=progress,
                         workers=pool if cfg.eval.workers != 1 else 1,
+                        lanes=cfg.eval.lanes,
                         config=room,
                         disturbance=dist or None,
                     )

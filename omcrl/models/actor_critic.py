@@ -72,6 +72,11 @@ class ActorCritic(nn.Module):
         std = self.log_std.exp().expand_as(mean)
         return mean, std, self.critic(f).squeeze(-1)
 
+    def distribution(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean (B, A) and std (B, A) without the critic: what acting and guiding need (same mean as ``forward``)."""
+        mean = self.actor(self.features(stored))
+        return mean, self.log_std.exp().expand_as(mean)
+
     @torch.no_grad()
     def step(
         self, stored: dict[str, torch.Tensor], deterministic: bool = False

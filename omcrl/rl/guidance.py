@@ -114,7 +114,7 @@ class PolicyGuide:
     @torch.no_grad()
     def distribution_stored(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean and std (B, A) float32, on the guide's device, for prepared inputs of B states."""
-        mean, std, _ = self.agent(to_device(stored, next(self.agent.parameters()).device))
+        mean, std = self.agent.distribution(to_device(stored, next(self.agent.parameters()).device))
         return mean.float(), std.float()
 
     def distribution(self, obs: Any, infos: dict, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -57,7 +57,7 @@ class Policy:
 
     @torch.no_grad()
     def act_batch(self, obs: Any, infos: Any = None) -> np.ndarray:
-        mean, _, _ = self.agent(self.agent.features.preprocess(obs))
+        mean, _ = self.agent.distribution(self.agent.features.preprocess(obs))
         return np.clip(mean.numpy(), -1.0, 1.0).astype(np.float32)
 
     def act(self, obs: Any, info: Any = None) -> np.ndarray:
@@ -69,7 +69,7 @@ class Policy:
 
     @torch.no_grad()
     def distribution(self, obs: Any, infos: Any = None, starts: Any = None) -> tuple[np.ndarray, np.ndarray]:
-        mean, std, _ = self.agent(self.agent.features.preprocess(obs))
+        mean, std = self.agent.distribution(self.agent.features.preprocess(obs))
         return mean.numpy().astype(np.float32), std.numpy().astype(np.float32)
 
     def reset(self) -> None:
