@@ -132,8 +132,7 @@ def _worker_envs(scene: str, make_env: Callable[..., Any] | None, env_kwargs: di
     if _WORKER["key"] != key:
         for env in _WORKER["envs"]:
             env.close()
-        _WORKER["envs"], _WORKER["key"] = [], None
-        _WORKER["key"] = key
+        _WORKER["envs"], _WORKER["key"] = [], key  # an env that fails to build is built again next time
     while len(_WORKER["envs"]) < n:
         _WORKER["envs"].append(_make(scene, make_env, env_kwargs, seed))
     return _WORKER["envs"][:n]
