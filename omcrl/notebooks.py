@@ -32,6 +32,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+from omcrl.utils.memory import PeakRSS
 from omcrl.utils.progress import STATUS_FILE_ENV, format_duration
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -360,7 +361,8 @@ def run_chain(
         t0 = time.perf_counter()
         if verbose:
             print(f"[notebooks] {n} (preset {preset}) ...", flush=True)
-        with _console_feed(n if verbose else None), _PeakMemory() as mem:
+        # Peak memory of the kernel and the workers it starts, every 0.25 s (an upper bound: see PeakRSS).
+        with _console_feed(n if verbose else None), PeakRSS(0.25, children=True) as mem:
             out = run_notebook(n, preset, parameters=parameters, results_dir=results_dir, overrides=overrides, cwd=cwd)
         wall = time.perf_counter() - t0
         _record_wall_time(out.parent, n, wall)
@@ -430,44 +432,6 @@ def _record(path: Path, name: str, value: float) -> None:
         d = {}
     d[name] = value
     atomic_write_text(path, json.dumps(dict(sorted(d.items())), indent=1) + "\n")
-
-
-class _PeakMemory:
-    """``with _PeakMemory() as m: ...`` -> ``m.peak_mb``: the peak, sampled every ``poll_s``, of the summed
-    resident memory (MB) of this process's descendants: the notebook's kernel and the env workers and
-    evaluation pools it starts. Pages that forked workers share are counted in each of them, so it is an upper
-    bound on what the stage holds.
-    """
-
-    def __init__(self, poll_s: float = 0.25) -> None:
-        self.poll_s, self.peak_mb = float(poll_s), 0.0
-
-    def sample(self) -> float:
-        import psutil
-
-        total = 0
-        for p in psutil.Process().children(recursive=True):
-            with contextlib.suppress(psutil.Error):
-                total += p.memory_info().rss
-        self.peak_mb = max(self.peak_mb, total / 2**20)
-        return total / 2**20
-
-    def __enter__(self) -> _PeakMemory:
-        import threading
-
-        self._stop = threading.Event()
-
-        def watch() -> None:
-            while not self._stop.wait(self.poll_s):
-                self.sample()
-
-        self._thread = threading.Thread(target=watch, name="omcrl-memory", daemon=True)
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
 
 
 def overrides_from_config(cfg: Any) -> list[str]:

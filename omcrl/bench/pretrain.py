@@ -24,10 +24,7 @@ The paper shape costs several seconds per iteration on a CPU; it runs a few iter
 from __future__ import annotations
 
 import gc
-import os
 import resource
-import threading
-import time
 from collections.abc import Sequence
 
 import torch
@@ -35,6 +32,7 @@ import torch
 from omcrl.bench import parser, timeit, write_results
 from omcrl.config import load_config
 from omcrl.pretrain.learner import ContrastiveLearner
+from omcrl.utils.memory import PeakRSS
 
 SHAPES = {  # name -> pretrain overrides (quick is read from the quick preset)
     "quick": {},
@@ -48,46 +46,6 @@ SHAPES = {  # name -> pretrain overrides (quick is read from the quick preset)
         "transformer_ffn": 768,
     },
 }
-_PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
-
-
-def rss_bytes() -> int:
-    """Current resident set size (bytes) from ``/proc/self/statm`` (Linux); 0 where unavailable."""
-    try:
-        with open("/proc/self/statm") as fh:
-            return int(fh.read().split()[1]) * _PAGE
-    except OSError:  # pragma: no cover - non-Linux
-        return 0
-
-
-class PeakRSS:
-    """Context manager sampling RSS every ``interval`` s in a thread; ``peak - baseline`` in bytes after exit."""
-
-    def __init__(self, interval: float = 0.002) -> None:
-        self.interval = interval
-        self.baseline = self.peak = 0
-        self._stop = threading.Event()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            self.peak = max(self.peak, rss_bytes())
-            time.sleep(self.interval)
-
-    def __enter__(self) -> PeakRSS:
-        gc.collect()
-        self.baseline = self.peak = rss_bytes()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
-        self.peak = max(self.peak, rss_bytes())
-
-    @property
-    def delta_mb(self) -> float:
-        return (self.peak - self.baseline) / 2**20
 
 
 def measure(method: str, shape: str, min_time: float, max_calls: int, seed: int = 0) -> dict:
