@@ -51,6 +51,11 @@ STAGES: dict[str, tuple[str, str]] = {
         "omcrl.interpret.transfer:run",
         "why a box-trained student fails zero-shot: geometry vs look, blind student, feature shift, probe across",
     ),
+    "gradient": (
+        "omcrl.interpret.gradient:run",
+        "the scenes' gradient of difficulty with nothing learned: shift from box (random encoders, pixels) and "
+        "planners' SR",
+    ),
     "sweep": (
         "omcrl.sweep:sweep_stage",
         "run a named ablation grid over seeds: sweep GRID [--seeds 0,1,2] [--backend ray|local] [--address A]",

@@ -23,6 +23,9 @@ from typing import Any
 
 import yaml
 
+from omcrl.envs.scenes import PAPER_SUITE, SCENE_SPECS, STRESS_SCENES, families, scene_id
+from omcrl.utils.precision import PRECISIONS
+
 PRESETS = ("smoke", "quick", "paper")
 PRESET_DIR = Path(__file__).parent / "presets"
 ROOT_ENV = "OMCRL_ROOT"
@@ -86,7 +89,10 @@ def _f(
 class EnvConfig:
     """The simulated flight task (paper V-A, V-D). Units: metres, seconds, radians unless stated."""
 
-    scene: str = _f("box", choices=("box", "furniture", "barrier", "tree"), doc="scene generator")
+    scene: str = _f(
+        "box-v0",
+        doc="scene id (box-v0, furniture-v1, ...) or family (its latest version), stored as the id; omcrl.envs.scenes",
+    )
     image_size: int = _f(64, lo=16, hi=512, doc="square camera image side (px)")
     frame_stack: int = _f(3, lo=1, hi=16, doc="L, frames per observation stack")
     control_hz: float = _f(10.0, lo=1.0, hi=100.0, doc="control (and render) rate (Hz)")
@@ -127,7 +133,7 @@ class EnvConfig:
 class DataConfig:
     """Trajectory collection for upstream pretraining (paper IV-B)."""
 
-    scene: str = _f("box", choices=("box", "furniture", "barrier", "tree"))
+    scene: str = _f("box-v0", doc="scene the data is flown in: an id or a family, as env.scene")
     episodes: int = _f(60, lo=1, hi=1000000, doc="episodes to collect")
     n_envs: int = _f(2, lo=1, hi=64, doc="parallel environments")
     mix: dict = _f(
@@ -192,6 +198,12 @@ class PretrainConfig:
         choices=("auto", "cpu", "cuda"),
         doc="where the learner runs: CUDA when available (auto), or cpu / cuda; not part of a run's identity",
     )
+    precision: str = _f(
+        "fp32",
+        choices=PRECISIONS,
+        doc="fp32, bf16 (autocast forward passes; weights, optimiser and loss in fp32) or auto (bf16 where the "
+        "hardware runs it natively); the resolved value is part of the run's identity (omcrl.utils.precision)",
+    )
 
 
 @dataclass
@@ -233,6 +245,13 @@ class RLConfig:
         doc="where the networks run: CUDA when available (auto), or cpu / cuda. An execution setting: not part "
         "of a run's identity (a run may resume on another device)",
     )
+    precision: str = _f(
+        "fp32",
+        choices=PRECISIONS,
+        doc="fp32, bf16 (autocast forward passes in rollouts, updates and evaluation; weights, optimiser and loss "
+        "in fp32) or auto (bf16 where the hardware runs it natively); the resolved value is part of the run's "
+        "identity and is stored in the policy file (omcrl.utils.precision)",
+    )
     update_threads: int = _f(
         0,
         lo=0,
@@ -248,7 +267,10 @@ class EvalConfig:
     """Evaluation harness (paper V-B, VI-A)."""
 
     episodes: int = _f(50, lo=1, hi=100000, doc="episodes per scene; paper: 200")
-    scenes: list = _f(["box", "furniture", "barrier", "tree"], doc="scenes to evaluate")
+    scenes: list = _f(
+        [*PAPER_SUITE, *STRESS_SCENES],
+        doc="scenes to evaluate (ids or families): the paper's four, then furniture-v0's unseen room as a stress test",
+    )
     seed_offset: int = _f(1_000_000, lo=0, hi=10**9, doc="evaluation seeds start here, disjoint from training")
     success_threshold_os: float = _f(0.5, lo=0.0, hi=10.0, doc="OS radius (m)")
     workers: int = _f(
@@ -444,10 +466,9 @@ def validate(cfg: Config) -> Config:
 
     walk(cfg, "")
     if not cfg.eval.scenes:
-        raise ConfigError("config field 'eval.scenes': got [], expected at least one of box, furniture, barrier, tree")
-    for scene in cfg.eval.scenes:
-        if scene not in ("box", "furniture", "barrier", "tree"):
-            raise ConfigError(f"config field 'eval.scenes': unknown scene {show(scene)}")
+        raise ConfigError(f"config field 'eval.scenes': got [], expected at least one of {list(SCENE_SPECS)}")
+    cfg.eval.scenes = list(dict.fromkeys(_scene_id("eval.scenes", s) for s in cfg.eval.scenes))
+    cfg.data.scene = _scene_id("data.scene", cfg.data.scene)
     try:
         seeds = [int(v) for v in cfg.seeds]
         if not seeds or any(v < 0 or v != float(w) for v, w in zip(seeds, cfg.seeds)) or len(set(seeds)) < len(seeds):
@@ -498,12 +519,24 @@ def validate(cfg: Config) -> Config:
     return cfg
 
 
+def _scene_id(path: str, name: Any) -> str:
+    """The canonical id of a scene name (``furniture`` -> ``furniture-v1``), or a ConfigError naming ``path``."""
+    try:
+        return scene_id(name)
+    except ValueError:
+        raise ConfigError(
+            f"config field '{path}': got {show(name)}, expected a scene id {list(SCENE_SPECS)} or a family "
+            f"{list(families())} (its latest version)"
+        ) from None
+
+
 def validate_env(env: EnvConfig, prefix: str = "env.") -> EnvConfig:
     """Cross-field rules of the env config (the env checks them too, so a direct ``make_env`` call fails early).
 
     Start and goal are drawn ``goal_distance`` apart inside the arena with clearance from its edge; a minimum
     distance beyond 80% of the arena's side can rarely or never be placed, and fails at reset otherwise.
     """
+    env.scene = _scene_id(f"{prefix}scene", env.scene)
     lo, hi = env.goal_distance
     reach = 0.8 * 2.0 * env.arena_half
     if lo <= env.goal_radius or lo > reach or hi > 2.0 * math.sqrt(2.0) * env.arena_half:

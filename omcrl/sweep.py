@@ -126,6 +126,18 @@ GRIDS.update({g: (DEFAULT_VARIANT, v) for g, v in REMEDY_VARIANTS.items()})
 GRIDS["remedies"] = (DEFAULT_VARIANT, *REMEDY_VARIANTS.values())
 # Grids run at the preset's own budgets (a remedy is judged against the Table I student, not a shortened one).
 REMEDY_GRIDS = ("remedies", *REMEDY_VARIANTS)
+# fp32 against bfloat16 autocast (docs/DEVIATIONS.md, "Precision"): ours with its own oracle and encoder in each
+# precision, and end-to-end PPO, at the preset's budgets (the fp32 arms are the Table I runs).
+BF16 = ("rl.precision=bf16", "pretrain.precision=bf16")
+PRECISION_VARIANTS = (
+    Variant("ours fp32", "ours"),
+    Variant("ours bf16", "ours", BF16),
+    Variant("PPO fp32", "ppo"),
+    Variant("PPO bf16", "ppo", BF16),
+)
+GRIDS["precision"] = PRECISION_VARIANTS
+# Grids that keep the preset's budgets instead of the shortened ablation budgets of cfg.sweep.
+FULL_BUDGET_GRIDS = (*REMEDY_GRIDS, "precision")
 
 KINDS = ("collect", "pretrain", "train", "evaluate")
 
@@ -257,7 +269,7 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
     from omcrl.rl.train import oracle_run
 
     seeds = list(seeds if seeds is not None else cfg.seeds)
-    budget = () if grid in REMEDY_GRIDS else budget_overrides(cfg)
+    budget = () if grid in FULL_BUDGET_GRIDS else budget_overrides(cfg)
     jobs: dict[str, Job] = {}
 
     def add(job: Job) -> str:
@@ -308,7 +320,7 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
 
 
 # ``sweep all``: the paper's six ablation grids (not the CI grid, not the remedies).
-ABLATION_GRIDS = tuple(g for g in GRIDS if g != "smoke" and g not in REMEDY_GRIDS)
+ABLATION_GRIDS = tuple(g for g in GRIDS if g != "smoke" and g not in FULL_BUDGET_GRIDS)
 
 # Work units per job kind (what a rate in :func:`sweep_cost` is per second of).
 UNITS = {"collect": "episodes", "pretrain": "iterations", "train": "env steps", "evaluate": "episodes"}
@@ -742,7 +754,7 @@ def run_ablations(
     Returns ``{grid: {"result": SweepResult, "table": aggregate table, "paths": written files}}``; a grid whose
     evaluations all failed has an empty table and no files.
     """
-    from omcrl.eval.ablation import ablation_table, write_ablation, write_remedies
+    from omcrl.eval.ablation import ablation_table, write_ablation, write_precision, write_remedies
 
     for g in grids:
         grid_variants(g)  # every name checked before the first job runs
@@ -754,6 +766,8 @@ def run_ablations(
             paths = write_ablation(res.episodes, cfg.run_root / "tables", g)
             if g in REMEDY_GRIDS and DEFAULT_VARIANT.label in set(res.episodes["label"]):
                 paths.update(write_remedies(res.episodes, cfg.run_root / "tables", g)[2])
+            if g == "precision":
+                paths.update(write_precision(res.episodes, cfg.run_root / "tables")[1])
         else:
             table, paths = pd.DataFrame(), {}
         out[g] = {"result": res, "table": table, "paths": paths}

@@ -170,7 +170,7 @@ def test_evaluate_binds_hybrid_apf_to_the_eval_env():
     cfg = load_config("smoke")
     planner = HybridAPF(cfg.env)
     df = evaluate(planner, "barrier", 1, seed_offset=cfg.eval.seed_offset, config=cfg.env)
-    assert planner._env is not None and planner._env.scene == "barrier"
+    assert planner._env is not None and planner._env.scene == "barrier-v0"
     assert len(planner.path) >= 2 and len(df) == 1
 
 
@@ -206,16 +206,27 @@ def test_evaluate_stage_finds_policies_writes_tables_and_caches(chain, monkeypat
     )
     assert list(stage.find_policies(cfg)) == ["oracle", "ours"]
     res = stage.run(cfg, progress=False)
-    assert list(res.table.index) == [(m, s) for m in ("oracle", "ours", "HybridAPF") for s in ("box", "barrier")]
+    assert list(res.table.index) == [(m, s) for m in ("oracle", "ours", "HybridAPF") for s in ("box-v0", "barrier-v0")]
     wide = res.wide()
-    assert list(wide.columns.get_level_values(0).unique()) == ["box", "barrier"]  # paper order, not sorted
+    assert list(wide.columns.get_level_values(0).unique()) == ["box-v0", "barrier-v0"]  # paper order, not sorted
     md = res.paths["md"].read_text()
-    assert "| method | box NE | box OS | box SR |" in md and md.count("\n| ") == 4
+    assert "| method | box-v0 NE | box-v0 OS | box-v0 SR |" in md and md.count("\n| ") == 4
+    # One writer per table file: evaluate writes its one-seed table under its own name, never Table I's.
+    tables = chain["root"] / "smoke" / "tables"
+    assert res.paths["md"] == tables / "evaluate_seed0.md" and not list(tables.glob("table1*"))
+    with pytest.raises(ValueError, match="only `python -m omcrl tables` writes table1"):
+        stage.run(cfg, name="table1", progress=False)
+    # A Table I file in another form is one line in the summary, not a traceback.
+    from omcrl.summary import summary_text
+
+    res.paths["csv"].rename(tables / "table1.csv")
+    assert "_Table I cannot be read: " in summary_text(cfg) and "by `python -m omcrl tables`" in summary_text(cfg)
+    (tables / "table1.csv").unlink()
     df = res.episodes
     assert len(df) == len(pd.read_csv(res.paths["episodes"])) == 12
     # Every method flies the same evaluation layouts.
     assert df.groupby("method").eval_seed.apply(tuple).nunique() == 1
-    s = summarize(df[(df.method == "HybridAPF") & (df.scene == "box")])
+    s = summarize(df[(df.method == "HybridAPF") & (df.scene == "box-v0")])
     assert s["episodes"] == 2 and 0.0 <= s["SR"] <= 100.0 and math.isfinite(s["NE"])
     # A second run reads every (method, scene) from the cache instead of flying the episodes again.
     monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))

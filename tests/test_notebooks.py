@@ -166,7 +166,7 @@ def test_overrides_from_config_round_trip():
         overrides=["env.scene=tree", "env.goal_distance=[3, 6]", "data.mix={pilot: 1, random: 0, policy: 0}"],
     )
     over = nbr.overrides_from_config(cfg)
-    assert len(over) == 3 and over[0] == 'env.scene="tree"'
+    assert len(over) == 3 and over[0] == 'env.scene="tree-v0"'
     assert load_config("smoke", overrides=over) == cfg
     assert nbr.overrides_from_config(load_config("smoke")) == []
 

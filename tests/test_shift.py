@@ -11,7 +11,7 @@ import torch
 
 from omcrl.config import ConfigError, load_config
 from omcrl.envs import make_env
-from omcrl.envs.scenes import INDOOR
+from omcrl.envs.scenes import scene_spec
 from omcrl.envs.stats import geometry_stats, geometry_summary
 from omcrl.interpret import (
     feature_shift,
@@ -43,7 +43,9 @@ def _roll(scene: str, look: str | None, steps: int = 40, parts: str = "all") -> 
     return out
 
 
-@pytest.mark.parametrize("scene, look", [("furniture", "box"), ("box", "furniture"), ("barrier", "tree")])
+@pytest.mark.parametrize(
+    "scene, look", [("furniture-v0", "box"), ("box", "furniture-v0"), ("furniture-v1", "tree"), ("barrier", "tree")]
+)
 def test_appearance_swap_changes_frames_not_geometry(scene, look):
     own, swapped = _roll(scene, None), _roll(scene, look)
     # Geometry, start/goal, the shortest path, collisions and rewards are the layout's, whatever its look.
@@ -55,15 +57,15 @@ def test_appearance_swap_changes_frames_not_geometry(scene, look):
     # Depth sees shapes, not materials: between two indoor looks (same room walls and ceiling) the oracle's
     # input is identical; an outdoor look moves the background (sky instead of walls and ceiling).
     same_depth = np.array_equal(np.asarray(own["depth"]), np.asarray(swapped["depth"]))
-    assert same_depth == (INDOOR[scene] == INDOOR[look])
+    assert same_depth == (scene_spec(scene).indoor == scene_spec(look).indoor)
     # ... but the camera sees another world.
     diff = np.abs(np.asarray(own["rgb"], np.float32) - np.asarray(swapped["rgb"], np.float32)).mean()
     assert diff > 10.0, diff
 
 
 def test_appearance_parts_swap_one_part_each():
-    own, both = _roll("box", None, 3), _roll("box", "furniture", 3)
-    parts = {part: _roll("box", "furniture", 3, part) for part in ("surroundings", "obstacles")}
+    own, both = _roll("box", None, 3), _roll("box", "furniture-v0", 3)
+    parts = {part: _roll("box", "furniture-v0", 3, part) for part in ("surroundings", "obstacles")}
     for part, out in parts.items():
         for other in (own, both):
             assert not np.array_equal(np.asarray(out["rgb"]), np.asarray(other["rgb"])), part
@@ -160,14 +162,16 @@ def test_randomized_look_varies_per_layout_keeps_geometry_and_is_seeded():
 
 def test_generic_textures_avoid_the_evaluation_scenes_materials():
     from omcrl.envs.nav_env import GENERIC_TEXTURES, appearance_materials
-    from omcrl.envs.scenes import FLOOR_TEXTURE, WALL_TEXTURE
+    from omcrl.envs.scenes import SCENE_SPECS
 
-    unseen = {t for s in ("furniture", "barrier", "tree") for _, t in appearance_materials(s, 8.0)}
-    unseen |= {FLOOR_TEXTURE[s] for s in ("furniture", "barrier", "tree")} | {
-        WALL_TEXTURE["furniture"],
-        WALL_TEXTURE["barrier"],
-    }
+    def looks(spec):
+        return {t for _, t in appearance_materials(spec.id, 8.0)} | {spec.floor_texture, spec.wall_texture}
+
+    # What an evaluation scene shows that the training scene does not (furniture-v1's room is box's own).
+    seen = looks(SCENE_SPECS["box-v0"])
+    unseen = set().union(*(looks(s) for s in SCENE_SPECS.values() if s.difficulty != "training")) - seen
     unseen_kinds = {t.split(":")[0] for t in unseen if t}
+    assert {"wood", "brick", "bark", "paint"} <= unseen_kinds
     assert not {t.split(":")[0] for t in GENERIC_TEXTURES} & unseen_kinds
 
 
@@ -258,10 +262,10 @@ def test_disturbed_evaluations_have_their_own_cache_and_undisturbed_keys_do_not_
     cfg = load_config("smoke", overrides={"results_dir": str(tmp_path), "eval": {"workers": 1}})
     own = evaluate_methods(cfg, {"HybridAPF": "HybridAPF"}, ["box"], 2)
     folder = tmp_path / "smoke" / "eval" / "HybridAPF" / "seed0"
-    (plain,) = folder.glob("box-*.csv")
-    look = {"appearance": "furniture", "appearance_parts": "surroundings"}
+    (plain,) = folder.glob("box-v0-*.csv")
+    look = {"appearance": "furniture-v0", "appearance_parts": "surroundings"}
     swapped = evaluate_methods(cfg, {"HybridAPF": "HybridAPF"}, ["box"], 2, disturbance=look)
-    (cached,) = folder.glob("box-furniture-surroundings-*.csv")
+    (cached,) = folder.glob("box-v0-furniture-v0-surroundings-*.csv")
     # The undisturbed cache keeps its file; the swapped look is another evaluation of the same layouts.
     assert sorted(p.name for p in folder.glob("*.csv")) == sorted([plain.name, cached.name])
     np.testing.assert_allclose(own["optimal_path_length"], swapped["optimal_path_length"])
@@ -301,14 +305,14 @@ def test_scene_geometry_statistics_unchanged():
     np.testing.assert_allclose(got[num].to_numpy(), ref[num].to_numpy(), atol=2e-6)
     # The clutter ordering the diagnosis relies on: box is the most blocked scene at 1 m, furniture the least.
     summ = geometry_summary(got).set_index("scene")
-    assert summ.blocked_pct.idxmax() == "box" and summ.blocked_pct.idxmin() == "furniture"
+    assert summ.blocked_pct.idxmax() == "box-v0" and summ.blocked_pct.idxmin() == "furniture-v0"
     assert (summ.shortest_path_m >= summ.straight_line_m - 1e-9).all()
 
 
 def test_geometry_statistics_ignore_the_look():
     seeds = [1_000_000, 1_000_001]
-    own = geometry_stats("furniture", seeds)
-    swapped = geometry_stats("furniture", seeds, disturbance={"appearance": "box"})
+    own = geometry_stats("furniture-v0", seeds)
+    swapped = geometry_stats("furniture-v0", seeds, disturbance={"appearance": "box"})
     pd.testing.assert_frame_equal(own, swapped)
 
 

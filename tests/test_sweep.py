@@ -66,7 +66,7 @@ def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is
     assert res.logs[failed.id].exists() and "Traceback" in res.logs[failed.id].read_text()
     assert res.counts() == {"failed": 1, "blocked": 3, "done": 2}
     assert "FAILED collect" in repr(res)
-    assert set(res.episodes.label) == {"PPO"} and len(res.episodes) == 4 * cfg.eval.episodes
+    assert set(res.episodes.label) == {"PPO"} and len(res.episodes) == len(cfg.eval.scenes) * cfg.eval.episodes
     # Run again: the finished training is found, not redone, and evaluation gives the same rows.
     final = next(cfg.run_root.glob("runs/rl/ppo-*/seed0/final.pt"))
     stamp = final.stat().st_mtime_ns

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import omcrl.bench as _pkg
 
-KNOWN = ("env", "pretrain", "rl", "eval", "deploy", "sweep", "cost")
+KNOWN = ("env", "pretrain", "rl", "eval", "deploy", "sweep", "cost", "precision")
 
 
 def available() -> list[str]:

@@ -10,9 +10,12 @@ all envs:
   and heads (``oracle``), and the student with the oracle guide's forwards (``student+guide``, in chunks as the
   rollout runs them). This is each trainer's *limit*: stepping its envs and the forward passes it needs;
 * the trainers for ``--steps`` env steps each: ``(c) student`` (oracle-guided), ``(c0) student α≡0``,
-  ``(d) oracle`` (APF-guided), ``(e) ppo``, ``(f) npe`` (APF-guided), and with ``--threads`` ``(e1) ppo, 1
+  ``(d) oracle`` (APF-guided), ``(e) ppo``, ``(f) npe`` (guided by its local APF), and with ``--threads`` ``(e1) ppo, 1
   thread`` (updates on one core, as before ``rl.update_threads``); with ``--baseline`` ``(c) before``
   (the guide evaluated every vector step instead of in chunks).
+
+With ``--precision fp32,bf16`` every row is measured once per precision, one after the other in the same run
+(``rl.precision`` and ``pretrain.precision``; the limits run their forwards in that precision too).
 
 For every trainer row: ``vs_limit`` = its rate / its (b) row; ``rollout_vs_limit`` = the rate of its
 rollouts alone (Σ steps / Σ ``rollout_s``) / (b); ``update_share`` = Σ ``update_s`` / Σ (rollout_s +
@@ -35,13 +38,14 @@ import torch
 
 from omcrl.bench import parser, write_results
 from omcrl.config import Config, load_config
+from omcrl.utils.precision import autocast, section_precision
 
 
 def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | None, guide: Path | None = None) -> float:
     """Env steps/s of random-action vector steps, optionally with an agent's rollout forward per step.
 
     ``build``: ``single_observation_space -> FeatureExtractor``; the agent built on it runs
-    ``agent.step(features.preprocess(obs))`` every vector step, exactly as the rollout does. ``guide``: an
+    ``agent.step(agent.prepare(obs))`` every vector step, exactly as the rollout does. ``guide``: an
     oracle policy file evaluated as the rollout evaluates its guide (inputs prepared every step, the network
     run once per chunk of :data:`omcrl.rl.rollout.GUIDE_CHUNK` states).
     """
@@ -54,6 +58,8 @@ def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | Non
     env = make_vec_env(cfg.env.scene, cfg.rl.n_envs, seed=0, config=cfg.env)
     try:
         agent = ActorCritic(build(env.single_observation_space), 3, cfg.rl.hidden).eval() if build else None
+        if agent is not None:
+            agent.precision = section_precision(cfg.rl)
         oracle = PolicyGuide(load_policy(guide).agent) if guide is not None else None
         every, pending = max(1, GUIDE_CHUNK // cfg.rl.n_envs), []
         rng = np.random.default_rng(0)
@@ -62,8 +68,8 @@ def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | Non
             if i == 10:
                 t0 = time.perf_counter()
             if agent is not None:
-                with torch.no_grad():
-                    agent.step(agent.features.preprocess(obs))
+                with torch.no_grad(), autocast(agent.precision):  # one region per step; the rollout keeps one
+                    agent.step(agent.prepare(obs))
             if oracle is not None:
                 pending.append(oracle.prepare(obs))
                 if len(pending) == every:
@@ -122,7 +128,7 @@ def measure(
 
     from omcrl.models import random_encoder, save_encoder
     from omcrl.rl import train_oracle, train_pixel, train_student
-    from omcrl.rl.methods import _apf_factory
+    from omcrl.rl.methods import METHODS, _planner_factory
     from omcrl.rl.policy import make_oracle_features, make_pixel_features, make_student_features
 
     rollout = importlib.import_module("omcrl.rl.rollout")  # where the runner reads GUIDE_CHUNK
@@ -142,9 +148,10 @@ def measure(
     rows.append({"case": "(b) env+student+guide", "steps_per_s": guided})
 
     def config(*extra: str) -> Config:
-        return load_config(cfg.preset, overrides=[f"results_dir={root}", f"rl.total_steps={steps}", *extra])
+        prec = [f"rl.precision={cfg.rl.precision}", f"pretrain.precision={cfg.pretrain.precision}"]
+        return load_config(cfg.preset, overrides=[f"results_dir={root}", f"rl.total_steps={steps}", *prec, *extra])
 
-    run, apf = config(), _apf_factory(cfg)
+    run, apf = config(), _planner_factory(cfg, METHODS["npe"].guide)
     rows.append(
         _train_rate("(c) student", "student+guide", lambda: train_student(run, enc_path, oracle_path, progress=False))
     )
@@ -199,18 +206,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--baseline", action="store_true", help="also time (c) with the per-step guide (before)")
     ap.add_argument("--threads", action="store_true", help="also time (e) with one update thread (before)")
     ap.add_argument("--keep", default=None, help="keep the run folders here instead of a temporary folder")
+    ap.add_argument(
+        "--precision",
+        default="fp32",
+        help="comma-separated precisions measured one after the other in this run (fp32,bf16; default fp32)",
+    )
     args = ap.parse_args(argv)
-    cfg = load_config(args.preset)
     steps, vec_steps = (1024, 150) if args.quick else (args.steps, args.vec_steps)
-    torch.set_num_threads(cfg.rl.num_threads)
-    if args.keep:
-        root = Path(args.keep)
-        root.mkdir(parents=True, exist_ok=True)
-        rows = measure(cfg, steps, vec_steps, root, args.baseline, args.threads)
-    else:
-        with tempfile.TemporaryDirectory(prefix="omcrl-bench-rl-") as tmp:
-            rows = measure(cfg, steps, vec_steps, Path(tmp), args.baseline, args.threads)
-    ratios = {r["case"]: round(r["vs_limit"], 3) for r in rows if "vs_limit" in r}
+    rows = []
+    for prec in args.precision.split(","):
+        cfg = load_config(args.preset, overrides=[f"rl.precision={prec}", f"pretrain.precision={prec}"])
+        torch.set_num_threads(cfg.rl.num_threads)
+        if args.keep:
+            root = Path(args.keep) / prec
+            root.mkdir(parents=True, exist_ok=True)
+            got = measure(cfg, steps, vec_steps, root, args.baseline, args.threads)
+        else:
+            with tempfile.TemporaryDirectory(prefix="omcrl-bench-rl-") as tmp:
+                got = measure(cfg, steps, vec_steps, Path(tmp), args.baseline, args.threads)
+        rows += [{"precision": prec, **r} for r in got]
+    ratios = {f"{r['case']} {r['precision']}": round(r["vs_limit"], 3) for r in rows if "vs_limit" in r}
     write_results(
         "rl",
         rows,

@@ -37,7 +37,7 @@ from gymnasium import spaces
 from omcrl.config import ConfigError, EnvConfig, _check_value, show, validate_env
 from omcrl.envs.geometry import Geometry, Primitive
 from omcrl.envs.render import load_egl, pybullet_renderer, resolve_renderer
-from omcrl.envs.scenes import SCENES, decor, generate_scene, layout_to_primitives
+from omcrl.envs.scenes import SCENE_SPECS, decor, generate_scene, layout_to_primitives, scene_id, scene_spec
 from omcrl.envs.textures import texture_file
 from omcrl.planners.grid import OccupancyGrid, build_grid, components, shortest_path
 
@@ -135,8 +135,13 @@ class Disturbance:
         number("brightness", 0.0)
         number("hue", -360.0, 360.0)
         number("seed", 0, integer=True)
-        if out.appearance is not None and out.appearance not in SCENES:
-            raise ConfigError(f"disturbance.appearance: got {show(out.appearance)}, expected None or one of {SCENES}")
+        if out.appearance is not None:
+            try:
+                out.appearance = scene_id(out.appearance)
+            except ValueError:
+                raise ConfigError(
+                    f"disturbance.appearance: got {show(out.appearance)}, expected None or one of {list(SCENE_SPECS)}"
+                ) from None
         if out.appearance_parts not in APPEARANCE_PARTS:
             raise ConfigError(
                 f"disturbance.appearance_parts: got {show(out.appearance_parts)}, expected one of {APPEARANCE_PARTS}"
@@ -332,7 +337,8 @@ class NavEnv(gym.Env):
         rgba, tex = tuple(p.rgba), p.texture
         dist = self.disturbance
         look = self._look_scene("obstacles")
-        if look != self.scene and not p.visual_only:
+        # Versions of a family share the generator and so its materials: only another family's are a swap.
+        if scene_spec(look).family != scene_spec(self.scene).family and not p.visual_only:
             pool = appearance_materials(look, self.cfg.arena_half)
             rgba, tex = pool[int(rng.integers(len(pool)))]
         if dist is not None and dist.randomize_look and not p.visual_only:
@@ -871,13 +877,16 @@ def make_env(
 ) -> NavEnv:
     """Build a :class:`NavEnv`.
 
-    ``scene`` is one of ``SCENES``; ``image_size``/``frame_stack`` and other keywords are ``EnvConfig`` fields
-    that override ``config`` (default 64 px, L = 3). ``scene=None`` takes the scene from ``config``.
+    ``scene`` is a scene id (``furniture-v0``) or family (``furniture``: its latest version), see
+    :mod:`omcrl.envs.scenes`; ``image_size``/``frame_stack`` and other keywords are ``EnvConfig`` fields that
+    override ``config`` (default 64 px, L = 3). ``scene=None`` takes the scene from ``config``.
     """
     if scene is None and config is not None:
         scene = config.scene
-    if scene not in SCENES:
-        raise ConfigError(f"scene: got {scene!r}, expected one of {list(SCENES)}")
+    try:
+        scene = scene_id(scene)
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
     return NavEnv(
         scene=scene,
         seed=seed,

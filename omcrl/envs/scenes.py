@@ -1,12 +1,23 @@
-"""The four scenes of rising difficulty (paper V-A), generated from a seed, and user layouts.
+"""Scenes as versioned specs (paper V-A), generated from a seed, and user layouts.
 
-* ``box`` — identical crates with one texture, the training scene.
-* ``furniture`` — tables, chairs, shelves, sofas, lamps, cabinets and plants of different shapes, sizes,
-  colours and materials; tables, sofas and coffee tables are low enough to fly over.
-* ``barrier`` — irregular walls: straight runs, L- and U-shapes, walls with gaps. U-shapes open towards the
-  arena centre are local minima for potential fields.
-* ``tree`` — an outdoor forest: trunks of varied radius and bark, canopies (spheres or stacked cones), low
+The paper builds four scenes as "a gradient of perceptual and navigational difficulty": identical boxes
+(training), furniture in an indoor room (easy), irregular barriers (medium) and a forest (hard). Each scene
+here is a :class:`SceneSpec` in one registry, named as Gymnasium names environments: a family and a version,
+``furniture-v1``. A version never changes once published; a changed scene is a new version.
+
+* ``box-v0`` — identical crates with one texture in a tiled, painted room: the training scene.
+* ``furniture-v1`` — tables, chairs, shelves, sofas, lamps, cabinets and plants of different shapes, sizes,
+  colours and materials, in **box's room** (its floor, walls and ceiling): the paper's easy indoor scene.
+* ``furniture-v0`` — the same furniture and layouts in a room of its own (wood floor, other paint): the
+  first suite's furniture scene, kept as a stress test for an unseen room (docs/generalization.md).
+* ``barrier-v0`` — irregular walls: straight runs, L- and U-shapes, walls with gaps, in a concrete and brick
+  hall. U-shapes open towards the arena centre are local minima for potential fields.
+* ``tree-v0`` — an outdoor forest: trunks of varied radius and bark, canopies (spheres or stacked cones), low
   bushes, grass and sky.
+
+A bare family name (``"furniture"``) means its latest version, as in Gymnasium. Versions of one family share
+their generator and random stream, so a seed gives the same geometry in every version of a family. In run and
+cache identities a v0 scene keeps its bare name (:func:`scene_key`), so runs from before versions keep their keys.
 
 A scene is a list of :class:`~omcrl.envs.geometry.Primitive`; decor (floor, walls beyond the arena, ceiling,
 sky) is ``visual_only``. Generators place structures by rejection sampling with a spacing margin so that the
@@ -16,18 +27,118 @@ drone can pass between most of them; reachability of start and goal is checked l
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from omcrl.envs.geometry import Primitive
 
-SCENES = ("box", "furniture", "barrier", "tree")
-DEFAULT_COUNTS = {"box": 20, "furniture": 18, "barrier": 9, "tree": 34}
-INDOOR = {"box": True, "furniture": True, "barrier": True, "tree": False}
-FLOOR_TEXTURE = {"box": "tiles:0", "furniture": "wood:floor", "barrier": "concrete:floor", "tree": "grass:0"}
-WALL_TEXTURE = {"box": "paint:0", "furniture": "paint:1", "barrier": "brick:room"}
+Generator = Callable[[np.random.Generator, float, int], list[Primitive]]
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One scene at one version: what generates its obstacles and what surrounds them.
+
+    Attributes
+    ----------
+    family : ``box`` | ``furniture`` | ``barrier`` | ``tree`` (or a user's own).
+    version : integer; ``id`` is ``f"{family}-v{version}"``.
+    generator : ``(rng, arena_half m, n) -> [Primitive]``, obstacles with their materials.
+    stream : index of the random stream (``default_rng([seed, stream])``); shared by a family's versions, so a
+        seed gives the same layout in each.
+    default_count : structures placed when ``env.n_obstacles`` is 0.
+    indoor : a room (walls and ceiling) or the outdoors (sky).
+    floor_texture, wall_texture : surroundings (``kind:variant`` of :mod:`omcrl.envs.textures`); no walls
+        outdoors.
+    materials : texture kinds the generator puts on obstacles (besides plain colours).
+    difficulty : the paper's label (Table I): ``training``, ``easy``, ``medium``, ``hard``, or ``stress``.
+    paper_scene : the column of the paper's Table I this scene stands for, or None (a stress test).
+    description : one line for tables and ``--help``.
+    """
+
+    family: str
+    version: int
+    generator: Generator
+    stream: int
+    default_count: int
+    indoor: bool
+    floor_texture: str
+    wall_texture: str | None
+    materials: tuple[str, ...]
+    difficulty: str
+    paper_scene: str | None
+    description: str
+
+    @property
+    def id(self) -> str:
+        return f"{self.family}-v{self.version}"
+
+    @property
+    def gym_id(self) -> str:
+        """The Gymnasium id, e.g. ``omcrl/Furniture-v1``."""
+        return f"omcrl/{self.family.capitalize()}-v{self.version}"
+
+    @property
+    def key(self) -> str:
+        """The scene's name in run and cache identities: the bare family for v0 (as before versions existed)."""
+        return self.family if self.version == 0 else self.id
+
+
+SCENE_SPECS: dict[str, SceneSpec] = {}
+
+
+def register_scene(spec: SceneSpec) -> SceneSpec:
+    """Add ``spec`` to the registry; a published id cannot be redefined."""
+    if not re.fullmatch(r"[a-z][a-z0-9_]*", spec.family) or spec.version < 0:
+        raise ValueError(f"scene family must be lower-case letters/digits and version >= 0, got {spec.id!r}")
+    if spec.id in SCENE_SPECS and SCENE_SPECS[spec.id] != spec:
+        raise ValueError(f"scene {spec.id!r} is already registered; a changed scene needs a new version")
+    SCENE_SPECS[spec.id] = spec
+    return spec
+
+
+def scene_spec(name: str) -> SceneSpec:
+    """The spec of ``name``: an id (``furniture-v0``) or a bare family (its latest version).
+
+    Raises ValueError naming the known scenes for anything else.
+    """
+    if isinstance(name, str):
+        if name in SCENE_SPECS:
+            return SCENE_SPECS[name]
+        versions = [s for s in SCENE_SPECS.values() if s.family == name]
+        if versions:
+            return max(versions, key=lambda s: s.version)
+    raise ValueError(f"scene: got {name!r}, expected one of {list(SCENE_SPECS)} (or a family {list(families())})")
+
+
+def scene_id(name: str) -> str:
+    """The canonical id of ``name`` (``"furniture"`` -> ``"furniture-v1"``, ``"box"`` -> ``"box-v0"``)."""
+    return scene_spec(name).id
+
+
+def scene_key(name: str) -> str:
+    """The name of ``name``'s scene in run and cache identities (see :attr:`SceneSpec.key`)."""
+    return scene_spec(name).key
+
+
+def families() -> tuple[str, ...]:
+    """Scene families in registration order."""
+    return tuple(dict.fromkeys(s.family for s in SCENE_SPECS.values()))
+
+
+def is_unseen(name: str) -> bool:
+    """True for a scene no trained part of the kit sees by default (every scene but the training scene)."""
+    return scene_spec(name).difficulty != "training"
+
+
+def scene_label(name: str) -> str:
+    """A scene's id with its role, for tables and figures: ``furniture-v1 (easy)``."""
+    spec = scene_spec(name)
+    return f"{spec.id} ({spec.difficulty})"
 
 
 def _rgba(rng: np.random.Generator, lo: float = 0.25, hi: float = 0.95) -> tuple[float, float, float, float]:
@@ -327,35 +438,106 @@ def gen_tree(rng: np.random.Generator, arena_half: float, n: int) -> list[Primit
     return out
 
 
-GENERATORS: dict[str, Callable[[np.random.Generator, float, int], list[Primitive]]] = {
-    "box": gen_box,
-    "furniture": gen_furniture,
-    "barrier": gen_barrier,
-    "tree": gen_tree,
+_BOX_ROOM = {"indoor": True, "floor_texture": "tiles:0", "wall_texture": "paint:0"}
+_FURNITURE = {
+    "family": "furniture",
+    "generator": gen_furniture,
+    "stream": 1,
+    "default_count": 18,
+    "materials": ("wood", "marble", "fabric", "metal", "leaves", "concrete"),
 }
+# Streams are the scenes' indices before versions existed, so v0 layouts are unchanged (pinned by a test).
+for _spec in (
+    SceneSpec(
+        "box",
+        0,
+        gen_box,
+        0,
+        20,
+        **_BOX_ROOM,
+        materials=("crate",),
+        difficulty="training",
+        paper_scene=None,
+        description="identical crates in a tiled, painted room (training)",
+    ),
+    SceneSpec(
+        **_FURNITURE,
+        version=1,
+        **_BOX_ROOM,
+        difficulty="easy",
+        paper_scene="furniture",
+        description="furniture of many shapes, sizes and materials in box's room",
+    ),
+    SceneSpec(
+        "barrier",
+        0,
+        gen_barrier,
+        2,
+        9,
+        True,
+        "concrete:floor",
+        "brick:room",
+        ("brick", "concrete", "paint"),
+        difficulty="medium",
+        paper_scene="barrier",
+        description="irregular walls (straight, L, U, gaps, zigzags) in a concrete and brick hall",
+    ),
+    SceneSpec(
+        "tree",
+        0,
+        gen_tree,
+        3,
+        34,
+        False,
+        "grass:0",
+        None,
+        ("bark", "leaves"),
+        difficulty="hard",
+        paper_scene="tree",
+        description="a forest of varied trunks, canopies and bushes on grass under sky",
+    ),
+    SceneSpec(
+        **_FURNITURE,
+        version=0,
+        indoor=True,
+        floor_texture="wood:floor",
+        wall_texture="paint:1",
+        difficulty="stress",
+        paper_scene=None,
+        description="furniture-v1's layouts in a room of its own (wood floor, other paint): an unseen room",
+    ),
+):
+    register_scene(_spec)
+
+# Scene families, as in the public API; each name means its latest version.
+SCENES = ("box", "furniture", "barrier", "tree")
+# The paper's four scenes (training scene first), and the stress test beside them (docs/generalization.md).
+PAPER_SUITE = ("box-v0", "furniture-v1", "barrier-v0", "tree-v0")
+STRESS_SCENES = ("furniture-v0",)
 
 
 def generate_scene(scene: str, seed: int, arena_half: float, n_obstacles: int = 0) -> list[Primitive]:
-    """Obstacles of ``scene`` for ``seed`` (deterministic). ``n_obstacles`` 0 means the scene's default count."""
-    if scene not in SCENES:
-        raise ValueError(f"scene: got {scene!r}, expected one of {SCENES}")
-    rng = np.random.default_rng([seed, SCENES.index(scene)])
-    return GENERATORS[scene](rng, arena_half, n_obstacles or DEFAULT_COUNTS[scene])
+    """Obstacles of ``scene`` (an id or a family) for ``seed`` (deterministic), ``arena_half`` m.
 
-
-def decor(
-    scene: str, arena_half: float, wall_texture: str | None = None, floor_texture: str | None = None
-) -> list[Primitive]:
-    """Visual-only surroundings: floor tiles, and room walls + ceiling (indoor) or sky (tree).
-
-    Room walls stand 1 m beyond the arena edge, so leaving the arena ends an episode before the drone could
-    touch them; they are scenery, not obstacles.
+    ``n_obstacles`` 0 means the scene's default count. Versions of one family give the same obstacles.
     """
+    spec = scene_spec(scene)
+    rng = np.random.default_rng([seed, spec.stream])
+    return spec.generator(rng, arena_half, n_obstacles or spec.default_count)
+
+
+def decor(scene: str, arena_half: float) -> list[Primitive]:
+    """Visual-only surroundings of ``scene``: floor tiles, and room walls + ceiling (indoor) or sky (outdoor).
+
+    Room walls stand 1 m beyond the arena edge (``arena_half`` m), so leaving the arena ends an episode before
+    the drone could touch them; they are scenery, not obstacles.
+    """
+    spec = scene_spec(scene)
     out = []
-    ext = arena_half + (1.0 if INDOOR[scene] else 6.0)
-    tile = 6.0 if INDOOR[scene] else 7.0  # few, large tiles: each body costs ~0.2-0.3 ms per reset
+    ext = arena_half + (1.0 if spec.indoor else 6.0)
+    tile = 6.0 if spec.indoor else 7.0  # few, large tiles: each body costs ~0.2-0.3 ms per reset
     k = math.ceil(ext / tile)
-    ftex = floor_texture or FLOOR_TEXTURE[scene]
+    ftex = spec.floor_texture
     for i in range(-k, k):
         for j in range(-k, k):
             out.append(
@@ -368,8 +550,8 @@ def decor(
                     visual_only=True,
                 )
             )
-    if INDOOR[scene]:
-        wt = wall_texture or WALL_TEXTURE[scene]
+    if spec.indoor:
+        wt = spec.wall_texture
         hgt = 3.0
         e = arena_half + 1.0
         for sx, sy, hx, hy in ((e, 0, 0.1, e), (-e, 0, 0.1, e), (0, e, e, 0.1), (0, -e, e, 0.1)):

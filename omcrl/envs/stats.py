@@ -29,7 +29,7 @@ def geometry_stats(
 
     Parameters
     ----------
-    scene : one of ``omcrl.envs.SCENES``.
+    scene : a scene id or family (``omcrl.envs.scenes``); rows name its id.
     seeds : episode seeds; ``env.reset(seed=s)`` draws the layout, start and goal exactly as an evaluation
         episode with that seed does (Table I uses ``omcrl.eval.runner.eval_seeds``).
     config : env settings (arena, altitude, drone radius, grid resolution); default ``EnvConfig()``.
@@ -52,7 +52,7 @@ def geometry_stats(
             assert grid is not None  # reset builds it
             rows.append(
                 {
-                    "scene": scene,
+                    "scene": env.scene,
                     "seed": int(s),
                     "obstacles": sum(not p.visual_only for p in env.primitives),
                     "occupied_pct": 100.0 * float(np.mean(grid.dist <= 0.0)),

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from omcrl.envs.scenes import is_unseen
 from omcrl.eval.stats import aggregate
 from omcrl.utils.io import atomic_write_text
 
@@ -94,7 +95,7 @@ def ablation_findings(
         if ep is None or ep.empty or not {a, b} <= set(ep["label"]):
             continue
         sub = ep[ep["label"].isin([a, b])].drop(columns=["method"]).rename(columns={"label": "method"})
-        sc = scenes or [s for s in dict.fromkeys(sub["scene"]) if s != "box"]
+        sc = scenes or [s for s in dict.fromkeys(sub["scene"]) if is_unseen(s)]
         sig = compare_sr(sub, reference=a, scenes=sc, reps=reps)
         for r in sig.itertuples():
             verdict = "holds" if r.lo > 0 else ("reversed" if r.hi < 0 else "undecided")
@@ -189,12 +190,12 @@ def remedy_verdicts(
                        change="better" if lo > 0 else "worse" if hi < 0 else "unresolved")  # fmt: skip
         rows.append(row)
     checks = pd.DataFrame(rows)
-    unseen = ep[ep.scene != "box"]
+    unseen = ep[ep.scene.map(is_unseen)]
     # SR (%) per variant, training seed and scene; a seed meets the target only if all its unseen scenes do.
     per_seed = unseen.groupby(["method", "train_seed", "scene"])["success"].mean().mul(100.0)
     seed_ok = per_seed.ge(target).groupby(level=["method", "train_seed"]).all()
     summary = []
-    for label, g in checks[checks.scene != "box"].groupby("label", sort=False):
+    for label, g in checks[checks.scene.map(is_unseen)].groupby("label", sort=False):
         met = "met" if (g.SR >= target).all() else "met within CI" if (g.SR_hi >= target).all() else "not met"
         worst = g.loc[g.SR.idxmin()]
         ok = seed_ok.loc[label]
@@ -245,3 +246,56 @@ def write_remedies(
         text += "\nChange against the default (variant − default, pp, 95 % CI):\n\n" + to_markdown(dw, "variant")
     atomic_write_text(paths["md"], text)
     return checks, summary, paths
+
+
+def precision_table(episodes: pd.DataFrame, reps: int = 2000) -> pd.DataFrame:
+    """bf16 against fp32 per method and scene, from the ``precision`` sweep (labels ``<method> fp32|bf16``).
+
+    Returns one row per method and scene: ``method, scene, seeds, SR_fp32, SR_bf16`` (%) and ``diff, lo, hi``
+    (bf16 − fp32 in percentage points, 95 % two-stage bootstrap CI of the difference), ``resolved`` (the CI
+    excludes 0).
+    """
+    from omcrl.eval.stats import compare_sr
+
+    ep = episodes.drop(columns=["method"], errors="ignore").rename(columns={"label": "method"})
+    agg = aggregate(ep, ("method", "scene"), reps=reps)
+    rows = []
+    for base in dict.fromkeys(m.rsplit(" ", 1)[0] for m in ep["method"] if m.endswith((" fp32", " bf16"))):
+        a, b = f"{base} fp32", f"{base} bf16"
+        if not {a, b} <= set(ep["method"]):
+            continue
+        sig = compare_sr(ep[ep.method.isin([a, b])], reference=b, reps=reps)
+        for r in sig.itertuples():
+            rows.append({"method": base, "scene": r.scene, "seeds": int(agg.loc[(a, r.scene), "seeds"]),
+                         "SR_fp32": agg.loc[(a, r.scene), "SR"], "SR_bf16": agg.loc[(b, r.scene), "SR"],
+                         "diff": r.diff, "lo": r.lo, "hi": r.hi, "resolved": bool(r.lo > 0 or r.hi < 0)})  # fmt: skip
+    return pd.DataFrame(
+        rows, columns=["method", "scene", "seeds", "SR_fp32", "SR_bf16", "diff", "lo", "hi", "resolved"]
+    )
+
+
+def write_precision(
+    episodes: pd.DataFrame, directory: str | Path, reps: int = 2000
+) -> tuple[pd.DataFrame, dict[str, Path]]:
+    """:func:`precision_table` as ``precision.csv`` and ``precision.md`` under ``directory``."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    table = precision_table(episodes, reps=reps)
+    paths = {"csv": d / "precision.csv", "md": d / "precision.md"}
+    atomic_write_text(paths["csv"], table.to_csv(index=False))
+    lines = [
+        "bf16 − fp32 success rate (pp) per method and scene, 95 % two-stage bootstrap CI over the training seeds "
+        "and evaluation episodes; resolved where the CI excludes 0.",
+        "",
+        "| method | scene | seeds | SR fp32 % | SR bf16 % | bf16 − fp32 pp [95 % CI] | resolved |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r.method} | {r.scene} | {r.seeds} | {r.SR_fp32:.0f} | {r.SR_bf16:.0f} | {r.diff:+.0f} "
+        f"[{r.lo:+.0f}, {r.hi:+.0f}] | {'yes' if r.resolved else 'no'} |"
+        for r in table.itertuples()
+    ]
+    n_res = int(table.resolved.sum()) if len(table) else 0
+    lines += ["", f"{n_res} of {len(table)} differences resolved."]
+    atomic_write_text(paths["md"], "\n".join(lines) + "\n")
+    return table, paths

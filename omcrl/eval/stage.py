@@ -27,13 +27,14 @@ from typing import Any
 import pandas as pd
 
 from omcrl.config import Config, config_hash
+from omcrl.envs.scenes import scene_id, scene_key
 from omcrl.eval.metrics import format_table, summary_table
 from omcrl.eval.runner import EvalPool, evaluate
 from omcrl.utils.io import atomic_write_text, file_digest
 
 HYBRID_APF = "HybridAPF"
 # Planner methods evaluated by name (no checkpoint); see omcrl.rl.methods.
-PLANNERS = (HYBRID_APF, "hybrid-apf", "hybrid-apf-perceptive")
+PLANNERS = (HYBRID_APF, "hybrid-apf", "hybrid-apf-perceptive", "local-apf")
 
 
 @dataclass(repr=False)
@@ -76,10 +77,16 @@ def find_policies(cfg: Config) -> dict[str, Path]:
 
 
 def planner_for(name: str, env_config: Any = None) -> Any:
-    """A fresh planner for a planner method name (``hybrid-apf``, ``hybrid-apf-perceptive``; ``HybridAPF``)."""
-    from omcrl.planners import HybridAPF, PerceptiveHybridAPF
+    """A fresh planner for a planner method name (``hybrid-apf``, ``hybrid-apf-perceptive``, ``local-apf``;
+    ``HybridAPF``)."""
+    from omcrl.planners import HybridAPF, LocalAPF, PerceptiveHybridAPF
 
-    cls = {HYBRID_APF: HybridAPF, "hybrid-apf": HybridAPF, "hybrid-apf-perceptive": PerceptiveHybridAPF}[name]
+    cls = {
+        HYBRID_APF: HybridAPF,
+        "hybrid-apf": HybridAPF,
+        "hybrid-apf-perceptive": PerceptiveHybridAPF,
+        "local-apf": LocalAPF,
+    }[name]
     return cls(env_config)
 
 
@@ -106,12 +113,14 @@ def _cache_file(folder: Path, stem: str, key: str) -> Path:
     return folder / f"{stem}-{key[:12]}.csv"
 
 
-def _read_cache(folder: Path, stem: str, key: str) -> pd.DataFrame | None:
+def _read_cache(folder: Path, stem: str, key: str, old_stem: str | None = None) -> pd.DataFrame | None:
     """The cached episodes of ``key`` under ``folder``, or None. Also reads the key-less ``<stem>.csv`` of
-    caches written before the key entered the name, when its stored key matches."""
+    caches written before the key entered the name, when its stored key matches, and both under ``old_stem``
+    (a name the same evaluation had before)."""
     if not key:
         return None
-    for path in (_cache_file(folder, stem, key), folder / f"{stem}.csv"):
+    stems = dict.fromkeys([stem, old_stem or stem])
+    for path in [p for st in stems for p in (_cache_file(folder, st, key), folder / f"{st}.csv")]:
         meta = path.with_suffix(".json")
         if path.exists() and meta.exists() and json.loads(meta.read_text()).get("key") == key:
             df = pd.read_csv(path)
@@ -169,7 +178,7 @@ def evaluate_methods(
     DataFrame with the columns of :func:`omcrl.eval.evaluate` (``method`` = label, ``scene``, ``train_seed`` = the
     training seed), methods in the given order, scenes in the given order.
     """
-    scenes = list(scenes if scenes is not None else cfg.eval.scenes)
+    scenes = [scene_id(s) for s in (scenes if scenes is not None else cfg.eval.scenes)]
     episodes = int(episodes if episodes is not None else cfg.eval.episodes)
     from omcrl.envs.render import env_identity  # here: importing omcrl.envs loads PyBullet
 
@@ -182,15 +191,18 @@ def evaluate_methods(
         for label, source in methods.items():
             policy, pkey = _load(label, source)
             for scene in scenes:
-                ident = {"policy": pkey, "env": env_key, "scene": scene, "episodes": episodes}
+                ident = {"policy": pkey, "env": env_key, "scene": scene_key(scene), "episodes": episodes}
                 if disturbance:  # only when set: undisturbed evaluations keep their keys
                     ident["disturbance"] = dict(disturbance)
                 if cfg.eval.lanes != 1 and callable(getattr(policy, "act_batch", None)):
                     ident["lanes"] = cfg.eval.lanes  # likewise: one env at a time (and planners) keep their keys
                 key = config_hash({**ident, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
                 folder = cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}"
-                stem = scene if not disturbance else f"{scene}-" + "-".join(f"{v}" for v in disturbance.values())
-                df = _read_cache(folder, stem, key) if cache else None
+                tail = "" if not disturbance else "-" + "-".join(f"{v}" for v in disturbance.values())
+                stem = scene + tail
+                # Caches written before scenes had versions are named by the bare family (v0, same key).
+                old_stem = scene_key(scene) + tail
+                df = _read_cache(folder, stem, key, old_stem) if cache else None
                 if df is None:
                     df = evaluate(
                         policy,
@@ -238,8 +250,10 @@ def write_tables(episodes_df: pd.DataFrame, directory: str | Path, name: str, os
     return {**paths, "table": table}
 
 
-def run(cfg: Config, *, name: str = "table1", progress: bool = True) -> EvalResult:
-    """CLI stage ``evaluate``: all finished oracle/student policies + Hybrid APF, all scenes; write Table I.
+def run(cfg: Config, *, name: str | None = None, progress: bool = True) -> EvalResult:
+    """CLI stage ``evaluate``: all finished oracle/student policies at ``cfg.seed`` + Hybrid APF, all scenes; write
+    a one-seed table ``tables/evaluate_seed<k>.{csv,md}`` (default ``name``) and its episodes. Table I itself
+    (``tables/table1.*``, over seeds) has one writer, the ``tables`` stage.
 
     Raises FileNotFoundError when no trained policy exists under ``<run_root>/runs`` (train one first).
     """
@@ -252,6 +266,9 @@ def run(cfg: Config, *, name: str = "table1", progress: bool = True) -> EvalResu
         )
     methods: dict[str, Any] = {**policies, HYBRID_APF: HYBRID_APF}
     df = evaluate_methods(cfg, methods, progress=progress)
+    name = name or f"evaluate_seed{cfg.seed}"
+    if name.startswith("table1"):
+        raise ValueError(f"evaluate: name {name!r} is Table I's; only `python -m omcrl tables` writes table1.*")
     out = write_tables(df, cfg.run_root / "tables", name, cfg.eval.success_threshold_os)
     table = out.pop("table")
     return EvalResult(df, table, out, time.perf_counter() - t0)

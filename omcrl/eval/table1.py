@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from omcrl.config import Config
+from omcrl.envs.scenes import scene_id, scene_label, scene_spec
 from omcrl.eval.metrics import METRICS
 from omcrl.eval.runner import EvalPool
 from omcrl.eval.stage import evaluate_methods
@@ -182,7 +183,7 @@ def _markdown(wide: pd.DataFrame, labels: dict[str, str]) -> str:
     out = []
     arrows = {m: ("↑" if HIGHER_IS_BETTER[m] else "↓") for m in METRICS}
     for sc in scenes:  # one block per scene keeps the table readable (6 columns instead of 24)
-        out.append(f"**{sc}**\n")
+        out.append(f"**{scene_label(sc)}**\n")
         out.append("| method | " + " | ".join(f"{m}{arrows[m]}" for m in METRICS) + " |")
         out.append("|---|" + "---|" * len(METRICS))
         for m in wide.index:
@@ -194,7 +195,7 @@ def _markdown(wide: pd.DataFrame, labels: dict[str, str]) -> str:
 def _latex(wide: pd.DataFrame, labels: dict[str, str]) -> str:
     scenes = list(dict.fromkeys(wide.columns.get_level_values(0)))
     n = len(METRICS)
-    head = " & ".join(f"\\multicolumn{{{n}}}{{c}}{{{sc.capitalize()}}}" for sc in scenes)
+    head = " & ".join(f"\\multicolumn{{{n}}}{{c}}{{{scene_label(sc)}}}" for sc in scenes)
     rules = " ".join(f"\\cmidrule(lr){{{2 + i * n}-{1 + (i + 1) * n}}}" for i in range(len(scenes)))
     arrows = {m: ("$\\uparrow$" if HIGHER_IS_BETTER[m] else "$\\downarrow$") for m in METRICS}
     sub = " & ".join(f"{m}{arrows[m]}" for _ in scenes for m in METRICS)
@@ -222,10 +223,18 @@ def _latex(wide: pd.DataFrame, labels: dict[str, str]) -> str:
 
 
 def vs_paper(table: pd.DataFrame) -> pd.DataFrame:
-    """Long table: method, scene, metric, paper (reported), kit (mean), kit_lo, kit_hi — where the paper has a value."""
+    """Long table: method, scene, metric, paper (reported), kit (mean), kit_lo, kit_hi — where the paper has a value.
+
+    ``scene`` is the kit's scene that stands for the paper's (:attr:`~omcrl.envs.scenes.SceneSpec.paper_scene`:
+    ``furniture-v1`` for the paper's furniture); stress tests have no paper value."""
     paper = paper_table1().set_index(["method", "scene"])
+    # The kit's scene that stands for each of the paper's (furniture-v1 for "furniture"; a stress test for none).
+    kit_scene = {}
+    for s in dict.fromkeys(table.index.get_level_values("scene")):
+        kit_scene.setdefault(scene_spec(s).paper_scene, s)
     rows = []
-    for (m, sc), prow in paper.iterrows():
+    for (m, psc), prow in paper.iterrows():
+        sc = kit_scene.get(psc, scene_id(psc))
         for metric in METRICS:
             k = table.loc[(m, sc)] if (m, sc) in table.index else None
             rows.append(

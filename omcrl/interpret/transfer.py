@@ -39,28 +39,31 @@ PILOT_SEED = 5_000_000
 # (setting, layout scene, disturbance): what the shift and probe tables compare with box. "box, other layouts"
 # is a second box sample (the sampling floor); the two look-swapped settings hold geometry fixed.
 SETTINGS: tuple[tuple[str, str, dict | None], ...] = (
-    ("box", "box", None),
-    ("box, other layouts", "box", None),
-    ("box layout, furniture look", "box", {"appearance": "furniture"}),
-    ("furniture", "furniture", None),
-    ("furniture layout, box look", "furniture", {"appearance": "box"}),
-    ("barrier", "barrier", None),
-    ("tree", "tree", None),
+    ("box", "box-v0", None),
+    ("box, other layouts", "box-v0", None),
+    ("box layout, furniture-v0 look", "box-v0", {"appearance": "furniture-v0"}),
+    ("furniture-v0", "furniture-v0", None),
+    ("furniture-v0 layout, box look", "furniture-v0", {"appearance": "box-v0"}),
+    ("furniture-v1", "furniture-v1", None),
+    ("barrier-v0", "barrier-v0", None),
+    ("tree-v0", "tree-v0", None),
 )
-# (layout, look, part swapped): the student's SR with geometry and appearance varied separately.
+# (layout, look, part swapped): the student's SR with geometry and appearance varied separately. furniture-v1 is
+# furniture-v0's layouts in box's room, i.e. the swap of surroundings that v1 makes the default.
 SWAPS: tuple[tuple[str, str, str], ...] = (
-    ("box", "box", "all"),
-    ("box", "furniture", "all"),
-    ("box", "furniture", "surroundings"),
-    ("box", "furniture", "obstacles"),
-    ("furniture", "furniture", "all"),
-    ("furniture", "box", "all"),
-    ("furniture", "box", "surroundings"),
-    ("furniture", "box", "obstacles"),
-    ("barrier", "barrier", "all"),
-    ("barrier", "box", "all"),
-    ("tree", "tree", "all"),
-    ("tree", "box", "all"),
+    ("box-v0", "box-v0", "all"),
+    ("box-v0", "furniture-v0", "all"),
+    ("box-v0", "furniture-v0", "surroundings"),
+    ("box-v0", "furniture-v0", "obstacles"),
+    ("furniture-v0", "furniture-v0", "all"),
+    ("furniture-v0", "box-v0", "all"),
+    ("furniture-v0", "box-v0", "surroundings"),
+    ("furniture-v0", "box-v0", "obstacles"),
+    ("furniture-v1", "furniture-v1", "all"),
+    ("barrier-v0", "barrier-v0", "all"),
+    ("barrier-v0", "box-v0", "all"),
+    ("tree-v0", "tree-v0", "all"),
+    ("tree-v0", "box-v0", "all"),
 )
 
 

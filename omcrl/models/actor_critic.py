@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from omcrl.models.features import FeatureExtractor
+from omcrl.utils.precision import autocast
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -64,17 +65,30 @@ class ActorCritic(nn.Module):
         self.actor = _mlp(features.out_dim, hidden, act_dim, out_gain=0.01, layer_norm=layer_norm)
         self.critic = _mlp(features.out_dim, hidden, 1, out_gain=1.0, layer_norm=layer_norm)
         self.log_std = nn.Parameter(torch.full((act_dim,), float(init_log_std)))
+        # "fp32" or "bf16" (resolved; omcrl.utils.precision): the forward passes run under autocast, everything
+        # they return is float32. Not a parameter: the trainer sets it and the policy file records it.
+        self.precision = "fp32"
+
+    def prepare(self, obs: object) -> dict[str, torch.Tensor]:
+        """``features.preprocess(obs)`` in this agent's precision (a frozen encoder runs there, on the CPU or
+        the policy's device); what is stored is float32 (or the extractor's own storage type)."""
+        with autocast(self.precision, self.log_std.device.type):
+            return self.features.preprocess(obs)
 
     def forward(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Return mean (B, A), std (B, A) and value (B,) for stored observations."""
-        f = self.features(stored)
-        mean = self.actor(f)
+        """Return mean (B, A), std (B, A) and value (B,) for stored observations (float32)."""
+        with autocast(self.precision, self.log_std.device.type):
+            f = self.features(stored)
+            mean, value = self.actor(f), self.critic(f)
+        mean = mean.float()
         std = self.log_std.exp().expand_as(mean)
-        return mean, std, self.critic(f).squeeze(-1)
+        return mean, std, value.float().squeeze(-1)
 
     def distribution(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean (B, A) and std (B, A) without the critic: what acting and guiding need (same mean as ``forward``)."""
-        mean = self.actor(self.features(stored))
+        with autocast(self.precision, self.log_std.device.type):
+            mean = self.actor(self.features(stored))
+        mean = mean.float()
         return mean, self.log_std.exp().expand_as(mean)
 
     @torch.no_grad()
@@ -87,12 +101,15 @@ class ActorCritic(nn.Module):
         return action, gaussian_log_prob(action, mean, std), value, mean, std
 
     def spec(self) -> dict:
-        return {
+        out = {
             "features": self.features.spec(),
             "act_dim": self.act_dim,
             "hidden": self.hidden,
             "layer_norm": self.layer_norm,
         }
+        if self.precision != "fp32":  # only then: fp32 policy files stay byte-identical to those before the field
+            out["precision"] = self.precision
+        return out
 
 
 # ---------------------------------------------------------------- maths

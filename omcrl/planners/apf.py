@@ -276,3 +276,36 @@ class PerceptiveHybridAPF(HybridAPF):
                 if self.known[np.clip(ij[:, 0] + dx, 0, g - 1), np.clip(ij[:, 1] + dy, 0, g - 1)].any():
                     return False
         return True
+
+
+class LocalAPF(PerceptiveHybridAPF):
+    """A local potential field on what the drone senses now: NPE's non-expert guide (no map, no path search).
+
+    Each step it pulls straight towards the goal and pushes away from the nearest obstacle point seen in the
+    newest depth frame (the forward camera's FOV, within ``sense_range`` m and ``height_band`` m of the flight
+    altitude), with the same force law, speed and heading control as :class:`HybridAPF`. It remembers nothing:
+    an obstacle that leaves the field of view stops pushing, and nothing plans around a wall. So it has the
+    classical weaknesses the paper lists for potential fields — local minima in pockets and in front of walls
+    across the goal line, oscillation in narrow gaps — and those of a perception-constrained controller: the
+    "suboptimal planner" that guides NPE-DRL [zhang2024npe]. Pose and goal come from ``info``, as for the
+    learned policies' state vector.
+
+    Parameters are :class:`PerceptiveHybridAPF`'s.
+    """
+
+    name = "LocalAPF"
+
+    def reset(self, info: dict | None = None) -> None:
+        self._reset_info = info
+        self.path = np.zeros((0, 2))
+        if info is not None:
+            pose = np.asarray(info["pose"], np.float64)
+            self.path = np.stack([pose[:2], np.asarray(info["goal"], np.float64)])  # the straight line
+            self.idx = 1
+
+    def act(self, obs: dict, info: dict) -> np.ndarray:
+        if ("path" in info and info is not self._reset_info) or len(self.path) == 0:
+            self.reset(info)
+        pts = self.sense(np.asarray(obs["depth"])[-1], np.asarray(info["pose"], np.float64))
+        near = pts[np.argmin(np.einsum("ij,ij->i", pts, pts))] if len(pts) else np.array([self.cfg.far, 0.0, 0.0])
+        return self._control(info, near)

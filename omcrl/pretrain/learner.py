@@ -20,6 +20,7 @@ from omcrl.models.encoder import PixelEncoder, Projection
 from omcrl.models.transformer import TemporalTransformer
 from omcrl.pretrain.losses import bilinear_info_nce, masked_info_nce
 from omcrl.pretrain.masking import mask_sequence
+from omcrl.utils.precision import autocast
 
 
 def transformer_lr_factor(step: int, warmup: int) -> float:
@@ -73,6 +74,8 @@ class ContrastiveLearner(nn.Module):
             self.W = nn.Parameter(torch.rand(d, d))  # CURL's initialisation
         for m in self._key_modules():
             m.requires_grad_(False)
+        # "fp32" or "bf16" (resolved, omcrl.utils.precision): the networks' forward passes under autocast.
+        self.precision = "fp32"
 
     def _pairs(self) -> list[tuple[nn.Module, nn.Module]]:
         pairs = [(self.f, self.f_k), (self.phi, self.phi_k)]
@@ -123,12 +126,14 @@ class ContrastiveLearner(nn.Module):
         # one batch.
         dev = self.device
         masked, keys_in, mask = masked.to(dev), keys_in.to(dev), mask.to(dev)
-        q = self.xi(self.embed(masked.flatten(0, 1)).view(B, T, -1))
-        with torch.no_grad():
-            k = self.embed(keys_in.flatten(0, 1), key=True).view(B, T, -1)
-            if self.xi_k is not None:
-                k = self.xi_k(k)
-        loss, acc = masked_info_nce(q, k, mask, self.cfg.temperature, self.cfg.batch_negatives)
+        with autocast(self.precision, dev.type):
+            q = self.xi(self.embed(masked.flatten(0, 1)).view(B, T, -1))
+            with torch.no_grad():
+                k = self.embed(keys_in.flatten(0, 1), key=True).view(B, T, -1)
+                if self.xi_k is not None:
+                    k = self.xi_k(k)
+        # The loss in float32 (bf16 only inside the networks).
+        loss, acc = masked_info_nce(q.float(), k.float(), mask, self.cfg.temperature, self.cfg.batch_negatives)
         return loss, {
             "loss": float(loss.detach()),
             "accuracy": float(acc),
@@ -138,8 +143,9 @@ class ContrastiveLearner(nn.Module):
     def curl_loss(self, anchor: torch.Tensor, positive: torch.Tensor) -> tuple[torch.Tensor, dict]:
         """CURL / CURL-cons loss for stacks (N, 3L, H, W): anchor online, positive via the keys."""
         anchor, positive = anchor.to(self.device), positive.to(self.device)
-        q = self.embed(anchor)
-        with torch.no_grad():
-            k = self.embed(positive, key=True)
-        loss, acc = bilinear_info_nce(q, k, self.W)
+        with autocast(self.precision, self.device.type):
+            q = self.embed(anchor)
+            with torch.no_grad():
+                k = self.embed(positive, key=True)
+        loss, acc = bilinear_info_nce(q.float(), k.float(), self.W)
         return loss, {"loss": float(loss.detach()), "accuracy": float(acc)}

@@ -29,10 +29,12 @@ import torch
 from omcrl.config import Config, PretrainConfig, config_hash, drop_neutral, save_config
 from omcrl.data.dataset import open_dataset
 from omcrl.data.sampler import SequenceSampler
+from omcrl.envs.scenes import scene_key
 from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
 from omcrl.runs import Run, make_run
 from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
+from omcrl.utils.precision import section_precision
 from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import resolve_device, set_threads
 
@@ -95,10 +97,12 @@ def pretrain_run(cfg: Config) -> Run:
     """
     p = {k: v for k, v in dataclasses.asdict(cfg.pretrain).items() if k not in _EXECUTION}
     p = drop_neutral("pretrain", p)
+    _resolved_precision(cfg, p)
     # The data file's path is not identity (moving the data must not orphan the run); its content is checked
     # against the fingerprint recorded in done.json.
     # Fields added after runs existed are identity only when set: at their default they keep the runs' keys.
     data = drop_neutral("data", {k: v for k, v in dataclasses.asdict(cfg.data).items() if k != "file"})
+    data["scene"] = scene_key(data["scene"])  # v0 by its bare name, as before scenes had versions
     ident = {
         "pretrain": p,
         "data": data,
@@ -123,10 +127,18 @@ def default_dataset_path(cfg: Config) -> Path:
     return cfg.data_path
 
 
+def _resolved_precision(cfg: Config, p: dict) -> None:
+    """Put the resolved precision in the identity dict ``p`` when it is bf16; fp32 runs keep their keys."""
+    p.pop("precision", None)
+    if section_precision(cfg.pretrain) != "fp32":
+        p["precision"] = section_precision(cfg.pretrain)
+
+
 def _hashes(cfg: Config, fingerprint: str) -> tuple[str, str]:
     p = drop_neutral("pretrain", dataclasses.asdict(cfg.pretrain))
     for k in ("num_threads", "device"):
         p.pop(k)
+    _resolved_precision(cfg, p)
     base = {"pretrain": p, "frame_stack": cfg.env.frame_stack, "seed": cfg.seed, "dataset": fingerprint}
     compat = {**base, "pretrain": {k: v for k, v in p.items() if k not in _RESUMABLE}}
     return config_hash(base), config_hash(compat)
@@ -212,6 +224,7 @@ def run(
     torch.manual_seed(cfg.seed)
     L = cfg.env.frame_stack
     learner = ContrastiveLearner(p, L).to(resolve_device(p.device))
+    learner.precision = section_precision(p)
     opt = torch.optim.Adam(learner.param_groups())
     # Keep all episodes in memory when the frames are small (quick/smoke presets); else stream from disk.
     rgb_bytes = ds.n_steps * 3 * ds.image_size**2

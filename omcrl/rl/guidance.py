@@ -104,7 +104,7 @@ class PolicyGuide:
 
     def prepare(self, obs: Any) -> dict[str, torch.Tensor]:
         """The guide's input for one vector step, as tensors that do not alias the env's buffers."""
-        return self.agent.features.preprocess(obs)
+        return self.agent.prepare(obs)
 
     def to(self, device: Any) -> PolicyGuide:
         """Run the guide's network on ``device`` (its prepared inputs stay in host memory until evaluated)."""

@@ -13,7 +13,8 @@ its run is finished, or resumes it), with the same env-step budget, PPO settings
 | ``curl`` | frozen f | CURL (no φ) | none |
 | ``curl-phi`` | frozen f+φ | CURL with φ | none |
 | ``ppo`` | f trained end to end | — | none |
-| ``npe`` | f trained end to end | — | Hybrid APF, fixed std ``rl.guide_std`` |
+| ``npe`` | f trained end to end | — | local APF on the depth camera (non-expert), fixed std ``rl.guide_std`` |
+| ``npe-expert`` | f trained end to end | — | Hybrid APF on the true map (an expert), fixed std (not a Table I row) |
 | ``npe-ot`` | f trained end to end | — | the oracle |
 | ``hybrid-apf`` | privileged map | — | (planner, not learned) |
 | ``hybrid-apf-perceptive`` | depth camera map | — | (planner, not learned) |
@@ -31,6 +32,10 @@ from omcrl.config import Config, ConfigError
 from omcrl.rl.policy import CheckpointError
 from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, train_pixel, train_student
 
+# Planner guides: name -> (class in omcrl.planners, the factory name that enters a run's identity). "apf" keeps
+# the name its runs had before the non-expert guide existed, so expert-guided runs keep their keys.
+PLANNER_GUIDES = {"apf": ("HybridAPF", "hybrid_apf"), "local-apf": ("LocalAPF", "local_apf")}
+
 
 @dataclass(frozen=True)
 class MethodSpec:
@@ -42,7 +47,8 @@ class MethodSpec:
     label : the paper's name in tables and figures.
     features : ``oracle`` | ``frozen`` | ``pixel`` | ``planner``.
     encoder : pretraining overrides for a frozen encoder (``{"method": "curl", "use_projection": False}``).
-    guide : ``oracle`` | ``apf`` | None (``oracle-config``: the oracle's own ``rl.oracle_guide``).
+    guide : ``oracle`` | a planner guide of :data:`PLANNER_GUIDES` (``local-apf``, ``apf``) | None
+        (``oracle-config``: the oracle's own ``rl.oracle_guide``).
     privileged : uses inputs a real robot does not have (true map or depth + obstacle vectors).
     description : one line for ``--help``.
     ablation : a variant for the ablations (VI-C), not a row of Table I.
@@ -71,8 +77,8 @@ METHODS: dict[str, MethodSpec] = {
                    description="OMC-RL: frozen masked-contrastive encoder, oracle-guided PPO"),
         MethodSpec("ours-noOT", "Ours w/o OT", "frozen", {"method": "omc"},
                    description="OMC encoder, PPO without the oracle teacher"),
-        MethodSpec("npe", "NPE", "pixel", guide="apf",
-                   description="end-to-end PPO from RGB guided early by Hybrid APF (non-expert)"),
+        MethodSpec("npe", "NPE", "pixel", guide="local-apf",
+                   description="end-to-end PPO from RGB guided early by a local APF on depth (non-expert)"),
         MethodSpec("npe-ot", "NPE w/ OT", "pixel", guide="oracle",
                    description="end-to-end PPO from RGB guided early by the oracle"),
         MethodSpec("curl", "CURL", "frozen", {"method": "curl", "use_projection": False},
@@ -90,6 +96,8 @@ METHODS: dict[str, MethodSpec] = {
                    guide="oracle", ablation=True, description="ablation: OMC encoder without projection phi"),
         MethodSpec("ours-dualT", "Ours-dualT", "frozen", {"method": "omc", "dual_transformer": True},
                    guide="oracle", ablation=True, description="ablation: OMC with a Transformer on both branches"),
+        MethodSpec("npe-expert", "NPE (expert guide)", "pixel", guide="apf", ablation=True,
+                   description="NPE guided by Hybrid APF on the true map (an expert; the kit's NPE before v1)"),
         MethodSpec("curl-cons", "CURL-cons", "frozen", {"method": "curl_cons", "use_projection": False},
                    ablation=True, description="ablation: CURL on consecutive stacks (pretrain.cons_stride apart)"),
     )
@@ -177,7 +185,7 @@ def train_method(
             "oracle checkpoint",
             f"python -m omcrl train --method oracle --preset {cfg.preset} --seed {cfg.seed}",
         )
-    planner = _apf_factory(cfg) if spec.guide == "apf" else None
+    planner = _planner_factory(cfg, spec.guide)
     common = {"name": spec.name, "planner_factory": planner, "make_env": make_env, "overwrite": overwrite}
     if spec.features == "frozen":
         enc = _require(encoder_path(cfg, spec), f"{spec.name} encoder", pretrain_command(cfg, spec))
@@ -185,13 +193,20 @@ def train_method(
     return train_pixel(cfg, oracle, progress=progress, **common)
 
 
-def _apf_factory(cfg: Config) -> Callable[[], Any]:
-    from omcrl.planners import HybridAPF
+def _planner_factory(cfg: Config, guide: str | None) -> Callable[[], Any] | None:
+    """A zero-argument factory of ``guide``'s planner (its ``__name__`` enters the run's identity), or None
+    when the guide is not a planner."""
+    if guide not in PLANNER_GUIDES:
+        return None
+    from omcrl import planners
 
-    def hybrid_apf() -> Any:
-        return HybridAPF(cfg.env)
+    cls = getattr(planners, PLANNER_GUIDES[guide][0])
 
-    return hybrid_apf
+    def factory() -> Any:
+        return cls(cfg.env)
+
+    factory.__name__ = PLANNER_GUIDES[guide][1]
+    return factory
 
 
 def final_policy_path(cfg: Config, method: str, oracle_cfg: Config | None = None) -> Path | None:
@@ -208,7 +223,7 @@ def final_policy_path(cfg: Config, method: str, oracle_cfg: Config | None = None
     enc = encoder_path(cfg, spec) if spec.features == "frozen" else None
     if (oracle is not None and not oracle.exists()) or (enc is not None and not enc.exists()):
         return None
-    planner = _apf_factory(cfg) if spec.guide == "apf" else None
+    planner = _planner_factory(cfg, spec.guide)
     p = policy_run(cfg, spec.name, enc, oracle, planner).dir / "final.pt"
     return p if p.exists() else None
 

@@ -57,7 +57,7 @@ class Policy:
 
     @torch.no_grad()
     def act_batch(self, obs: Any, infos: Any = None) -> np.ndarray:
-        mean, _ = self.agent.distribution(self.agent.features.preprocess(obs))
+        mean, _ = self.agent.distribution(self.agent.prepare(obs))
         return np.clip(mean.numpy(), -1.0, 1.0).astype(np.float32)
 
     def act(self, obs: Any, info: Any = None) -> np.ndarray:
@@ -69,7 +69,7 @@ class Policy:
 
     @torch.no_grad()
     def distribution(self, obs: Any, infos: Any = None, starts: Any = None) -> tuple[np.ndarray, np.ndarray]:
-        mean, std = self.agent.distribution(self.agent.features.preprocess(obs))
+        mean, std = self.agent.distribution(self.agent.prepare(obs))
         return mean.numpy().astype(np.float32), std.numpy().astype(np.float32)
 
     def reset(self) -> None:
@@ -132,6 +132,11 @@ def load_policy(path: str | Path, name: str = "", expect_kind: str | None = None
         agent.load_state_dict(payload["model"])
     except RuntimeError as e:
         raise CheckpointError(f"checkpoint {path}: weights do not match its own spec: {e}") from e
+    # A policy acts in the precision it was trained in (rollouts, evaluation and as a guide alike).
+    precision = spec.get("precision", "fp32")
+    if precision not in ("fp32", "bf16"):
+        raise CheckpointError(f"checkpoint {path}: spec.precision is {precision!r}, expected 'fp32' or 'bf16'")
+    agent.precision = precision
     return Policy(
         agent,
         name=name or payload.get("meta", {}).get("name") or Path(path).parent.name,

@@ -49,6 +49,7 @@ from omcrl.rl.ppo import PPO, ExtraLoss, NonFiniteLossError
 from omcrl.rl.rollout import Runner
 from omcrl.runs import MetricsLog, Run, RunConfigMismatch, make_run, rng_state, set_rng_state
 from omcrl.utils.io import atomic_save_torch, file_digest, load_torch
+from omcrl.utils.precision import section_precision
 from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import cpu_count, resolve_device, seed_everything, set_threads
 
@@ -89,7 +90,7 @@ METRIC_NAMES = (
 # RL fields that do not change the trained artifact (they may differ between a run and its resume).
 # ``update_threads`` and ``device`` change the rounding of the arithmetic, not the algorithm, like running on
 # another machine.
-_NOT_IDENTITY = ("checkpoint_every", "update_threads", "device")
+_NOT_IDENTITY = ("checkpoint_every", "update_threads", "device", "precision")
 _GUIDE_FIELDS = ("alpha_schedule", "alpha_start", "alpha_decay_steps", "alpha_exp_factor", "alpha_exp_every", "beta")
 
 
@@ -137,6 +138,8 @@ def rl_identity(cfg: Config, guide: str | None, **extra: Any) -> dict:
     ``"policy"``.
     """
     rl = {k: v for k, v in asdict(cfg.rl).items() if k not in _NOT_IDENTITY and k != "oracle_guide"}
+    if section_precision(cfg.rl) != "fp32":  # resolved; fp32 runs keep the keys they had before the field
+        rl["precision"] = section_precision(cfg.rl)
     if guide is None or cfg.rl.alpha_schedule == "none":
         for k in (*_GUIDE_FIELDS, "guide_std"):
             rl.pop(k)
@@ -216,6 +219,7 @@ def train(
         features = build_features(obs_space)
         act_dim = int(np.prod(env.single_action_space.shape))
         agent = ActorCritic(features, act_dim, rl.hidden, rl.init_log_std, layer_norm=layer_norm).to(device)
+        agent.precision = section_precision(rl)
         algo = PPO.from_config(agent, rl, extra_losses)
         guide = make_guide(env) if (make_guide is not None and rl.alpha_schedule != "none") else None
         if guide is not None and hasattr(guide, "to"):

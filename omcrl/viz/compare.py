@@ -15,6 +15,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from omcrl.envs.scenes import PAPER_SUITE
 from omcrl.runs import metric_series
 from omcrl.viz import steps_axis
 from omcrl.viz.pretrain import smooth
@@ -145,7 +146,7 @@ def plot_sample_efficiency(eff: pd.DataFrame, budget: float, threshold: float = 
 
 def plot_trajectory_grid(
     episodes: pd.DataFrame,
-    scenes: Sequence[str] = ("furniture", "barrier", "tree"),
+    scenes: Sequence[str] = PAPER_SUITE[1:],
     episode: int = 0,
     train_seed: int | None = None,
     env_config: Any = None,

@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from omcrl.envs.scenes import scene_id
 from omcrl.viz import steps_axis
 from omcrl.viz.pretrain import final_value, read_metrics, smooth
 
@@ -151,7 +152,8 @@ def plot_trajectories(
 
     The start is a dot, the end a cross (green: success, red: collision, grey: timeout).
     """
-    rows = episodes[(episodes.scene == scene) & (episodes.episode == episode)]
+    scene = scene_id(scene)
+    rows = episodes[(episodes.scene.map(scene_id) == scene) & (episodes.episode == episode)]
     if ax is None:
         fig, ax = plt.subplots(figsize=(4.6, 4.6))
     else:

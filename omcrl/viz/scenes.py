@@ -8,7 +8,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from omcrl.config import EnvConfig
-from omcrl.envs import SCENES, make_env
+from omcrl.envs import make_env
+from omcrl.envs.scenes import SCENE_SPECS, families, scene_label, scene_spec
 
 
 def scene_snapshot(scene: str, seed: int, env_config: EnvConfig | None = None, image_size: int = 128) -> dict[str, Any]:
@@ -22,7 +23,7 @@ def scene_snapshot(scene: str, seed: int, env_config: EnvConfig | None = None, i
     env = make_env(scene, seed=seed, image_size=image_size, config=env_config)
     obs, info = env.reset(seed=seed)
     out = {
-        "scene": scene,
+        "scene": env.scene,
         "grid": env.grid,
         "pose": info["pose"],
         "goal": info["goal"],
@@ -58,18 +59,24 @@ def draw_map(ax: plt.Axes, snap: dict[str, Any]) -> None:
 
 
 def scene_gallery(
-    scenes: tuple[str, ...] = SCENES, seed: int = 0, env_config: EnvConfig | None = None, image_size: int = 128
+    scenes: tuple[str, ...] = tuple(SCENE_SPECS),
+    seed: int = 0,
+    env_config: EnvConfig | None = None,
+    image_size: int = 128,
 ) -> tuple[plt.Figure, list[dict[str, Any]]]:
-    """One column per scene: map (row 1), FPV RGB (row 2) and depth in metres (row 3) at the start pose.
+    """One column per scene (default: every registered scene and version): map (row 1), FPV RGB (row 2) and
+    depth in metres (row 3) at the start pose.
 
-    Scene ``j`` is reset with seed ``seed + j``: one seed for all would draw the same start and goal in every
-    scene, and the gallery is meant to show each scene's own episode.
+    A scene of the ``j``-th family is reset with seed ``seed + j``: one seed for all would draw the same start and
+    goal in every scene, and the gallery is meant to show each scene's own episode; versions of one family share
+    the seed, so furniture-v0 and -v1 show the same layout in their two rooms.
     """
-    snaps = [scene_snapshot(s, seed + j, env_config, image_size) for j, s in enumerate(scenes)]
+    fam = families()
+    snaps = [scene_snapshot(s, seed + fam.index(scene_spec(s).family), env_config, image_size) for s in scenes]
     fig, axes = plt.subplots(3, len(scenes), figsize=(4.2 * len(scenes), 12), squeeze=False)
     for j, snap in enumerate(snaps):
         draw_map(axes[0, j], snap)
-        axes[0, j].set_title(f"{snap['scene']} ({snap['n_primitives']} solids)")
+        axes[0, j].set_title(f"{scene_label(snap['scene'])}, {snap['n_primitives']} solids")
         axes[1, j].imshow(snap["rgb"])
         axes[1, j].set_title("first-person RGB")
         im = axes[2, j].imshow(snap["depth"], cmap="viridis_r", vmin=0, vmax=min(10.0, float(snap["depth"].max())))
@@ -79,3 +86,31 @@ def scene_gallery(
             ax.axis("off")
     fig.tight_layout()
     return fig, snaps
+
+
+def plot_gradient(table: Any) -> plt.Figure:
+    """The scenes' gradient (:func:`omcrl.interpret.gradient.run`'s table): one panel per measure of the shift from
+    box, one bar per setting in the table's order (the box floor, the paper's scenes, then the stress test), with
+    the random encoders' min–max as error bars; the title of each panel says whether the paper's order holds."""
+    from omcrl.interpret.gradient import gradient_order, order_verdicts
+
+    verdict = order_verdicts(table).set_index("measure").holds
+    panels = (
+        ("random_mmd", "random-init encoders: MMD² (mean, min–max of 3)"),
+        ("pixel_mmd", "8×8 pixels: MMD²"),
+        ("colour_js", "colour histogram: JS (bits)"),
+    )
+    order = list(gradient_order())
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 3.8))
+    for ax, (col, title) in zip(axes, panels):
+        colors = ["tab:gray" if s not in order else "tab:blue" for s in table.setting]
+        err = None
+        if col == "random_mmd":
+            err = np.stack([table[col] - table["random_mmd_min"], table["random_mmd_max"] - table[col]])
+        ax.bar(range(len(table)), table[col], yerr=err, color=colors, capsize=3)
+        ax.set_xticks(range(len(table)), [s.replace(", ", ",\n") for s in table.setting], rotation=30, fontsize=8)
+        ax.set_title(f"{title}\npaper's order {'holds' if verdict[col] else 'fails'}", fontsize=9)
+        ax.set_ylabel("shift from box")
+    fig.suptitle("Perceptual shift from box (blue: the paper's suite in its order; grey: stress test)", fontsize=10)
+    fig.tight_layout()
+    return fig

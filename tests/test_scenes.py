@@ -1,0 +1,107 @@
+"""Scenes as versioned specs (issue: scenes on the paper's gradient): the registry, v0 pinned, furniture-v1."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from omcrl.config import ConfigError, load_config
+from omcrl.envs import GYM_IDS, make_env
+from omcrl.envs.nav_env import appearance_materials
+from omcrl.envs.scenes import (
+    PAPER_SUITE,
+    SCENE_SPECS,
+    SceneSpec,
+    decor,
+    generate_scene,
+    register_scene,
+    scene_id,
+    scene_key,
+    scene_spec,
+)
+
+# Made from the scenes as they were before versions (main at 5b7ae87), by the same code as _pins() below.
+PINS = json.loads((Path(__file__).parent / "data" / "scenes_v0_pins.json").read_text())
+
+
+def _digest(prims) -> str:
+    h = hashlib.sha256()
+    for p in prims:
+        r9 = lambda v: tuple(round(float(x), 9) for x in v)  # noqa: E731
+        h.update(repr((p.kind, r9(p.center), r9(p.size), round(float(p.yaw), 9), r9(p.rgba), p.texture,
+                       p.visual_only)).encode())  # fmt: skip
+    return h.hexdigest()[:16]
+
+
+@pytest.mark.parametrize("key", sorted(PINS))
+def test_v0_scenes_are_todays_scenes(key):
+    """Obstacles, surroundings, start pose and the first frame (RGB and depth) of a few seeds, pinned."""
+    family, seed = key.split("/")
+    scene, seed = f"{family}-v0", int(seed)
+    want = PINS[key]
+    assert _digest(generate_scene(scene, seed, 8.0)) == want["obstacles"]
+    assert _digest(decor(scene, 8.0)) == want["decor"]
+    env = make_env(scene, seed=seed, image_size=32)
+    obs, info = env.reset(seed=seed)
+    env.close()
+    assert [round(float(v), 6) for v in info["pose"]] == want["pose"]
+    assert hashlib.sha256(np.ascontiguousarray(obs["rgb"]).tobytes()).hexdigest()[:16] == want["rgb"]
+    depth = np.round(obs["depth"], 4).astype(np.float32)
+    assert hashlib.sha256(depth.tobytes()).hexdigest()[:16] == want["depth"]
+
+
+def test_names_resolve_as_in_gymnasium():
+    assert scene_id("furniture") == "furniture-v1" and scene_id("furniture-v0") == "furniture-v0"
+    assert scene_id("box") == "box-v0" and scene_key("box-v0") == "box" and scene_key("furniture-v1") == "furniture-v1"
+    with pytest.raises(ValueError, match="furniture-v7"):
+        scene_spec("furniture-v7")
+    cfg = load_config("smoke", overrides=["env.scene=furniture", "eval.scenes=[box, furniture-v0, furniture-v0]"])
+    assert cfg.env.scene == "furniture-v1" and cfg.eval.scenes == ["box-v0", "furniture-v0"]
+    for bad in ("env.scene=sofa", "eval.scenes=[box, Furniture]", "data.scene=tree-v9"):
+        with pytest.raises(ConfigError, match="expected a scene id"):
+            load_config("smoke", overrides=[bad])
+    assert load_config("quick").eval.scenes == [*PAPER_SUITE, "furniture-v0"]
+
+
+def test_every_scene_has_a_gymnasium_id_and_v0_keeps_its_meaning():
+    assert GYM_IDS["furniture-v0"] == "omcrl/Furniture-v0" and GYM_IDS["furniture-v1"] == "omcrl/Furniture-v1"
+    for sid, gid in (("furniture-v0", "omcrl/Furniture-v0"), ("furniture-v1", "omcrl/Furniture-v1")):
+        env = gym.make(gid, image_size=16)
+        assert env.unwrapped.scene == sid
+        env.close()
+
+
+def test_a_published_scene_cannot_change_and_a_new_version_can_be_added():
+    spec = SCENE_SPECS["box-v0"]
+    with pytest.raises(ValueError, match="new version"):
+        register_scene(SceneSpec(**{**spec.__dict__, "default_count": 3}))
+    assert register_scene(spec) is spec  # the same spec again is harmless
+
+
+def test_furniture_v1_is_furniture_v0_in_box_room():
+    v1, box = SCENE_SPECS["furniture-v1"], SCENE_SPECS["box-v0"]
+    assert (v1.floor_texture, v1.wall_texture, v1.indoor) == (box.floor_texture, box.wall_texture, box.indoor)
+    assert _digest(decor("furniture-v1", 8.0)) == _digest(decor("box-v0", 8.0))
+    assert appearance_materials("furniture-v1", 8.0) == appearance_materials("furniture-v0", 8.0)
+    for seed in (0, 3, 1_000_000, 1_000_049):
+        # Same generator, same stream: the same obstacles with the same shapes, sizes, colours and materials.
+        assert _digest(generate_scene("furniture-v1", seed, 8.0)) == _digest(generate_scene("furniture-v0", seed, 8.0))
+    a, b = make_env("furniture-v0", seed=5, image_size=32), make_env("furniture-v1", seed=5, image_size=32)
+    (oa, ia), (ob, ib) = a.reset(seed=11), b.reset(seed=11)
+    np.testing.assert_array_equal(a.grid.occ, b.grid.occ)
+    np.testing.assert_array_equal(ia["path"], ib["path"])
+    np.testing.assert_array_equal(oa["depth"], ob["depth"])  # depth sees shapes; the rooms have the same size
+    assert np.abs(oa["rgb"].astype(float) - ob["rgb"].astype(float)).mean() > 5  # ... the camera another room
+    a.close()
+    b.close()
+
+
+def test_specs_list_the_materials_their_generators_use():
+    for spec in SCENE_SPECS.values():
+        kinds = {t.split(":")[0] for s in range(6) for p in generate_scene(spec.id, s, 8.0) if (t := p.texture)}
+        assert kinds == set(spec.materials), spec.id
