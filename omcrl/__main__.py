@@ -24,7 +24,7 @@ from typing import Any
 from omcrl.config import PRESETS, Config, ConfigError, load_config
 from omcrl.deploy.export import ExportError
 from omcrl.models.features import CheckpointError
-from omcrl.runs import RunConfigMismatch
+from omcrl.runs import ArtifactMismatch, RunConfigMismatch, RunLocked
 
 # name -> (target "module:function", one-line description)
 STAGES: dict[str, tuple[str, str]] = {
@@ -207,6 +207,8 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
     return (
         CheckpointError,
         RunConfigMismatch,
+        RunLocked,
+        ArtifactMismatch,
         FileNotFoundError,
         NotADirectoryError,
         ExportError,

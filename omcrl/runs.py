@@ -41,6 +41,109 @@ class RunConfigMismatch(RuntimeError):
     """A run folder holds a run of a different identity (configuration, method or seed)."""
 
 
+class RunLocked(RuntimeError):
+    """Another live process is training this run folder; the message names its PID."""
+
+
+class ArtifactMismatch(ValueError):
+    """A file does not match the digest its producer recorded: it was changed or damaged after it was written."""
+
+
+# Where a producer records the digest of each artifact it writes (file name -> (record file, field)).
+DIGEST_FIELDS = {
+    "final.pt": ("run.json", "artifact_digest"),
+    "checkpoint.pt": ("run.json", "checkpoint_digests"),
+    "encoder.pt": ("done.json", "encoder_digest"),
+}
+
+
+def recorded_digest(path: str | Path) -> str | None:
+    """The digest recorded for ``path`` by the run that wrote it (:data:`DIGEST_FIELDS`), or None when there
+    is none (a file from outside a run, or a run written before digests were kept)."""
+    p = Path(path)
+    where = DIGEST_FIELDS.get(p.name)
+    if where is None:
+        return None
+    rec = p.parent / where[0]
+    try:
+        value = json.loads(rec.read_text(encoding="utf-8")).get(where[1]) if rec.is_file() else None
+    except (OSError, ValueError, AttributeError):
+        raise ArtifactMismatch(f"{rec} cannot be read (not JSON); it records the digest of {p}") from None
+    if isinstance(value, list):  # checkpoints: the digests of the last two writes (a kill can fall between)
+        return ",".join(str(v) for v in value)
+    return value if isinstance(value, str) else None
+
+
+def verify_artifact(path: str | Path, what: str, remedy: str) -> None:
+    """Raise :class:`ArtifactMismatch` (one line: the file, the stage to re-run) when ``path`` does not match the
+    digest recorded when it was written; nothing when it matches or no digest was recorded."""
+    from omcrl.utils.io import file_digest
+
+    want = recorded_digest(path)
+    if want is None:
+        return
+    got = file_digest(Path(path))
+    if got not in want.split(","):
+        raise ArtifactMismatch(
+            f"{what} {path} does not match the digest recorded when it was written ({got[:12]} vs {want[:12]}): it "
+            f"was changed or damaged; {remedy}"
+        )
+
+
+def rerun_command(run_dir: str | Path, stage: str) -> str:
+    """``re-run: python -m omcrl <stage> ...`` for the run folder ``<root>/<preset>/runs/<kind>/<name>/seed<k>``."""
+    d = Path(run_dir)
+    preset = d.parents[3].name if len(d.parents) > 3 else "<preset>"
+    rec = read_identity(d) or {}
+    method = rec.get("method", "<method>")
+    seed = rec.get("seed", d.name.removeprefix("seed"))
+    return f"re-run: python -m omcrl {stage} --method {method} --preset {preset} --seed {seed}"
+
+
+# Locks this process holds: lock-file path -> open file (an flock lasts as long as the file stays open, and the
+# kernel drops it when the holder dies, so the lock of a killed process is never stale).
+_LOCKS: dict[Path, Any] = {}
+
+
+def _lock_path(run_dir: Path) -> Path:
+    # Beside the folder, not in it: ``overwrite`` deletes the folder and must not delete a live holder's lock.
+    return run_dir.with_name(run_dir.name + ".lock")
+
+
+def acquire_lock(run_dir: Path, what: str = "run folder") -> None:
+    """Hold an exclusive lock on ``run_dir`` for this process (re-entrant); raise :class:`RunLocked` naming the
+    holder's PID when another live process holds it. A lock left by a dead process is taken over."""
+    import fcntl
+    import os
+
+    path = _lock_path(Path(run_dir))
+    if path in _LOCKS:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fh = open(path, "a+", encoding="utf-8")  # held open for as long as the lock
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        fh.seek(0)
+        holder = fh.read().strip() or "unknown"
+        fh.close()
+        raise RunLocked(
+            f"{what} {run_dir} is in use by another process (PID {holder}); wait for it to finish or stop it"
+        ) from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(str(os.getpid()))
+    fh.flush()
+    _LOCKS[path] = fh
+
+
+def release_lock(run_dir: Path) -> None:
+    """Release this process's lock on ``run_dir`` (no-op when it holds none)."""
+    fh = _LOCKS.pop(_lock_path(Path(run_dir)), None)
+    if fh is not None:
+        fh.close()
+
+
 @dataclass(frozen=True)
 class Run:
     """One run: where it lives and what it is.
@@ -67,10 +170,13 @@ class Run:
         return self.dir / "metrics.csv"
 
     def claim(self, overwrite: bool = False) -> None:
-        """Create the folder and write ``run.json``; raise RunConfigMismatch if it holds another run.
+        """Lock the folder for this process, create it and write ``run.json``; raise :class:`RunLocked` when
+        another live process trains it, RunConfigMismatch if it holds another run.
 
-        ``overwrite`` deletes a folder of a different identity instead of raising.
+        ``overwrite`` deletes a folder of a different identity instead of raising. The lock is held until
+        :meth:`release` (or the end of the process).
         """
+        acquire_lock(self.dir)
         found = read_identity(self.dir)
         if found is not None and found.get("key") != self.key:
             if not overwrite:
@@ -86,6 +192,20 @@ class Run:
         if found is None:
             record = {"stage": self.stage, "method": self.method, "seed": self.seed, "key": self.key}
             atomic_write_text(self.dir / RUN_FILE, json.dumps({**record, "identity": self.identity}, indent=1))
+
+    def checkpoint_recorder(self) -> Any:
+        """``before_replace`` for :func:`~omcrl.utils.io.atomic_save_torch` of ``checkpoint.pt``: records the new
+        digest beside the previous one before the file is replaced, so a resume can verify it."""
+
+        def record(digest: str) -> None:
+            prev = (read_identity(self.dir) or {}).get("checkpoint_digests") or []
+            self.record(checkpoint_digests=[*prev[-1:], digest])
+
+        return record
+
+    def release(self) -> None:
+        """Release the lock taken by :meth:`claim`."""
+        release_lock(self.dir)
 
     def record(self, **fields: Any) -> None:
         """Add fields to ``run.json`` (e.g. the digest of the finished artifact), atomically."""

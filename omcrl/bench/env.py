@@ -8,9 +8,12 @@ For each image size (64 and 128 px) and scene it measures, on the same scene and
 * ``step_sps_with_resets`` — the same with resets (new layouts) included, what training sees;
 * ``vec2_sps`` — a 2-env ``make_vec_env`` (env 0 in this process, one worker; resets included), total env
   steps per second;
+* ``gym_async2_sps`` — the same two envs in Gymnasium's ``AsyncVectorEnv(shared_memory=True)`` (both envs in
+  worker processes, observations through shared memory), for the comparison the kit's vector env must win;
 
 and the two ratios the kit is held to: ``step/raw`` (target >= 0.8 at 64 px) and ``vec2/single`` (>= 1.6,
-both with resets included). Actions are a slow random walk so episodes last long enough to be typical.
+both with resets included), plus ``gym_async2/single`` and ``vec2/gym_async2`` (> 1: the kit's vector env is
+faster than Gymnasium's). Actions are a slow random walk so episodes last long enough to be typical.
 """
 
 from __future__ import annotations
@@ -18,11 +21,13 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
+import gymnasium as gym
 import numpy as np
 import pybullet as pb
 
 from omcrl.bench import parser, write_results
 from omcrl.envs import make_env, make_vec_env
+from omcrl.envs.vec import env_factory
 
 
 def _walk(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -45,6 +50,10 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
     env.reset(seed=0)
     vec = make_vec_env(scene, n_vec, seed=0, image_size=size)
     vec.reset(seed=0)
+    gvec = gym.vector.AsyncVectorEnv(
+        [env_factory(scene, i, {"image_size": size}) for i in range(n_vec)], shared_memory=True
+    )
+    gvec.reset(seed=0)
     acts = _walk(np.random.default_rng(0), 100_000)
     va = np.stack([acts] * n_vec, 1)
     state = {"k": 0, "v": 0, "reset": 0.0, "step": 0.0}
@@ -89,17 +98,17 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
         state["step"] += t_step
         return n / t_step, n / (t_step + t_reset)
 
-    def vec_rate() -> float:
+    def vec_rate(v: gym.vector.VectorEnv = vec) -> float:
         n, t0 = 0, time.perf_counter()
         while time.perf_counter() - t0 < block:
-            vec.step(va[state["v"] % len(va)])
+            v.step(va[state["v"] % len(va)])
             state["v"] += 1
             n += 1
         return n * n_vec / (time.perf_counter() - t0)
 
     for _ in range(3):  # warm-up: caches, first layouts, worker start
-        raw_rate(), step_rates(), vec_rate()
-    raws, steps, with_resets, vecs = [], [], [], []
+        raw_rate(), step_rates(), vec_rate(), vec_rate(gvec)
+    raws, steps, with_resets, vecs, gvecs = [], [], [], [], []
     t_end = time.perf_counter() + seconds
     while time.perf_counter() < t_end:
         raws.append(raw_rate())
@@ -107,9 +116,11 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
         steps.append(s)
         with_resets.append(w)
         vecs.append(vec_rate())
+        gvecs.append(vec_rate(gvec))
     env.close()
     vec.close()
-    raw_fps, step_sps, wr, vec_sps = (float(np.median(x)) for x in (raws, steps, with_resets, vecs))
+    gvec.close()
+    raw_fps, step_sps, wr, vec_sps, gvec_sps = (float(np.median(x)) for x in (raws, steps, with_resets, vecs, gvecs))
     return {
         "scene": scene,
         "px": size,
@@ -119,6 +130,9 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
         f"vec{n_vec}_sps": vec_sps,
         "step/raw": step_sps / raw_fps,
         f"vec{n_vec}/single": vec_sps / wr,
+        f"gym_async{n_vec}_sps": gvec_sps,
+        f"gym_async{n_vec}/single": gvec_sps / wr,
+        f"vec{n_vec}/gym_async{n_vec}": vec_sps / gvec_sps,
         "reset_share": state["reset"] / (state["reset"] + state["step"]),
         "blocks": len(raws),
     }

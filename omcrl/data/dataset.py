@@ -59,6 +59,18 @@ class DatasetError(RuntimeError):
     """A trajectory file is missing, corrupt or does not match what the caller expects (message names it)."""
 
 
+_LOCKED = (
+    "dataset {path} is locked by another process (HDF5 file locking: a `collect` is writing it); wait for it to "
+    "finish, or stop it"
+)
+
+
+def _locked(e: OSError) -> bool:
+    """Is this h5py error HDF5's file lock held by another process (not a damaged file)?"""
+    text = str(e).lower()
+    return "unable to lock file" in text or ("lock" in text and "resource temporarily unavailable" in text)
+
+
 def episode_key(i: int) -> str:
     """Group name of episode ``i`` (``ep_000042``)."""
     return f"ep_{i:06d}"
@@ -163,6 +175,8 @@ class DatasetWriter:
         try:
             h5 = h5py.File(self.path, "a")
         except OSError as e:
+            if _locked(e):
+                raise DatasetError(_LOCKED.format(path=self.path)) from None
             raise DatasetError(f"dataset {self.path}: cannot open for appending ({e})") from None
         for key, want in (("image_size", self.image_size), ("frame_stack", self.frame_stack)):
             got = int(h5.attrs.get(key, -1))
@@ -373,8 +387,10 @@ class TrajectoryDataset:
                 lengths.append(steps)
                 sources.append(str(g.attrs["source"]))
                 scenes.append(str(g.attrs["scene"]))
-        except OSError as e:  # h5py reports truncated/corrupt files as OSError
+        except OSError as e:  # h5py reports truncated/corrupt files as OSError, and a lock held by a writer
             self.close()
+            if _locked(e):
+                raise DatasetError(_LOCKED.format(path=self.path)) from None
             raise DatasetError(f"dataset {self.path}: cannot read HDF5 file, truncated or corrupt ({e})") from None
         except (KeyError, ValueError) as e:
             self.close()

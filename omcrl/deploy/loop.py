@@ -12,8 +12,11 @@ Each tick (at the model's ``control_hz``) the loop checks its safety rules, buil
 the simulator does (frames resized to the model's image size and stacked, state v, ω, θ, Δp_goal in the body
 frame), runs the policy, scales, clamps and rate-limits the command and sends it. It lands, and says why, on:
 arrival within ``goal_radius`` (the paper's real-world success rule, 0.5 m), video or pose older than
-``stale_s`` (0.5 s), leaving the geofence, the time limit, any exception, and Ctrl-C (SIGINT). Every tick is
-appended to a CSV flight log and flushed, so a crash loses nothing.
+``stale_s`` (0.5 s), leaving the geofence, the time limit, any exception, and Ctrl-C (SIGINT). Nothing
+non-finite reaches the motors: a pose, frame, state, policy output or command that is not finite (or not of
+its shape) stops the flight with reason ``bad_pose`` / ``bad_frame`` / ``bad_state`` / ``bad_action`` /
+``bad_command`` before it is used: the drone hovers (a zero command) and lands. Every tick is appended to a CSV
+flight log and flushed, so a crash loses nothing.
 """
 
 from __future__ import annotations
@@ -72,7 +75,8 @@ class Safety:
 @dataclass
 class FlightResult:
     """How a flight ended: ``reason`` is arrived | video_lost | pose_lost | geofence | timeout | error |
-    interrupted; ``final_distance`` (m) from the last pose to the goal; ``poses`` the (x, y, z) of every tick."""
+    interrupted | bad_frame | bad_pose | bad_state | bad_action | bad_command; ``final_distance`` (m) from the
+    last valid pose to the goal; ``poses`` the (x, y, z) of every tick."""
 
     reason: str
     success: bool
@@ -92,6 +96,22 @@ def _resize(frame: np.ndarray, size: int) -> np.ndarray:
         return np.ascontiguousarray(frame.transpose(2, 0, 1))
     img = Image.fromarray(np.ascontiguousarray(frame)).resize((size, size), Image.BILINEAR)
     return np.asarray(img, np.uint8).transpose(2, 0, 1)
+
+
+def _finite(values: Any, size: int) -> bool:
+    """``values`` holds exactly ``size`` finite numbers."""
+    try:
+        a = np.asarray(values, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        return False
+    return a.shape == (size,) and bool(np.isfinite(a).all())
+
+
+def _finite_time(t: Any) -> bool:
+    try:
+        return math.isfinite(float(t))
+    except (TypeError, ValueError):
+        return False
 
 
 class StateEstimator:
@@ -199,6 +219,10 @@ class ControlLoop:
         self.cmd = self.cmd + np.clip(target - self.cmd, -step, step)
         return self.cmd.copy()
 
+    def _within_clamps(self, cmd: np.ndarray) -> bool:
+        return bool(abs(cmd[0]) <= self.max_speed + 1e-9 and abs(cmd[1]) <= self.max_speed + 1e-9
+                    and abs(cmd[2]) <= self.max_yaw + 1e-9)  # fmt: skip
+
     def observation(self, frame: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         img = _resize(frame, self.size)
         if not self.frames:
@@ -210,8 +234,15 @@ class ControlLoop:
 
     def _check(self, now: float, t_start: float, frame: Any, pose: Any) -> str | None:
         s = self.safety
+        if frame is not None and not _finite_time(frame[1]):
+            return "bad_frame"
         if frame is None or now - frame[1] > s.stale_s:
             return "video_lost"
+        img = frame[0]
+        if not (isinstance(img, np.ndarray) and img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8):
+            return "bad_frame"
+        if pose is not None and not (_finite_time(pose[1]) and _finite(pose[0], 6)):
+            return "bad_pose"
         if pose is None or now - pose[1] > s.stale_s:
             return "pose_lost"
         x, y = float(pose[0][0]), float(pose[0][1])
@@ -247,7 +278,7 @@ class ControlLoop:
             while True:
                 now = self.clock()
                 frame, pose = self.video.read(), self.pose.read()
-                last_pose = pose if pose is not None else last_pose
+                last_pose = pose if pose is not None and _finite(pose[0], 6) else last_pose
                 stop = self._check(now, t_start, frame, pose)
                 if stop is not None:
                     reason = stop
@@ -256,8 +287,15 @@ class ControlLoop:
                 t0 = time.perf_counter()
                 state = self.estimator.update(pose[0], pose[1])
                 rgb, st = self.observation(frame[0], state)
-                action = self.policy.run(rgb, st)[0]
-                cmd = self.command(action)
+                action = np.asarray(self.policy.run(rgb, st))[0] if _finite(state, 12) else None
+                bad = "bad_state" if action is None else None if _finite(action, 3) else "bad_action"
+                cmd = self.command(action) if bad is None else None
+                if bad is None and not (_finite(cmd, 3) and self._within_clamps(cmd)):
+                    bad = "bad_command"
+                if bad is not None:  # hover, then land (finally), with the reason in the log and the result
+                    reason = bad
+                    self._log(writer, fh, now - t_start, tick, pose, frame, now, None, 0.0, bad)
+                    break
                 self.drone.send_velocity(*cmd.tolist())
                 latency = (time.perf_counter() - t0) * 1e3
                 poses.append(np.asarray(pose[0][:3], float).tolist())

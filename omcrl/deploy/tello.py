@@ -80,6 +80,9 @@ class TelloDrone:
         """Body-frame velocities → the Tello's rc integers (left_right, forward_backward, up_down, yaw)."""
 
         def pct(v: float, full: float) -> int:
+            # min(100.0, nan) is 100.0: a NaN would become full stick. Nothing non-finite reaches the motors.
+            if not math.isfinite(v):
+                raise ValueError(f"rc: non-finite velocity {v!r}; refusing to send it to the drone")
             return round(max(-100.0, min(100.0, 100.0 * v / full)))
 
         return pct(-vy, self.speed_at_100), pct(vx, self.speed_at_100), 0, pct(-wz, self.yaw_at_100)

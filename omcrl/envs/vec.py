@@ -346,7 +346,9 @@ class SplitVectorEnv(gym.vector.VectorEnv):
                 p.join()
 
 
-def _factory(scene: str, seed: int, kwargs: dict) -> Any:
+def env_factory(scene: str, seed: int, kwargs: dict) -> Any:
+    """A zero-argument builder of ``make_env(scene, seed=seed, **kwargs)`` for a vector env's worker."""
+
     def thunk() -> gym.Env:
         # Each worker is its own process with one core at most: keep its BLAS/torch single-threaded.
         os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -366,7 +368,7 @@ def make_vec_env(
     """
     if n_envs < 1:
         raise ValueError(f"n_envs: got {n_envs}, expected >= 1")
-    fns = [_factory(scene, seed + i, env_kwargs) for i in range(n_envs)]
+    fns = [env_factory(scene, seed + i, env_kwargs) for i in range(n_envs)]
     if asynchronous and n_envs > 1:
         return SplitVectorEnv(fns)
     return gym.vector.SyncVectorEnv(fns)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import os
 from collections.abc import Callable
 from typing import Any
 
@@ -218,12 +219,14 @@ def _chunk_episodes(
     return rows
 
 
-def _init_worker() -> None:
+def _init_worker(parent: int) -> None:
     # One torch thread per worker: the workers already use every core between them.
-    from omcrl.utils.runtime import set_threads
+    from omcrl.utils.runtime import exit_with_parent, set_threads
 
     set_threads(1)
     _WORKER["in_worker"] = True
+    # A worker must not outlive its parent (a killed evaluation left ~540 MB workers running).
+    exit_with_parent(parent)
 
 
 class EvalPool:
@@ -252,7 +255,9 @@ class EvalPool:
         from concurrent.futures import ProcessPoolExecutor
 
         method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-        self._ex = ProcessPoolExecutor(self.workers, mp_context=mp.get_context(method), initializer=_init_worker)
+        self._ex = ProcessPoolExecutor(
+            self.workers, mp_context=mp.get_context(method), initializer=_init_worker, initargs=(os.getpid(),)
+        )
         return self
 
     def __exit__(self, *exc: Any) -> None:

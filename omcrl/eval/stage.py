@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -113,23 +114,55 @@ def _cache_file(folder: Path, stem: str, key: str) -> Path:
     return folder / f"{stem}-{key[:12]}.csv"
 
 
-def _read_cache(folder: Path, stem: str, key: str, old_stem: str | None = None) -> pd.DataFrame | None:
+def _read_cache(
+    folder: Path, stem: str, key: str, old_stem: str | None = None, rows: int | None = None
+) -> pd.DataFrame | None:
     """The cached episodes of ``key`` under ``folder``, or None. Also reads the key-less ``<stem>.csv`` of
     caches written before the key entered the name, when its stored key matches, and both under ``old_stem``
-    (a name the same evaluation had before)."""
+    (a name the same evaluation had before).
+
+    A cache is trusted only whole: its CSV must match the digest and row count recorded beside it (and ``rows``,
+    the episodes asked for, when given); a damaged one is reported (a warning naming the file) and evaluated
+    again, never used."""
     if not key:
         return None
     stems = dict.fromkeys([stem, old_stem or stem])
     for path in [p for st in stems for p in (_cache_file(folder, st, key), folder / f"{st}.csv")]:
-        meta = path.with_suffix(".json")
-        if path.exists() and meta.exists() and json.loads(meta.read_text()).get("key") == key:
+        meta_path = path.with_suffix(".json")
+        if not (path.exists() and meta_path.exists()):
+            continue
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+            if not isinstance(meta, dict):
+                raise ValueError("not a JSON object")
+        except (OSError, ValueError) as e:
+            warnings.warn(f"{meta_path}: damaged evaluation cache record ({e}); evaluating again", stacklevel=3)
+            return None
+        if meta.get("key") != key:
+            continue
+        problem = None
+        if meta.get("digest") is not None and file_digest(path) != meta["digest"]:
+            problem = "its content does not match the digest recorded when it was written"
+        try:
             df = pd.read_csv(path)
-            # CSV writes "" and NaN alike; a planner's empty checkpoint must come back as "", like a fresh row.
-            if "checkpoint" in df:
-                df["checkpoint"] = df["checkpoint"].fillna("").astype(str)
-            if "trajectory" in df:
+        except (OSError, ValueError, UnicodeDecodeError) as e:
+            df, problem = None, problem or f"unreadable ({type(e).__name__})"
+        want = meta.get("rows", rows)
+        if df is not None and problem is None and want is not None and len(df) != int(want):
+            problem = f"{len(df)} rows, expected {int(want)}"
+        if problem is not None:
+            warnings.warn(f"{path}: damaged evaluation cache ({problem}); evaluating again", stacklevel=3)
+            return None
+        # CSV writes "" and NaN alike; a planner's empty checkpoint must come back as "", like a fresh row.
+        if "checkpoint" in df:
+            df["checkpoint"] = ["" if pd.isna(v) else str(v) for v in df["checkpoint"]]
+        if "trajectory" in df:
+            try:
                 df["trajectory"] = [[tuple(p) for p in json.loads(t)] for t in df["trajectory"]]
-            return df
+            except (TypeError, ValueError):
+                warnings.warn(f"{path}: damaged evaluation cache (trajectories); evaluating again", stacklevel=3)
+                return None
+        return df
     return None
 
 
@@ -140,7 +173,8 @@ def _write_cache(folder: Path, stem: str, key: str, df: pd.DataFrame) -> None:
     path = _cache_file(folder, stem, key)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, out.to_csv(index=False))
-    atomic_write_text(path.with_suffix(".json"), json.dumps({"key": key}))
+    meta = {"key": key, "rows": len(df), "digest": file_digest(path)}
+    atomic_write_text(path.with_suffix(".json"), json.dumps(meta))
 
 
 def evaluate_methods(
@@ -202,7 +236,7 @@ def evaluate_methods(
                 stem = scene + tail
                 # Caches written before scenes had versions are named by the bare family (v0, same key).
                 old_stem = scene_key(scene) + tail
-                df = _read_cache(folder, stem, key, old_stem) if cache else None
+                df = _read_cache(folder, stem, key, old_stem, rows=episodes) if cache else None
                 if df is None:
                     df = evaluate(
                         policy,

@@ -124,7 +124,7 @@ def disturbance_episodes(
                     ident["lanes"] = cfg.eval.lanes
                 key = config_hash(ident)
                 folder = cfg.run_root / "interpret" / "disturbance" / m / f"seed{cfg.seed}"
-                df = _read_cache(folder, c, key) if cache else None
+                df = _read_cache(folder, c, key, rows=episodes) if cache else None
                 if df is None:
                     df = evaluate(
                         pol,

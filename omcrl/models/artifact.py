@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from omcrl.models.encoder import PixelEncoder, Projection
+from omcrl.runs import verify_artifact
 from omcrl.utils.io import atomic_save_torch, load_torch
 
 ARTIFACT_KIND = "omcrl-encoder"
@@ -130,6 +131,7 @@ def load_encoder(path: str | Path, image_size: int | None = None, frame_stack: i
     p = Path(path)
     if not p.is_file():
         raise EncoderError(f"encoder {p}: file does not exist")
+    verify_artifact(p, "encoder", "re-run its pretraining (python -m omcrl pretrain --method ...), which rebuilds it")
     return encoder_from_artifact(load_torch(p, "encoder artifact", EncoderError), str(p), image_size, frame_stack)
 
 

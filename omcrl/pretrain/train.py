@@ -32,7 +32,7 @@ from omcrl.data.sampler import SequenceSampler
 from omcrl.envs.scenes import scene_key
 from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
-from omcrl.runs import Run, make_run
+from omcrl.runs import Run, make_run, verify_artifact
 from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
 from omcrl.utils.precision import section_precision
 from omcrl.utils.progress import Progress
@@ -219,123 +219,128 @@ def run(
         fp = ds.fingerprint
         full_hash, compat_hash = _hashes(cfg, fp)
     run_rec.claim()
-    save_config(cfg, out)
+    try:
+        save_config(cfg, out)
 
-    torch.manual_seed(cfg.seed)
-    L = cfg.env.frame_stack
-    learner = ContrastiveLearner(p, L).to(resolve_device(p.device))
-    learner.precision = section_precision(p)
-    opt = torch.optim.Adam(learner.param_groups())
-    # Keep all episodes in memory when the frames are small (quick/smoke presets); else stream from disk.
-    rgb_bytes = ds.n_steps * 3 * ds.image_size**2
-    cache = len(ds) if rgb_bytes <= _CACHE_BYTES else 0
-    sampler = SequenceSampler(
-        ds,
-        p.batch_size,
-        p.seq_len,
-        L,
-        crop=(p.crop_from, p.crop_to),
-        seed=cfg.seed,
-        cache_episodes=cache,
-        seq_stride=p.seq_stride if p.method == "omc" else 1,
-    )
-    gen = torch.Generator().manual_seed(cfg.seed + 1)
-    start, rows = 0, []
-    if ck_path.exists():
-        state = load_torch(ck_path, "pretraining checkpoint")
-        if state.get("compat") == compat_hash and state["step"] <= p.iterations:
-            learner.load_state_dict(state["learner"])
-            opt.load_state_dict(state["optim"])
-            sampler.rng.bit_generator.state = json.loads(state["sampler_rng"])
-            gen.set_state(state["mask_rng"])
-            torch.set_rng_state(state["torch_rng"])
-            start = int(state["step"])
-            rows = _read_metrics(metrics_path, start)
-            logged = {step for step, _, _ in rows}
-            if len(logged) < start:
-                msg = (
-                    f"{metrics_path}: {start - len(logged)} of the {start} iterations before the resume point have "
-                    "no metrics (the file was deleted or cut); their history is lost, training goes on"
-                )
-                log.warning("pretrain %s: %s", name, msg)
-                warnings.warn(msg, stacklevel=2)
-            log.info("pretrain %s: resuming from iteration %d", name, start)
-        else:
-            log.warning("pretrain %s: checkpoint in %s is from a different config; starting over", name, out)
-    # CURL sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
-    n_pairs = p.batch_size * p.seq_len
-    stride = p.cons_stride if p.method == "curl_cons" else 0
-
-    def checkpoint(step: int) -> None:
-        atomic_save_torch(
-            {
-                "step": step,
-                "compat": compat_hash,
-                "learner": learner.state_dict(),
-                "optim": opt.state_dict(),
-                "sampler_rng": json.dumps(sampler.rng.bit_generator.state),
-                "mask_rng": gen.get_state(),
-                "torch_rng": torch.get_rng_state(),
-            },
-            ck_path,
+        torch.manual_seed(cfg.seed)
+        L = cfg.env.frame_stack
+        learner = ContrastiveLearner(p, L).to(resolve_device(p.device))
+        learner.precision = section_precision(p)
+        opt = torch.optim.Adam(learner.param_groups())
+        # Keep all episodes in memory when the frames are small (quick/smoke presets); else stream from disk.
+        rgb_bytes = ds.n_steps * 3 * ds.image_size**2
+        cache = len(ds) if rgb_bytes <= _CACHE_BYTES else 0
+        sampler = SequenceSampler(
+            ds,
+            p.batch_size,
+            p.seq_len,
+            L,
+            crop=(p.crop_from, p.crop_to),
+            seed=cfg.seed,
+            cache_episodes=cache,
+            seq_stride=p.seq_stride if p.method == "omc" else 1,
         )
+        gen = torch.Generator().manual_seed(cfg.seed + 1)
+        start, rows = 0, []
+        if ck_path.exists():
+            verify_artifact(ck_path, "pretraining checkpoint", f"delete it to pretrain {name} seed {cfg.seed} anew")
+            state = load_torch(ck_path, "pretraining checkpoint")
+            if state.get("compat") == compat_hash and state["step"] <= p.iterations:
+                learner.load_state_dict(state["learner"])
+                opt.load_state_dict(state["optim"])
+                sampler.rng.bit_generator.state = json.loads(state["sampler_rng"])
+                gen.set_state(state["mask_rng"])
+                torch.set_rng_state(state["torch_rng"])
+                start = int(state["step"])
+                rows = _read_metrics(metrics_path, start)
+                logged = {step for step, _, _ in rows}
+                if len(logged) < start:
+                    msg = (
+                        f"{metrics_path}: {start - len(logged)} of the {start} iterations before the resume point have "
+                        "no metrics (the file was deleted or cut); their history is lost, training goes on"
+                    )
+                    log.warning("pretrain %s: %s", name, msg)
+                    warnings.warn(msg, stacklevel=2)
+                log.info("pretrain %s: resuming from iteration %d", name, start)
+            else:
+                log.warning("pretrain %s: checkpoint in %s is from a different config; starting over", name, out)
+        # CURL sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
+        n_pairs = p.batch_size * p.seq_len
+        stride = p.cons_stride if p.method == "curl_cons" else 0
+
+        def checkpoint(step: int) -> None:
+            atomic_save_torch(
+                {
+                    "step": step,
+                    "compat": compat_hash,
+                    "learner": learner.state_dict(),
+                    "optim": opt.state_dict(),
+                    "sampler_rng": json.dumps(sampler.rng.bit_generator.state),
+                    "mask_rng": gen.get_state(),
+                    "torch_rng": torch.get_rng_state(),
+                },
+                ck_path,
+                run_rec.checkpoint_recorder(),
+            )
+            _write_metrics(metrics_path, rows)
+
+        learner.train()
+        bar = Progress(p.iterations, f"pretrain/{name} seed{cfg.seed}", unit="it", initial=start, enabled=progress)
+        # TensorBoard events as for RL (``tensorboard --logdir results/<preset>/runs``); a resume drops the events
+        # past the checkpoint, as metrics.csv does.
+        from torch.utils.tensorboard import SummaryWriter
+
+        tb = SummaryWriter(str(out / "tb"), purge_step=start + 1 if start else None)
+        loss_val = float("nan")
+        for it in range(start + 1, p.iterations + 1):
+            lrs = {"lr_encoder": p.lr_encoder}
+            for g in opt.param_groups:
+                if g["name"] == "transformer":
+                    g["lr"] = lrs["lr_transformer"] = p.lr_transformer * transformer_lr_factor(it, p.warmup_steps)
+            if p.method == "omc":
+                seq = sampler.sample_sequences()
+                pool = sampler.sample_stacks(p.batch_size)
+                loss, metrics = learner.omc_loss(seq, gen, pool)
+            else:
+                anchor, positive = sampler.sample_pairs(n_pairs, stride=stride)
+                loss, metrics = learner.curl_loss(anchor, positive)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            learner.momentum_update()
+            loss_val = metrics["loss"]
+            rows.extend((it, k, v) for k, v in {**metrics, **lrs}.items())
+            for k, v in {**metrics, **lrs}.items():
+                tb.add_scalar(k, v, it)
+            bar.update(1, loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
+            if it % p.checkpoint_every == 0 or it == p.iterations:
+                checkpoint(it)
+            if stop_after is not None and it >= stop_after and it < p.iterations:
+                bar.close()
+                tb.close()
+                ds.close()
+                return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp)
+        bar.close()
+        tb.close()
+        if start >= p.iterations:  # resumed from a final checkpoint whose artifact was not written
+            loss_val = next((v for s, m, v in reversed(rows) if m == "loss"), float("nan"))
+        save_encoder(enc_path, learner.f, learner.phi, cfg, fp)
         _write_metrics(metrics_path, rows)
-
-    learner.train()
-    bar = Progress(p.iterations, f"pretrain/{name} seed{cfg.seed}", unit="it", initial=start, enabled=progress)
-    # TensorBoard events as for RL (``tensorboard --logdir results/<preset>/runs``); a resume drops the events
-    # past the checkpoint, as metrics.csv does.
-    from torch.utils.tensorboard import SummaryWriter
-
-    tb = SummaryWriter(str(out / "tb"), purge_step=start + 1 if start else None)
-    loss_val = float("nan")
-    for it in range(start + 1, p.iterations + 1):
-        lrs = {"lr_encoder": p.lr_encoder}
-        for g in opt.param_groups:
-            if g["name"] == "transformer":
-                g["lr"] = lrs["lr_transformer"] = p.lr_transformer * transformer_lr_factor(it, p.warmup_steps)
-        if p.method == "omc":
-            seq = sampler.sample_sequences()
-            pool = sampler.sample_stacks(p.batch_size)
-            loss, metrics = learner.omc_loss(seq, gen, pool)
-        else:
-            anchor, positive = sampler.sample_pairs(n_pairs, stride=stride)
-            loss, metrics = learner.curl_loss(anchor, positive)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        learner.momentum_update()
-        loss_val = metrics["loss"]
-        rows.extend((it, k, v) for k, v in {**metrics, **lrs}.items())
-        for k, v in {**metrics, **lrs}.items():
-            tb.add_scalar(k, v, it)
-        bar.update(1, loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
-        if it % p.checkpoint_every == 0 or it == p.iterations:
-            checkpoint(it)
-        if stop_after is not None and it >= stop_after and it < p.iterations:
-            bar.close()
-            tb.close()
-            ds.close()
-            return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp)
-    bar.close()
-    tb.close()
-    if start >= p.iterations:  # resumed from a final checkpoint whose artifact was not written
-        loss_val = next((v for s, m, v in reversed(rows) if m == "loss"), float("nan"))
-    save_encoder(enc_path, learner.f, learner.phi, cfg, fp)
-    _write_metrics(metrics_path, rows)
-    atomic_write_text(
-        done_path,
-        json.dumps(
-            {
-                "hash": full_hash,
-                "iterations": p.iterations,
-                "final_loss": loss_val if math.isfinite(loss_val) else None,  # JSON has no NaN
-                "dataset": str(path),
-                "dataset_fingerprint": fp,
-                "encoder_digest": file_digest(enc_path),
-            },
-            indent=1,
-        ),
-    )
-    ds.close()
-    return PretrainResult(name, out, enc_path, metrics_path, p.iterations, loss_val, fp)
+        atomic_write_text(
+            done_path,
+            json.dumps(
+                {
+                    "hash": full_hash,
+                    "iterations": p.iterations,
+                    "final_loss": loss_val if math.isfinite(loss_val) else None,  # JSON has no NaN
+                    "dataset": str(path),
+                    "dataset_fingerprint": fp,
+                    "encoder_digest": file_digest(enc_path),
+                },
+                indent=1,
+            ),
+        )
+        ds.close()
+        return PretrainResult(name, out, enc_path, metrics_path, p.iterations, loss_val, fp)
+    finally:
+        run_rec.release()

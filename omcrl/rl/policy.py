@@ -24,6 +24,7 @@ from omcrl.models.features import (
     make_student_features,
     space_shapes,
 )
+from omcrl.runs import rerun_command, verify_artifact
 from omcrl.utils.io import load_torch
 
 __all__ = [
@@ -97,6 +98,8 @@ def read_payload(path: str | Path, what: str = "policy") -> dict:
     p = Path(path)
     if not p.exists():
         raise CheckpointError(f"{what} checkpoint {p} does not exist")
+    # A run's final.pt must still be what its run recorded: a damaged teacher or policy is never used.
+    verify_artifact(p, f"{what} checkpoint", rerun_command(p.parent, "train") + " (after deleting its final.pt)")
     # Policy files hold only tensors and plain containers: never unpickle arbitrary objects from them.
     payload = load_torch(p, f"{what} checkpoint", CheckpointError)
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:

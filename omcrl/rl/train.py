@@ -47,7 +47,7 @@ from omcrl.rl.policy import (
 )
 from omcrl.rl.ppo import PPO, ExtraLoss, NonFiniteLossError
 from omcrl.rl.rollout import Runner
-from omcrl.runs import MetricsLog, Run, RunConfigMismatch, make_run, rng_state, set_rng_state
+from omcrl.runs import MetricsLog, Run, RunConfigMismatch, make_run, rng_state, set_rng_state, verify_artifact
 from omcrl.utils.io import atomic_save_torch, file_digest, load_torch
 from omcrl.utils.precision import section_precision
 from omcrl.utils.progress import Progress
@@ -206,6 +206,8 @@ def train(
             stacklevel=2,
         )
 
+    if ckpt_path.exists():
+        verify_artifact(ckpt_path, "checkpoint", f"delete it to train {run.method} seed {cfg.seed} from the start")
     ckpt = load_torch(ckpt_path, "checkpoint", CheckpointError) if ckpt_path.exists() else None
     if ckpt is None:
         seed_everything(cfg.seed)
@@ -299,6 +301,7 @@ def train(
                         "key": run.key,
                     },
                     ckpt_path,
+                    run.checkpoint_recorder(),
                 )
                 last_ckpt = step
         bar.close()
@@ -316,6 +319,7 @@ def train(
         if writer is not None:
             writer.close()
         env.close()
+        run.release()
     return Result(run, final_path, step, False)
 
 

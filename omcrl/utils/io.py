@@ -38,15 +38,26 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def atomic_save_torch(obj: Any, path: str | Path) -> None:
-    """``torch.save`` to a temporary file, then rename: an interrupted save never corrupts ``path``."""
+def atomic_save_torch(obj: Any, path: str | Path, before_replace: Any = None) -> str:
+    """``torch.save`` to a temporary file, then rename: an interrupted save never corrupts ``path``.
+
+    Returns the content's digest (:func:`file_digest` of the file written). ``before_replace(digest)``, when
+    given, runs before the file appears (a producer records the digest first, so a kill between the two never
+    leaves a file whose digest is not on record).
+    """
+    import hashlib
     import io
 
     import torch
 
     buf = io.BytesIO()
     torch.save(obj, buf)
-    atomic_write_bytes(path, buf.getvalue())
+    data = buf.getvalue()
+    digest = hashlib.sha1(data).hexdigest()[:16]
+    if before_replace is not None:
+        before_replace(digest)
+    atomic_write_bytes(path, data)
+    return digest
 
 
 def file_digest(path: str | Path, length: int = 16) -> str:

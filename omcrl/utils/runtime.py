@@ -33,6 +33,20 @@ def set_threads(n: int | None = None) -> int:
     return n
 
 
+def exit_with_parent(parent: int, interval: float = 0.5) -> None:
+    """End this (worker) process within ``interval`` s of its parent's death, however the parent died (kill -9
+    included): a daemon thread polls ``os.getppid()``, which changes when the orphan is adopted."""
+    import threading
+    import time
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(interval)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="omcrl-parent-watch", daemon=True).start()
+
+
 def seed_everything(seed: int) -> np.random.Generator:
     """Seed python, numpy and torch (CPU) and return a numpy Generator for explicit use."""
     random.seed(seed)

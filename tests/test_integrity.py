@@ -1,0 +1,212 @@
+"""Integrity of results (issue: nothing overwrites a table, nothing corrupt is trusted, nothing is left running)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import psutil
+
+# A parent that opens an evaluation pool, starts slow episodes in its workers, prints their PIDs and waits.
+_PARENT = textwrap.dedent(
+    """
+    import os, sys, time
+    from omcrl.eval.runner import EvalPool
+
+    class Slow:
+        def act(self, obs, info):
+            time.sleep(0.05)
+            return [0.0, 0.0, 0.0]
+
+    import threading
+    from omcrl.eval.runner import evaluate
+    pool = EvalPool(2).__enter__()
+    t = threading.Thread(target=evaluate, args=(Slow(), "box", 8), kwargs={"workers": pool, "image_size": 16},
+                         daemon=True)
+    t.start()
+    import psutil
+    me = psutil.Process()
+    while len(me.children()) < 2:
+        time.sleep(0.1)
+    time.sleep(1.0)
+    print(" ".join(str(c.pid) for c in me.children()), flush=True)
+    time.sleep(600)
+    """
+)
+
+
+def test_evaluation_workers_exit_with_a_killed_parent(repo_root):
+    proc = subprocess.Popen([sys.executable, "-c", _PARENT], cwd=repo_root, stdout=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        pids = [int(p) for p in line.split()]
+        assert len(pids) >= 2, line
+        assert all(psutil.pid_exists(p) for p in pids)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 5.0 and any(_alive(p) for p in pids):
+            time.sleep(0.1)
+        alive = [p for p in pids if _alive(p)]
+        assert not alive, f"workers {alive} outlived their parent by 5 s"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+_HOLDER = textwrap.dedent(
+    """
+    import sys, time
+    from pathlib import Path
+    from omcrl.runs import Run
+    Run("rl", "ppo", 0, "k", {}, Path(sys.argv[1])).claim()
+    print("claimed", flush=True)
+    time.sleep(600)
+    """
+)
+
+
+def test_a_second_process_on_one_run_folder_is_refused_naming_the_holder(tmp_path, repo_root):
+    import pytest
+
+    from omcrl.runs import Run, RunLocked
+
+    run_dir = tmp_path / "runs" / "rl" / "ppo-k" / "seed0"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLDER, str(run_dir)], cwd=repo_root, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert holder.stdout.readline().strip() == "claimed"
+        run = Run("rl", "ppo", 0, "k", {}, run_dir)
+        with pytest.raises(RunLocked, match=rf"{run_dir} is in use by another process \(PID {holder.pid}\)"):
+            run.claim()
+        # The holder is killed: its lock goes with it, and the next process takes the run over.
+        holder.kill()
+        holder.wait(10)
+        run.claim()
+        run.claim()  # re-entrant in one process
+        run.release()
+    finally:
+        if holder.poll() is None:
+            holder.kill()
+
+
+def test_two_trainings_of_one_run_do_not_both_write_it(tmp_path, repo_root):
+    """The reproduction: two CLI processes train the same smoke run; one trains, the other refuses in one line."""
+    args = [sys.executable, "-m", "omcrl", "train", "--method", "ppo", "--preset", "smoke",
+            "--set", f"results_dir={tmp_path}", "--set", "rl.total_steps=2048"]  # fmt: skip
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    procs = [subprocess.Popen(args, cwd=repo_root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=env) for _ in range(2)]  # fmt: skip
+    outs = [p.communicate(timeout=600) for p in procs]
+    codes = sorted(p.returncode for p in procs)
+    refused = [err for (_, err), p in zip(outs, procs) if p.returncode != 0]
+    assert codes[0] == 0 and codes[1] != 0, outs
+    assert len(refused) == 1 and "is in use by another process (PID" in refused[0]
+    assert "Traceback" not in refused[0] and sum(ln.startswith("error:") for ln in refused[0].splitlines()) == 1
+    (metrics,) = (tmp_path / "smoke" / "runs" / "rl").glob("ppo-*/seed0/metrics.csv")
+    import pandas as pd
+
+    m = pd.read_csv(metrics)
+    assert not m.duplicated(["step", "metric"]).any()
+
+
+def test_a_dataset_locked_by_a_writer_is_reported_as_locked_not_corrupt(tmp_path, repo_root):
+    import h5py
+
+    from omcrl.data.dataset import DatasetWriter
+
+    path = tmp_path / "box.h5"
+    with DatasetWriter(path, image_size=16, frame_stack=2, env_config={}):
+        pass
+    with h5py.File(path, "a"):  # a writer holds HDF5's file lock
+        code = f"from omcrl.data.dataset import open_dataset\nopen_dataset({str(path)!r})"
+        r = subprocess.run([sys.executable, "-c", code], cwd=repo_root, capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0
+    assert f"dataset {path} is locked by another process" in r.stderr and "corrupt" not in r.stderr
+
+
+def _garble(path, n: int = 64) -> None:
+    """Overwrite ``n`` bytes in the middle of a file (a zip-based torch file stays loadable)."""
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    data[mid : mid + n] = bytes((b + 101) % 256 for b in data[mid : mid + n])
+    path.write_bytes(bytes(data))
+
+
+def test_a_damaged_oracle_is_refused_before_a_student_trains_on_it(tmp_path, repo_root):
+    import pytest
+
+    from omcrl.config import load_config
+    from omcrl.rl import load_policy
+    from omcrl.rl.methods import train_method
+    from omcrl.runs import ArtifactMismatch
+    from omcrl.utils.io import file_digest
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    oracle = train_method(cfg, "oracle", progress=False)
+    load_policy(oracle.final_path)  # intact: loads
+    _garble(oracle.final_path)
+    with pytest.raises(ArtifactMismatch, match="re-run: python -m omcrl train --method oracle --preset smoke --seed 0"):
+        load_policy(oracle.final_path)
+    before = {p: file_digest(p) for p in tmp_path.rglob("*") if p.is_file()}
+    r = subprocess.run(
+        [sys.executable, "-m", "omcrl", "train", "--method", "npe-ot", "--preset", "smoke", "--set",
+         f"results_dir={tmp_path}"], cwd=repo_root, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert sum(ln.startswith("error:") for ln in r.stderr.splitlines()) == 1
+    assert f"{oracle.final_path} does not match the digest recorded" in r.stderr
+    assert not list((tmp_path / "smoke" / "runs" / "rl").glob("npe-ot-*"))  # nothing downstream written
+    assert {p: file_digest(p) for p in before} == before
+
+
+def test_a_damaged_pretraining_checkpoint_is_not_resumed(tmp_path):
+    import pytest
+
+    from omcrl.config import load_config
+    from omcrl.data.collect import run as collect
+    from omcrl.pretrain.train import run as pretrain
+    from omcrl.runs import ArtifactMismatch
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", f"data.file={tmp_path}/box.h5"])
+    collect(cfg, progress=False)
+    res = pretrain(cfg, progress=False, stop_after=10)
+    ck = res.run_dir / "checkpoint.pt"
+    assert ck.is_file() and not (res.run_dir / "encoder.pt").exists()
+    _garble(ck)
+    with pytest.raises(ArtifactMismatch, match="pretraining checkpoint .*checkpoint.pt does not match"):
+        pretrain(cfg, progress=False)
+    assert not (res.run_dir / "encoder.pt").exists()
+
+
+def test_a_truncated_evaluation_cache_is_evaluated_again(tmp_path):
+    import warnings
+
+    import pytest
+
+    from omcrl.config import load_config
+    from omcrl.eval.stage import evaluate_methods
+
+    cfg = load_config("smoke", overrides={"results_dir": str(tmp_path), "eval": {"workers": 1}})
+    first = evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["box"], 3)
+    (csv,) = (tmp_path / "smoke" / "eval" / "hybrid-apf" / "seed0").glob("box-v0-*.csv")
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join(lines[:2]) + "\n")  # header and one episode
+    with pytest.warns(UserWarning, match=r"damaged evaluation cache \(its content does not match"):
+        again = evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["box"], 3)
+    assert len(again) == 3 and list(again.success) == list(first.success)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # rewritten whole: read back without a warning
+        assert len(evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["box"], 3)) == 3
