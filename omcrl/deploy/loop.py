@@ -50,32 +50,42 @@ class PoseSource(Protocol):
 
 @dataclass
 class Safety:
-    """Safety settings of a flight. Units: m, m/s, rad/s, s.
+    """Safety settings of a flight. Units: m, m/s, rad/s, s, %.
+
+    The defaults are a conservative first-flight profile (0.5 m/s, a 6 m × 6 m fence, 2 m ceiling); raise them
+    once a policy has flown well (``Safety(max_speed=None, ...)`` gives the model's own action scale).
 
     Attributes
     ----------
-    max_speed, max_yaw_rate : command clamps (default: the model's action scale).
+    max_speed, max_yaw_rate : command clamps (None: the model's action scale; never above it).
     max_accel : rate limit on |Δv| per second (m/s²); max_yaw_accel likewise (rad/s²).
-    geofence : (x_min, x_max, y_min, y_max) the drone must stay in, world frame.
-    stale_s : land when the newest video frame or pose is older than this.
+    geofence : (x_min, x_max, y_min, y_max) the drone must stay in, world frame; start and goal must lie in it.
+    max_altitude : the fence's ceiling (m above the mocap origin).
+    stale_s : land when the newest video frame or pose is older than this (checked every 20 ms, between ticks
+        too; with the frame's arrival time, the drone gets ``land`` within ``stale_s`` + 20 ms of the last frame).
     goal_radius : arrival distance that ends the flight as a success.
     max_time_s : land after this long in the air.
+    min_battery : no takeoff below this charge, and land when the drone reports less in flight (%), for drones
+        that report it (``drone.battery()``).
     """
 
-    max_speed: float | None = None
-    max_yaw_rate: float | None = None
+    max_speed: float | None = 0.5
+    max_yaw_rate: float | None = 0.8
     max_accel: float = 3.0
     max_yaw_accel: float = 6.0
-    geofence: tuple[float, float, float, float] = (-8.0, 8.0, -8.0, 8.0)
-    stale_s: float = 0.5
+    geofence: tuple[float, float, float, float] = (-3.0, 3.0, -3.0, 3.0)
+    max_altitude: float = 2.0
+    stale_s: float = 0.4
     goal_radius: float = 0.5
     max_time_s: float = 120.0
+    min_battery: float = 20.0
 
 
 @dataclass
 class FlightResult:
     """How a flight ended: ``reason`` is arrived | video_lost | pose_lost | geofence | timeout | error |
-    interrupted | bad_frame | bad_pose | bad_state | bad_action | bad_command; ``final_distance`` (m) from the
+    interrupted | bad_frame | bad_pose | bad_state | bad_action | bad_command | battery_low | preflight (nothing was
+    sent; ``error`` says why); ``final_distance`` (m) from the
     last valid pose to the goal; ``poses`` the (x, y, z) of every tick."""
 
     reason: str
@@ -98,6 +108,13 @@ def _resize(frame: np.ndarray, size: int) -> np.ndarray:
     return np.asarray(img, np.uint8).transpose(2, 0, 1)
 
 
+# How often the streams' freshness is checked between control ticks (s).
+WATCH_S = 0.02
+
+# Signals that end a flight (the drone hovers and lands): Ctrl-C, a kill (SIGTERM) and a closed terminal (SIGHUP).
+STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
 def _finite(values: Any, size: int) -> bool:
     """``values`` holds exactly ``size`` finite numbers."""
     try:
@@ -105,6 +122,18 @@ def _finite(values: Any, size: int) -> bool:
     except (TypeError, ValueError):
         return False
     return a.shape == (size,) and bool(np.isfinite(a).all())
+
+
+def _reading(drone: Any, name: str) -> float | None:
+    """``drone.<name>()`` (battery %, temperature °C) where the drone reports it, else None."""
+    fn = getattr(drone, name, None)
+    if fn is None:
+        return None
+    try:
+        v = float(fn())
+    except Exception:
+        return None
+    return v if math.isfinite(v) else None
 
 
 def _finite_time(t: Any) -> bool:
@@ -175,6 +204,8 @@ class ControlLoop:
         "cmd_wz",
         "latency_ms",
         "goal_distance",
+        "battery",
+        "temperature",
         "event",
     )
 
@@ -208,6 +239,7 @@ class ControlLoop:
         self.clock, self.sleep = clock, sleep
         self.frames: deque = deque(maxlen=self.stack)
         self.cmd = np.zeros(3)
+        self._camera_view: Any = None
 
     # ---------------------------------------------------------------- one tick
     def command(self, action: np.ndarray) -> np.ndarray:
@@ -223,8 +255,24 @@ class ControlLoop:
         return bool(abs(cmd[0]) <= self.max_speed + 1e-9 and abs(cmd[1]) <= self.max_speed + 1e-9
                     and abs(cmd[2]) <= self.max_yaw + 1e-9)  # fmt: skip
 
+    def _view(self, frame: np.ndarray) -> np.ndarray:
+        """(H, W, 3) camera frame → (3, size, size): through both cameras' intrinsics when the video source
+        declares its camera (``video.camera``, :mod:`omcrl.deploy.camera`), else a plain resize (a source that
+        already renders the simulator's view, as the simulated drone does)."""
+        cam = getattr(self.video, "camera", None)
+        if cam is None:
+            return _resize(frame, self.size)
+        h, w = frame.shape[:2]
+        if (w, h) != (cam.width, cam.height):
+            cam = cam.scaled(w, h)
+        if self._camera_view is None or self._camera_view.source != cam:
+            from omcrl.deploy.camera import CameraView
+
+            self._camera_view = CameraView(cam, float(self.policy.spec.get("fov_deg", 82.6)), self.size)
+        return np.ascontiguousarray(self._camera_view(frame).transpose(2, 0, 1))
+
     def observation(self, frame: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        img = _resize(frame, self.size)
+        img = self._view(frame)
         if not self.frames:
             self.frames.extend([img] * self.stack)  # the env also starts with the first frame repeated
         else:
@@ -245,14 +293,56 @@ class ControlLoop:
             return "bad_pose"
         if pose is None or now - pose[1] > s.stale_s:
             return "pose_lost"
-        x, y = float(pose[0][0]), float(pose[0][1])
+        x, y, z = float(pose[0][0]), float(pose[0][1]), float(pose[0][2])
         xmin, xmax, ymin, ymax = s.geofence
-        if not (xmin <= x <= xmax and ymin <= y <= ymax):
+        if not (xmin <= x <= xmax and ymin <= y <= ymax and z <= s.max_altitude):
             return "geofence"
         if math.hypot(x - self.goal[0], y - self.goal[1]) <= s.goal_radius:
             return "arrived"
         if now - t_start > s.max_time_s:
             return "timeout"
+        return None
+
+    def _wait(self, until: float) -> str | None:
+        """Sleep until the next tick, watching the streams every ``WATCH_S``: a video or pose that goes stale, or a
+        non-finite sample, is seen within that, not at the next tick (``video_lost`` / ``pose_lost`` /
+        ``bad_frame`` / ``bad_pose``, else None)."""
+        s = self.safety
+        while True:
+            now = self.clock()
+            if now >= until:
+                return None
+            self.sleep(min(WATCH_S, until - now))
+            now = self.clock()
+            frame, pose = self.video.read(), self.pose.read()
+            if frame is not None and not _finite_time(frame[1]):
+                return "bad_frame"
+            if pose is not None and not (_finite_time(pose[1]) and _finite(pose[0], 6)):
+                return "bad_pose"  # a bad sample stops the flight whenever it is seen
+            for name, got in (("video_lost", frame), ("pose_lost", pose)):
+                if got is None or now - got[1] > s.stale_s:
+                    return name
+
+    def preflight(self) -> str | None:
+        """What forbids takeoff, or None: the battery below ``min_battery``, no fresh finite pose from the mocap
+        (the rigid body not seen), no video, start or goal outside the fence, the start above the ceiling."""
+        s = self.safety
+        battery = _reading(self.drone, "battery")
+        if battery is not None and battery < s.min_battery:
+            return f"battery {battery:.0f} % below the floor of {s.min_battery:.0f} %"
+        now = self.clock()
+        pose = self.pose.read()
+        if pose is None or not (_finite_time(pose[1]) and _finite(pose[0], 6)) or now - pose[1] > s.stale_s:
+            return "no fresh pose from the motion capture (is the rigid body visible?)"
+        frame = self.video.read()
+        if frame is None or not _finite_time(frame[1]) or now - frame[1] > s.stale_s:
+            return "no fresh video frame"
+        xmin, xmax, ymin, ymax = s.geofence
+        for name, (x, y) in (("start", pose[0][:2]), ("goal", self.goal)):
+            if not (xmin <= x <= xmax and ymin <= y <= ymax):
+                return f"{name} ({x:.2f}, {y:.2f}) m outside the geofence {s.geofence}"
+        if pose[0][2] > s.max_altitude:
+            return f"start altitude {pose[0][2]:.2f} m above the ceiling {s.max_altitude} m"
         return None
 
     # ---------------------------------------------------------------- the flight
@@ -266,11 +356,28 @@ class ControlLoop:
         reason, error, tick, poses = "error", "", 0, []
         t_start = self.clock()
         last_pose = None
-        # Ctrl-C must land the drone however the program was started: a process launched in the background by a
-        # non-interactive shell inherits SIGINT as ignored, and Python then never raises KeyboardInterrupt.
-        previous = None
+        # Ctrl-C, SIGTERM and SIGHUP must land the drone however the program was started (a process launched in
+        # the background by a non-interactive shell inherits SIGINT as ignored) and however often they come: the
+        # first stops the flight, later ones during landing are logged and do not interrupt it.
+        previous: dict[int, Any] = {}
+        stopping = {"landing": False, "signals": 0}
+
+        def on_signal(signum: int, _frame: Any) -> None:
+            stopping["signals"] += 1
+            if not stopping["landing"]:
+                raise KeyboardInterrupt(signal.Signals(signum).name)
+
         if threading.current_thread() is threading.main_thread():
-            previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+            for sig in STOP_SIGNALS:
+                previous[sig] = signal.signal(sig, on_signal)
+        why = self.preflight()
+        if why is not None:  # nothing was sent to the drone
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            if writer:
+                self._log(writer, fh, 0.0, 0, None, None, self.clock(), None, 0.0, f"preflight: {why}")
+                fh.close()
+            return FlightResult("preflight", False, 0, 0.0, self.log_path, math.inf, why, [])
         try:
             self.drone.takeoff()
             t_start = self.clock()
@@ -280,6 +387,9 @@ class ControlLoop:
                 frame, pose = self.video.read(), self.pose.read()
                 last_pose = pose if pose is not None and _finite(pose[0], 6) else last_pose
                 stop = self._check(now, t_start, frame, pose)
+                battery = _reading(self.drone, "battery")
+                if stop is None and battery is not None and battery < self.safety.min_battery:
+                    stop = "battery_low"
                 if stop is not None:
                     reason = stop
                     self._log(writer, fh, now - t_start, tick, pose, frame, now, None, 0.0, stop)
@@ -302,24 +412,37 @@ class ControlLoop:
                 self._log(writer, fh, now - t_start, tick, pose, frame, now, cmd, latency, "")
                 tick += 1
                 next_tick += self.dt
-                self.sleep(max(0.0, next_tick - self.clock()))
-        except KeyboardInterrupt:
+                lost = self._wait(next_tick)
+                if lost is not None:
+                    reason = lost
+                    now = self.clock()
+                    self._log(writer, fh, now - t_start, tick, pose, frame, now, None, 0.0, lost)
+                    break
+        except KeyboardInterrupt as e:
             reason = "interrupted"
+            error = str(e) or "SIGINT"
         except Exception as e:  # any failure: land first, report after
             reason, error = "error", f"{type(e).__name__}: {e}"
         finally:
+            stopping["landing"] = True
             try:
                 self.drone.send_velocity(0.0, 0.0, 0.0)
-            finally:
+            except Exception as e:  # the link may be gone: still try to land
+                error = error or f"hover command failed: {type(e).__name__}: {e}"
+            try:
                 self.drone.land()
-                if previous is not None:
-                    signal.signal(signal.SIGINT, previous)
-                if writer:
-                    self._log(
-                        writer, fh, self.clock() - t_start, tick, last_pose, None, self.clock(), None, 0.0, "land"
-                    )
-                if fh:
-                    fh.close()
+                event = "land"
+            except Exception as e:
+                event = f"land failed: {type(e).__name__}: {e}"
+                error = f"{error}; {event}" if error else event
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            if stopping["signals"] > 1:
+                event += f" ({stopping['signals'] - 1} more stop signals during landing)"
+            if writer:
+                self._log(writer, fh, self.clock() - t_start, tick, last_pose, None, self.clock(), None, 0.0, event)
+            if fh:
+                fh.close()
         d = math.inf
         if last_pose is not None:
             d = math.hypot(float(last_pose[0][0]) - self.goal[0], float(last_pose[0][1]) - self.goal[1])
@@ -342,6 +465,10 @@ class ControlLoop:
                 *(f"{float(v):.4f}" for v in c),
                 f"{latency:.3f}",
                 f"{d:.4f}",
+                *(
+                    "" if v is None else f"{v:.0f}"
+                    for v in (_reading(self.drone, "battery"), _reading(self.drone, "temperature"))
+                ),
                 event,
             ]
         )

@@ -29,6 +29,8 @@ class SimulatedDrone:
     scene, seed : the layout; ``layout`` / ``disturbance`` as for :func:`omcrl.envs.make_env`.
     start : (x, y, yaw) m, rad; goal : (x, y) m (the env needs one; the loop has its own).
     speed : real-time factor (2.0 runs the physics twice as fast as the wall clock).
+    camera : a :class:`~omcrl.deploy.camera.CameraIntrinsics` to render frames through (e.g. the Tello's at a
+        reduced resolution, for the fake Tello's stream); None: the simulator's own square camera.
     """
 
     def __init__(
@@ -41,6 +43,7 @@ class SimulatedDrone:
         layout: list | None = None,
         disturbance: Any = None,
         speed: float = 1.0,
+        camera: Any = None,
     ) -> None:
         from omcrl.envs import make_env
 
@@ -50,10 +53,12 @@ class SimulatedDrone:
         obs, info = self.env.reset(seed=seed, options={"start": start, "goal": goal})
         self.dt = 1.0 / cfg.control_hz
         self.speed = float(speed)
+        self.camera_intrinsics = camera  # None: the simulator's own square camera
         self._lock = threading.Lock()
         self._cmd = np.zeros(3)
         self.flying = False
         self.crashed = False
+        self.motors_cut = False
         self.landed_at: float | None = None
         self._set(obs, info)
         self._stop = threading.Event()
@@ -65,8 +70,14 @@ class SimulatedDrone:
         x, y, yaw = (float(v) for v in info["pose"])
         roll, pitch = float(obs["state"][6]), float(obs["state"][7])
         with self._lock:
-            self._frame = (self.env.render(), now)
+            self._frame = (self._render(), now)
             self._pose = (np.array([x, y, self.cfg.altitude, roll, pitch, yaw]), now)
+
+    def _render(self) -> np.ndarray:
+        k = self.camera_intrinsics
+        if k is None:
+            return self.env.render()
+        return self.env.render_camera(k.width, k.height, k.fov_deg()[1])
 
     def _run(self) -> None:
         """Sensors stream all the time (like a camera and a mocap system); the drone moves only while flying."""
@@ -99,6 +110,11 @@ class SimulatedDrone:
             raise ValueError(f"non-finite velocity command {(vx, vy, wz)}")
         with self._lock:
             self._cmd[:] = (vx, vy, wz)
+
+    def emergency(self) -> None:
+        """Motors cut (the Tello's ``emergency``): the drone stops where it is and drops; recorded as such."""
+        self.motors_cut = True
+        self.land()
 
     def land(self) -> None:
         self.flying = False

@@ -76,6 +76,14 @@ class TelloDrone:
     def takeoff(self) -> None:
         self.tello.takeoff()
 
+    def battery(self) -> float:
+        """Charge in % (from the Tello's state packets; no command is sent)."""
+        return float(self.tello.get_battery())
+
+    def temperature(self) -> float:
+        """Mean of the Tello's low and high temperature readings, °C (state packets)."""
+        return float(self.tello.get_temperature())
+
     def rc(self, vx: float, vy: float, wz: float) -> tuple[int, int, int, int]:
         """Body-frame velocities → the Tello's rc integers (left_right, forward_backward, up_down, yaw)."""
 
@@ -90,12 +98,28 @@ class TelloDrone:
     def send_velocity(self, vx: float, vy: float, wz: float) -> None:
         self.tello.send_rc_control(*self.rc(vx, vy, wz))
 
-    def land(self) -> None:
-        self.tello.land()
+    def land(self, timeout_s: float = 3.0) -> None:
+        """Land; if the drone does not acknowledge within ``timeout_s`` (one try instead of djitellopy's 3 × 7 s),
+        cut the motors with ``emergency`` (logged by the caller through the raised error) rather than leave it
+        flying."""
+        self.tello.retry_count, retries = 1, self.tello.retry_count
+        try:
+            self.tello.send_control_command("land", timeout=max(1, math.ceil(timeout_s)))
+            self.tello.is_flying = False
+        except Exception as e:
+            self.emergency()
+            raise RuntimeError(f"land not acknowledged within {timeout_s:g} s ({e}); motors cut (emergency)") from e
+        finally:
+            self.tello.retry_count = retries
+
+    def emergency(self) -> None:
+        """Cut the motors at once (the Tello's ``emergency``; the drone falls): the emergency stop."""
+        self.tello.emergency()
 
     def close(self) -> None:
         """Stop the video reader and end the session (lands first if still flying)."""
         if self._video is not None:
+            self._video.stop()
             self._video.reader.stop()
         self.tello.end()
         # djitellopy's __del__ calls end() again, which fails on the already removed drone entry.
@@ -104,21 +128,45 @@ class TelloDrone:
 
 class TelloVideo:
     """Video source over djitellopy's ``BackgroundFrameRead``: a frame counts as new when the decoder replaced
-    the array, and is stamped with the time it was first seen (the reader gives no timestamps)."""
+    the array, and is stamped with the time it was first seen (the reader gives no timestamps). ``camera``: the
+    Tello's intrinsics (:data:`omcrl.deploy.camera.TELLO`)."""
 
-    def __init__(self, reader: Any) -> None:
+    def __init__(self, reader: Any, camera: Any = None) -> None:
+        from omcrl.deploy.camera import TELLO
+
         self.reader = reader
+        # The camera the frames come from: the control loop maps them into the simulator's view through it
+        # (scaled to the decoded frame's size).
+        self.camera = camera if camera is not None else TELLO
         # References, not ids: a freed array's id is reused by the next one, which would look like no new frame.
         self._initial = reader.frame  # the placeholder array before the first decoded frame
         self._last, self._t = self._initial, 0.0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        # A frame's time is when the decoder delivered it, not when the loop first looks: a watcher stamps each
+        # new array within POLL_S, so frame_age in the flight log is real and a stalled stream shows at once.
+        self._watch = threading.Thread(target=self._stamp, name="tello-video-stamp", daemon=True)
+        self._watch.start()
+
+    POLL_S = 0.005
+
+    def _stamp(self) -> None:
+        while not self._stop.is_set():
+            f = self.reader.frame
+            if f is not None and f is not self._initial and f is not self._last:
+                with self._lock:
+                    self._last, self._t = f, time.monotonic()
+            time.sleep(self.POLL_S)
 
     def read(self) -> tuple[np.ndarray, float] | None:
-        f = self.reader.frame
+        with self._lock:
+            f, t = self._last, self._t
         if f is None or f is self._initial:
             return None
-        if f is not self._last:
-            self._last, self._t = f, time.monotonic()
-        return np.asarray(f), self._t
+        return np.asarray(f), t
+
+    def stop(self) -> None:
+        self._stop.set()
 
 
 class MocapPose:
@@ -129,13 +177,17 @@ class MocapPose:
     system : ``"optitrack"``, ``"vicon"``, ``"qualisys"``, ... (libmotioncapture's names).
     hostname : the mocap server.
     rigid_body : the drone's rigid-body name.
+    up : the axis the system streams as up: ``"z"`` (Vicon, Qualisys; OptiTrack Motive with "Up Axis: Z", the
+        Crazyswarm setting) or ``"y"`` (Motive's default). See :func:`pose_from_mocap` for the conventions.
     """
 
-    def __init__(self, system: str, hostname: str, rigid_body: str) -> None:
+    def __init__(self, system: str, hostname: str, rigid_body: str, up: str = "z") -> None:
         import motioncapture
 
+        if up not in ("z", "y"):
+            raise ValueError(f"mocap up axis: got {up!r}, expected 'z' or 'y'")
         self.mc = motioncapture.connect(system, {"hostname": hostname})
-        self.body = rigid_body
+        self.body, self.up = rigid_body, up
         self._pose: tuple[np.ndarray, float] | None = None
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -148,13 +200,56 @@ class MocapPose:
             if body is None:
                 continue
             q = body.rotation  # w, x, y, z
-            pose = np.array([*body.position, *quat_to_rpy(q.w, q.x, q.y, q.z)])
+            pose = pose_from_mocap(body.position, (q.w, q.x, q.y, q.z), self.up)
             with self._lock:
                 self._pose = (pose, time.monotonic())
 
     def read(self) -> tuple[np.ndarray, float] | None:
         with self._lock:
             return self._pose
+
+
+# Y-up streaming → Z-up world: a +90° rotation about x (x stays, y_zup = −z_yup, z_zup = y_yup).
+_Y_TO_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def quat_to_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) → 3 × 3 rotation matrix (body → world)."""
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if not math.isfinite(n) or n < 1e-9:
+        raise ValueError(f"mocap quaternion ({w}, {x}, {y}, {z}) is not a rotation")
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def pose_from_mocap(position: Any, quaternion: Any, up: str = "z") -> np.ndarray:
+    """A mocap rigid body's pose → the loop's pose (6,): x, y, z (m) and roll, pitch, yaw (rad, ZYX) in a right-handed
+    Z-up world frame.
+
+    Conventions: the world is the mocap's (its origin and its horizontal axes); x is the direction the drone's
+    yaw 0 faces; yaw is counter-clockwise seen from above, in (−π, π]; the rigid body's own axes must be set up
+    (in the mocap software) with x forward through the Tello's camera, y to its left and z up — then roll, pitch
+    and yaw are those of the env's state. ``up="y"``: a system streaming Y-up (OptiTrack Motive's default:
+    x, y up, z) is turned into Z-up by a +90° rotation about x, positions and orientations alike, with the
+    body's axes defined Y-up too (forward x, up y).
+    """
+    p = np.asarray(position, np.float64).reshape(3)
+    r = quat_to_matrix(*(float(v) for v in quaternion))
+    if up == "y":
+        p = _Y_TO_Z @ p
+        r = _Y_TO_Z @ r @ _Y_TO_Z.T
+    elif up != "z":
+        raise ValueError(f"mocap up axis: got {up!r}, expected 'z' or 'y'")
+    yaw = math.atan2(r[1, 0], r[0, 0])
+    pitch = math.asin(max(-1.0, min(1.0, -r[2, 0])))
+    roll = math.atan2(r[2, 1], r[2, 2])
+    return np.array([p[0], p[1], p[2], roll, pitch, yaw])
 
 
 def quat_to_rpy(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
@@ -188,8 +283,12 @@ class FakeTello:
         yaw_rate_at_100: float = math.radians(100.0),
         state_hz: float = 10.0,
         video_fps: float = 15.0,
+        acknowledge_land: bool = True,
+        battery: int = 90,
     ) -> None:
         self.drone, self.host = drone, host
+        self.acknowledge_land = bool(acknowledge_land)  # False: a drone that never answers `land` (tests)
+        self.battery = int(battery)  # the charge its state packets report, %
         self.state_port, self.video_port = state_port, video_port
         self.speed_at_100, self.yaw_at_100 = speed_at_100, yaw_rate_at_100
         self.state_hz, self.video_fps = state_hz, video_fps
@@ -228,7 +327,11 @@ class FakeTello:
             if cmd == "takeoff":
                 self.drone.takeoff()
             elif cmd == "land":
+                if not self.acknowledge_land:
+                    continue  # no reply, and the drone keeps flying
                 self.drone.land()
+            elif cmd == "emergency":
+                self.drone.emergency()
             elif cmd.startswith("port "):
                 self.video_port = int(cmd.split()[2])
             elif cmd == "streamon":
@@ -253,7 +356,7 @@ class FakeTello:
                 "temph": 62,
                 "tof": int(100 * p[2]),
                 "h": int(100 * p[2]),
-                "bat": 90,
+                "bat": self.battery,
                 "baro": 0.0,
                 "time": 0,
                 "agx": 0.0,

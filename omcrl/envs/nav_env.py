@@ -769,6 +769,25 @@ class NavEnv(gym.Env):
             rgb = _adjust(rgb, d.brightness, d.hue)
         return rgb.transpose(2, 0, 1), np.minimum(depth, c.far)
 
+    def render_camera(self, width: int, height: int, vfov_deg: float) -> np.ndarray:
+        """An RGB frame (height, width, 3) uint8 from the drone's camera pose through another pinhole camera
+        (``vfov_deg`` vertical field of view, square pixels): what a real camera of that geometry would see here
+        (the deploy tests stream such frames from a simulated Tello)."""
+        c = self.cfg
+        proj = pb.computeProjectionMatrixFOV(vfov_deg, width / height, c.near, c.far)
+        _, _, rgba, _, _ = pb.getCameraImage(
+            int(width),
+            int(height),
+            self.view_matrix(),
+            proj,
+            renderer=self._pb_renderer,
+            shadow=0,
+            flags=pb.ER_NO_SEGMENTATION_MASK,
+            physicsClientId=self._client,
+            **self._light(),
+        )
+        return np.asarray(rgba, np.uint8).reshape(int(height), int(width), 4)[..., :3].copy()
+
     def render(self) -> np.ndarray | None:
         """The newest camera frame as (H, W, 3) uint8 with ``render_mode="rgb_array"``; None (and gymnasium's
         warning) without a render mode."""

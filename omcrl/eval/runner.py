@@ -220,13 +220,14 @@ def _chunk_episodes(
 
 
 def _init_worker(parent: int) -> None:
-    # One torch thread per worker: the workers already use every core between them.
     from omcrl.utils.runtime import exit_with_parent, set_threads
 
+    # First of all (importing torch below can take seconds on a loaded machine): a worker must not outlive its
+    # parent (a killed evaluation left ~540 MB workers running).
+    exit_with_parent(parent)
+    # One torch thread per worker: the workers already use every core between them.
     set_threads(1)
     _WORKER["in_worker"] = True
-    # A worker must not outlive its parent (a killed evaluation left ~540 MB workers running).
-    exit_with_parent(parent)
 
 
 class EvalPool:
