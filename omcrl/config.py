@@ -248,9 +248,9 @@ class RLConfig:
     precision: str = _f(
         "fp32",
         choices=PRECISIONS,
-        doc="fp32, bf16 (autocast forward passes in rollouts, updates and evaluation; weights, optimiser and loss "
-        "in fp32) or auto (bf16 where the hardware runs it natively); the resolved value is part of the run's "
-        "identity and is stored in the policy file (omcrl.utils.precision)",
+        doc="fp32, bf16 (autocast in the PPO updates' forward and backward passes; weights, optimiser, loss and "
+        "inference in fp32) or auto (bf16 where the hardware runs it natively); the resolved value is part of the "
+        "run's identity and is stored in the policy file (omcrl.utils.precision)",
     )
     update_threads: int = _f(
         0,

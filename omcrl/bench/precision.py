@@ -10,7 +10,10 @@ not depend on them) and the shapes of ``--preset`` (default quick):
 * ``rollout forward <kind>``: 32 × ``agent.step`` on a batch of ``rl.n_envs`` observations in one autocast region
   (what a rollout does per vector step; seconds per 32), for the student with the frozen encoder's forward
   (``agent.prepare``);
-* ``eval forward student``: the deterministic action of 8 observations (``eval.lanes``), ms;
+* ``eval forward student``: the deterministic action of 8 observations (``eval.lanes``), s.
+
+The two inference rows force autocast on: the kit runs inference in fp32 whatever the precision, because these
+rows measured bf16 slower there (``omcrl.models.actor_critic.ActorCritic``); they show what bf16 would cost.
 * ``pretrain omc`` / ``pretrain curl``: one optimisation step of the contrastive learner (batch, sequence,
   crop and d of ``pretrain``), ms.
 
@@ -99,8 +102,19 @@ def _rollout(agent: Any, space: Any, cfg: Config, transitions: int, rng: np.rand
 ROLLOUT_BLOCK = 32
 
 
+def _forced(agent: Any, fn: Callable[[], Any]) -> Any:
+    """``fn()`` under autocast of ``agent.precision`` (inference is fp32 in the kit; this measures bf16's)."""
+    from omcrl.utils.precision import autocast
+
+    with torch.no_grad(), autocast(agent.precision):
+        return fn()
+
+
 def _steps(agent: Any, batch: dict[str, np.ndarray]) -> None:
-    """``ROLLOUT_BLOCK`` rollout forwards in one autocast region, as :class:`~omcrl.rl.rollout.Runner` runs them."""
+    """``ROLLOUT_BLOCK`` rollout forwards (batch ``rl.n_envs``) in one autocast region of ``agent.precision``.
+
+    The kit runs inference in fp32 whatever the precision (the agent's own rule); this region forces bf16 on it,
+    so the row measures what bf16 inference would cost: the reason for that rule."""
     from omcrl.utils.precision import autocast
 
     with autocast(agent.precision):
@@ -156,7 +170,7 @@ def units(cfg: Config, root: Path, paper_batch: int | None = None) -> dict[str, 
     for p in PRECISIONS:
         agent = copy.deepcopy(agents["frozen"]).eval()
         agent.precision = p
-        eval_fns[p] = lambda agent=agent: agent.distribution(agent.prepare(lanes))
+        eval_fns[p] = lambda agent=agent: _forced(agent, lambda: agent.distribution(agent.prepare(lanes)))
     out["eval forward student (8 lanes)"] = eval_fns
     pc = copy.deepcopy(cfg.pretrain)
     if paper_batch:

@@ -10,6 +10,7 @@ state-independent learned log-std.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 from torch import nn
@@ -65,19 +66,24 @@ class ActorCritic(nn.Module):
         self.actor = _mlp(features.out_dim, hidden, act_dim, out_gain=0.01, layer_norm=layer_norm)
         self.critic = _mlp(features.out_dim, hidden, 1, out_gain=1.0, layer_norm=layer_norm)
         self.log_std = nn.Parameter(torch.full((act_dim,), float(init_log_std)))
-        # "fp32" or "bf16" (resolved; omcrl.utils.precision): the forward passes run under autocast, everything
-        # they return is float32. Not a parameter: the trainer sets it and the policy file records it.
+        # "fp32" or "bf16" (resolved; omcrl.utils.precision): the training passes (grad enabled: PPO updates) run
+        # under autocast; inference (rollouts, guides, evaluation, no grad) stays fp32, which is faster at the
+        # kit's batch sizes (python -m omcrl.bench precision). Everything returned is float32. Not a parameter: the
+        # trainer sets it and the policy file records it.
         self.precision = "fp32"
 
+    def _autocast(self) -> Any:
+        return autocast(self.precision if torch.is_grad_enabled() else "fp32", self.log_std.device.type)
+
     def prepare(self, obs: object) -> dict[str, torch.Tensor]:
-        """``features.preprocess(obs)`` in this agent's precision (a frozen encoder runs there, on the CPU or
-        the policy's device); what is stored is float32 (or the extractor's own storage type)."""
-        with autocast(self.precision, self.log_std.device.type):
+        """``features.preprocess(obs)`` (a frozen encoder runs here) in this agent's precision rule; what is
+        stored is float32 (or the extractor's own storage type)."""
+        with self._autocast():
             return self.features.preprocess(obs)
 
     def forward(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Return mean (B, A), std (B, A) and value (B,) for stored observations (float32)."""
-        with autocast(self.precision, self.log_std.device.type):
+        with self._autocast():
             f = self.features(stored)
             mean, value = self.actor(f), self.critic(f)
         mean = mean.float()
@@ -86,7 +92,7 @@ class ActorCritic(nn.Module):
 
     def distribution(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Mean (B, A) and std (B, A) without the critic: what acting and guiding need (same mean as ``forward``)."""
-        with autocast(self.precision, self.log_std.device.type):
+        with self._autocast():
             mean = self.actor(self.features(stored))
         mean = mean.float()
         return mean, self.log_std.exp().expand_as(mean)
