@@ -15,7 +15,8 @@ all envs:
   (the guide evaluated every vector step instead of in chunks).
 
 With ``--precision fp32,bf16`` every row is measured once per precision, one after the other in the same run
-(``rl.precision`` and ``pretrain.precision``; the limits run their forwards in that precision too).
+(``rl.precision`` and ``pretrain.precision``). Inference is fp32 in both, so the limits are the same forwards; the
+trainers differ in their PPO updates.
 
 For every trainer row: ``vs_limit`` = its rate / its (b) row; ``rollout_vs_limit`` = the rate of its
 rollouts alone (Σ steps / Σ ``rollout_s``) / (b); ``update_share`` = Σ ``update_s`` / Σ (rollout_s +
@@ -38,7 +39,7 @@ import torch
 
 from omcrl.bench import parser, write_results
 from omcrl.config import Config, load_config
-from omcrl.utils.precision import autocast, section_precision
+from omcrl.utils.precision import section_precision
 
 
 def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | None, guide: Path | None = None) -> float:
@@ -68,7 +69,7 @@ def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | Non
             if i == 10:
                 t0 = time.perf_counter()
             if agent is not None:
-                with torch.no_grad(), autocast(agent.precision):  # one region per step; the rollout keeps one
+                with torch.no_grad():
                     agent.step(agent.prepare(obs))
             if oracle is not None:
                 pending.append(oracle.prepare(obs))

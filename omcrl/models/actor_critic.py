@@ -76,10 +76,8 @@ class ActorCritic(nn.Module):
         return autocast(self.precision if torch.is_grad_enabled() else "fp32", self.log_std.device.type)
 
     def prepare(self, obs: object) -> dict[str, torch.Tensor]:
-        """``features.preprocess(obs)`` (a frozen encoder runs here) in this agent's precision rule; what is
-        stored is float32 (or the extractor's own storage type)."""
-        with self._autocast():
-            return self.features.preprocess(obs)
+        """``features.preprocess(obs)``: what the rollout stores (a frozen encoder runs here: inference, fp32)."""
+        return self.features.preprocess(obs)
 
     def forward(self, stored: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Return mean (B, A), std (B, A) and value (B,) for stored observations (float32)."""
