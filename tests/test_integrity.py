@@ -23,12 +23,12 @@ _PARENT = textwrap.dedent(
             return [0.0, 0.0, 0.0]
 
     import threading
+    import psutil
     from omcrl.eval.runner import evaluate
     pool = EvalPool(2).__enter__()
     t = threading.Thread(target=evaluate, args=(Slow(), "box", 8), kwargs={"workers": pool, "image_size": 16},
                          daemon=True)
     t.start()
-    import psutil
     me = psutil.Process()
     while len(me.children()) < 2:
         time.sleep(0.1)

@@ -12,6 +12,7 @@ import pandas as pd
 
 from omcrl.eval.metrics import REQUIRED
 from omcrl.utils.progress import Progress
+from omcrl.utils.runtime import exit_with_parent, set_threads
 
 # Per-episode fields kept from ``info["metrics"]``: what summarize() needs plus where the episode came from.
 METRIC_FIELDS = (*REQUIRED, "out_of_arena", "scene", "seed")
@@ -220,10 +221,8 @@ def _chunk_episodes(
 
 
 def _init_worker(parent: int) -> None:
-    from omcrl.utils.runtime import exit_with_parent, set_threads
-
-    # First of all (importing torch below can take seconds on a loaded machine): a worker must not outlive its
-    # parent (a killed evaluation left ~540 MB workers running).
+    # First, importing nothing (a child can hang in its first import, and importing torch below takes seconds on a
+    # loaded machine): a worker must not outlive its parent (a killed evaluation left ~540 MB workers running).
     exit_with_parent(parent)
     # One torch thread per worker: the workers already use every core between them.
     set_threads(1)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import random
+import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -35,9 +37,9 @@ def set_threads(n: int | None = None) -> int:
 
 def exit_with_parent(parent: int, interval: float = 0.5) -> None:
     """End this (worker) process within ``interval`` s of its parent's death, however the parent died (kill -9
-    included): a daemon thread polls ``os.getppid()``, which changes when the orphan is adopted."""
-    import threading
-    import time
+    included): a daemon thread polls ``os.getppid()``, which changes when the orphan is adopted. It imports
+    nothing: a child forked while another thread of the parent held an import lock must still be able to start
+    it (such a child can hang in its first import, and would otherwise never notice its parent's death)."""
 
     def watch() -> None:
         while os.getppid() == parent:
