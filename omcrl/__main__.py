@@ -24,7 +24,7 @@ from typing import Any
 from omcrl.config import PRESETS, Config, ConfigError, load_config
 from omcrl.deploy.export import ExportError
 from omcrl.models.features import CheckpointError
-from omcrl.runs import ArtifactMismatch, RunConfigMismatch, RunLocked
+from omcrl.runs import CorruptFile, RunConfigMismatch, RunLocked
 
 # name -> (target "module:function", one-line description)
 STAGES: dict[str, tuple[str, str]] = {
@@ -208,7 +208,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
         CheckpointError,
         RunConfigMismatch,
         RunLocked,
-        ArtifactMismatch,
+        CorruptFile,
         FileNotFoundError,
         NotADirectoryError,
         ExportError,

@@ -45,7 +45,11 @@ class RunLocked(RuntimeError):
     """Another live process is training this run folder; the message names its PID."""
 
 
-class ArtifactMismatch(ValueError):
+class CorruptFile(ValueError):
+    """A file the kit wrote cannot be read back (damaged, truncated, emptied); the message names it."""
+
+
+class ArtifactMismatch(CorruptFile):
     """A file does not match the digest its producer recorded: it was changed or damaged after it was written."""
 
 
@@ -268,9 +272,18 @@ def read_identity(run_dir: str | Path) -> dict | None:
     if not p.is_file():
         return None
     try:
-        return json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise RunConfigMismatch(f"{p} is not a readable run record ({e}); delete the run folder") from None
+        rec = json.loads(p.read_text(encoding="utf-8"))
+        if not isinstance(rec, dict):
+            raise ValueError(f"a JSON {type(rec).__name__}, not an object")
+        return rec
+    except (OSError, ValueError) as e:  # ValueError: bad JSON and non-UTF-8 bytes alike
+        raise RunConfigMismatch(f"{p} is not a readable run record ({_short(e)}); delete the run folder") from None
+
+
+def _short(e: BaseException) -> str:
+    """An error's message on one line, at most 120 characters."""
+    text = " ".join(str(e).split())
+    return text if len(text) <= 120 else text[:117] + "..."
 
 
 def find_runs(run_root: str | Path, stage: str | None = None, method: str | None = None) -> list[dict]:
@@ -295,7 +308,18 @@ def read_metrics(path: str | Path) -> Any:
         p = p / "metrics.csv"
     if not p.exists():
         return pd.DataFrame({"step": pd.Series(dtype=int), "metric": pd.Series(dtype=str), "value": []})
-    return pd.read_csv(p)
+    try:
+        raw = p.read_bytes()
+        if raw and not raw.endswith(b"\n"):  # every write ends its rows: a cut file ends mid-row
+            raise ValueError("it ends in the middle of a row (cut short)")
+        df = pd.read_csv(p)
+        if df[["step", "value"]].isna().any().any() if {"step", "value"} <= set(df.columns) else False:
+            raise ValueError("rows with missing steps or values")
+    except (OSError, ValueError, pd.errors.ParserError) as e:  # includes an empty file and non-UTF-8 bytes
+        raise CorruptFile(f"{p} is not a readable metrics file ({_short(e)})") from None
+    if not {"step", "metric", "value"} <= set(df.columns):
+        raise CorruptFile(f"{p} is not a metrics file: columns {list(df.columns)[:6]}, expected step, metric, value")
+    return df
 
 
 def metric_series(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:

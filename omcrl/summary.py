@@ -199,9 +199,16 @@ def summary_text(cfg: Config) -> str:
 
     for heading, source, what, notebook, body in SECTIONS:
         path = tables / source
-        d = (_read_json(path) if path.suffix == ".json" else {}) if path.exists() else None
+        d = (_read_json(path) or {} if path.suffix == ".json" else {}) if path.exists() else None
         out += [heading, ""]
-        out += body(d, tables) if d is not None else [f"_{what}: not run yet (notebook {notebook})._", ""]
+        if d is None:
+            out += [f"_{what}: not run yet (notebook {notebook})._", ""]
+            continue
+        try:
+            out += body(d, tables)
+        except (OSError, ValueError, KeyError, TypeError, pd.errors.ParserError) as e:
+            # A damaged table is one line in its section, never a crash of the whole summary.
+            out += [f"_{what}: cannot be read ({type(e).__name__}: {' '.join(str(e).split())[:160]})._", ""]
 
     out += ["## Figures", ""]
     figs = sorted(figures.glob("*.png")) if figures.is_dir() else []

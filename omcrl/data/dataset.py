@@ -249,11 +249,15 @@ class DatasetWriter:
         try:
             g = self._h5.create_group(episode_key(idx))
             for name, arr in arrays.items():
+                # Fletcher-32 checksums on every chunk: a damaged episode fails its read (DatasetError) instead of
+                # feeding wrong pixels to pretraining.
                 if name in ("rgb", "depth"):
                     # One chunk per frame: a sequence read decompresses only the frames it needs.
-                    g.create_dataset(name, data=arr, chunks=(1, *arr.shape[1:]), compression=self.compression)
+                    g.create_dataset(
+                        name, data=arr, chunks=(1, *arr.shape[1:]), compression=self.compression, fletcher32=True
+                    )
                 else:
-                    g.create_dataset(name, data=arr)
+                    g.create_dataset(name, data=arr, fletcher32=True)
             g.attrs["scene"] = str(scene)
             g.attrs["seed"] = int(seed)
             g.attrs["source"] = source
@@ -478,7 +482,10 @@ class TrajectoryDataset:
         try:
             return self._group(ep)[name][start:stop]
         except OSError as e:
-            raise DatasetError(f"dataset {self.path}: cannot read '{episode_key(ep)}/{name}' ({e})") from None
+            raise DatasetError(
+                f"dataset {self.path}: cannot read '{episode_key(ep)}/{name}' ({' '.join(str(e).split())[:160]}); "
+                "the file is damaged: collect again"
+            ) from None
 
     def read_stacks(
         self,

@@ -58,7 +58,14 @@ def _env_section(policy_path: Path) -> dict:
     cfg_path = policy_path.parent / "config.yaml"
     if not cfg_path.is_file():
         raise ExportError(f"{cfg_path} not found: the policy's run folder must hold its config.yaml")
-    env = (yaml.safe_load(cfg_path.read_text()) or {}).get("env")
+    try:
+        doc = yaml.safe_load(cfg_path.read_text(encoding="utf-8")) or {}
+    except (OSError, ValueError, yaml.YAMLError) as e:
+        first = " ".join(str(e).split())[:120]
+        raise ExportError(
+            f"{cfg_path} is not a readable config ({first}); it is written by the run's training"
+        ) from None
+    env = doc.get("env") if isinstance(doc, dict) else None
     if not isinstance(env, dict):
         raise ExportError(f"{cfg_path}: no 'env' section")
     return env

@@ -32,7 +32,7 @@ from omcrl.data.sampler import SequenceSampler
 from omcrl.envs.scenes import scene_key
 from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
-from omcrl.runs import Run, make_run, verify_artifact
+from omcrl.runs import ArtifactMismatch, Run, make_run, verify_artifact
 from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
 from omcrl.utils.precision import section_precision
 from omcrl.utils.progress import Progress
@@ -127,6 +127,20 @@ def default_dataset_path(cfg: Config) -> Path:
     return cfg.data_path
 
 
+def _read_done(path: Path) -> dict:
+    """A finished pretraining's ``done.json``; one line naming it when it cannot be read."""
+    try:
+        done = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(done, dict):
+            raise ValueError(f"a JSON {type(done).__name__}, not an object")
+        return done
+    except (OSError, ValueError) as e:
+        msg = " ".join(str(e).split())[:120]
+        raise ArtifactMismatch(
+            f"{path} is not a readable record ({msg}); delete it to pretrain this run again"
+        ) from None
+
+
 def _resolved_precision(cfg: Config, p: dict) -> None:
     """Put the resolved precision in the identity dict ``p`` when it is bf16; fp32 runs keep their keys."""
     p.pop("precision", None)
@@ -186,7 +200,7 @@ def run(
     enc_path, metrics_path, ck_path, done_path = (
         out / n for n in ("encoder.pt", "metrics.csv", "checkpoint.pt", "done.json")
     )
-    done = json.loads(done_path.read_text()) if done_path.exists() and enc_path.exists() else None
+    done = _read_done(done_path) if done_path.exists() and enc_path.exists() else None
     if done is not None and not path.exists():
         # A finished run needs its dataset only to notice re-collected data; without the file, the fingerprint
         # recorded at the end of training stands in for it.
@@ -218,6 +232,8 @@ def run(
         ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
         fp = ds.fingerprint
         full_hash, compat_hash = _hashes(cfg, fp)
+    if ck_path.exists():  # before anything is written: a damaged checkpoint is refused, never resumed
+        verify_artifact(ck_path, "pretraining checkpoint", f"delete it to pretrain {name} seed {cfg.seed} anew")
     run_rec.claim()
     try:
         save_config(cfg, out)
@@ -243,7 +259,6 @@ def run(
         gen = torch.Generator().manual_seed(cfg.seed + 1)
         start, rows = 0, []
         if ck_path.exists():
-            verify_artifact(ck_path, "pretraining checkpoint", f"delete it to pretrain {name} seed {cfg.seed} anew")
             state = load_torch(ck_path, "pretraining checkpoint")
             if state.get("compat") == compat_hash and state["step"] <= p.iterations:
                 learner.load_state_dict(state["learner"])
