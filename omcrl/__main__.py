@@ -104,6 +104,32 @@ def print_config(cfg: Config) -> None:
     sys.stdout.write(yaml.safe_dump(plain, sort_keys=False))
 
 
+def describe(result: Any) -> str:
+    """What a stage returned, for a person: its own ``repr`` where it has one written for reading, else a
+    dataclass's fields one per line (paths as paths, numbers rounded), not a ``Result(...)`` one-liner."""
+    import dataclasses
+    from pathlib import Path
+
+    # A dataclass made with repr=False writes its own repr for reading (tables by scene, paths written).
+    if not dataclasses.is_dataclass(result) or not type(result).__dataclass_params__.repr:
+        return str(result)
+
+    def short(v: Any) -> str:
+        if isinstance(v, Path):
+            return str(v)
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        if isinstance(v, dict):
+            return ", ".join(f"{k}={short(x)}" for k, x in v.items()) or "-"
+        if hasattr(v, "shape") and hasattr(v, "columns"):
+            return f"table, {v.shape[0]} rows"
+        text = str(v)
+        return text if len(text) <= 100 else text[:97] + "..."
+
+    fields = [(f.name, getattr(result, f.name)) for f in dataclasses.fields(result)]
+    return "\n".join(f"{name}: {short(v)}" for name, v in fields)
+
+
 def _methods_help() -> str:
     from omcrl.rl.methods import METHODS
 
@@ -284,7 +310,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     if args.stage not in ("config", "summary"):
         if result is not None:
-            print(result)
+            print(describe(result))
         print(
             f"[omcrl] stage {args.stage} (preset {cfg.preset}) finished in {time.perf_counter() - t0:.1f} s",
             file=sys.stderr,

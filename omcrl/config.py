@@ -500,6 +500,8 @@ def validate(cfg: Config) -> Config:
             f"config field 'data.policy': got {cfg.data.policy!r}, but data.mix gives the 'policy' share no weight "
             f"({show(mix)}); set e.g. data.mix={{pilot: 0.4, random: 0.2, policy: 0.4}}"
         )
+    if not str(cfg.results_dir).strip():
+        raise ConfigError("config field 'results_dir': got '', expected a folder (default 'results')")
     try:
         cfg.data.file.format(preset=cfg.preset)
     except (KeyError, IndexError, ValueError) as e:
@@ -611,7 +613,10 @@ def _read_yaml(p: Path) -> dict:
     except UnicodeDecodeError:
         raise ConfigError(f"config file {p} is not a text file (expected YAML)") from None
     except yaml.YAMLError as e:
-        raise ConfigError(f"config file {p} is not valid YAML: {e}") from None
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        what = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise ConfigError(f"config file {p} is not valid YAML{where}: {what}") from None
     if not isinstance(data, dict):
         raise ConfigError(f"config file {p}: expected a mapping at top level, got {type(data).__name__}")
     return data

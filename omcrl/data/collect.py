@@ -25,7 +25,9 @@ Determinism and ordering
 The source of dataset episode ``i`` is a fixed function of ``cfg.seed``, ``mix`` and ``i`` only
 (:func:`assign_sources`), so a resumed collection continues the same sequence. Episodes are written in the
 order they were *started* (finished ones wait in memory for their predecessors), so episode ``i`` in the file
-has source ``assign_sources(...)[i]`` and the whole file is reproducible for a given seed and ``n_envs``.
+has source ``assign_sources(...)[i]``, and a collection that runs uninterrupted is reproducible for a given seed
+and ``n_envs``. A resumed one is not bit-identical to it: the sources of the appended episodes are the same, but
+their envs start from fresh seeds, so their layouts and flights differ (every episode is still complete).
 
 Resuming
 --------

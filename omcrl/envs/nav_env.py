@@ -589,6 +589,8 @@ class NavEnv(gym.Env):
             raise RuntimeError("NavEnv.step called before reset()")
         if np.shape(action) != (3,):  # (1, 3) or (3, 1) would hide a batching mistake
             raise ValueError(f"action: expected shape (3,), got {np.shape(action)}")
+        if np.iscomplexobj(action):  # float64 conversion would drop the imaginary part with only a warning
+            raise ValueError(f"action: expected real numbers, got complex values {np.asarray(action).tolist()}")
         a = np.asarray(action, dtype=np.float64)
         ax, ay, az = a.tolist()
         if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):

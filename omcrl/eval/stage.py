@@ -55,7 +55,7 @@ class EvalResult:
         lines = [f"{len(self.episodes)} episodes in {self.wall_time_s:.0f} s"]
         with pd.option_context("display.width", 200, "display.max_columns", 50):
             for scene in dict.fromkeys(self.table.index.get_level_values("scene")):
-                lines += [f"-- {scene}", self.table.xs(scene, level="scene").round(2).to_string()]
+                lines += [f"-- {scene}", self.table.xs(scene, level="scene").round(2).to_string(na_rep="–")]
         lines += [f"{k}: {v}" for k, v in self.paths.items()]
         return "\n".join(lines)
 
