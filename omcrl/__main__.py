@@ -228,6 +228,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
     from omcrl.models.artifact import EncoderError
     from omcrl.notebooks import NotebookError
     from omcrl.rl.ppo import NonFiniteLossError
+    from omcrl.sweep import ClusterError, SweepFailed
     from omcrl.utils.io import UnsafeFileError
 
     return (
@@ -244,6 +245,8 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
         UnsafeFileError,
         NotebookError,
         NonFiniteLossError,
+        SweepFailed,
+        ClusterError,
     )
 
 

@@ -639,9 +639,9 @@ def _run_ray(
         if address is None:
             ray.init(num_cpus=num_cpus or cpu_count(), include_dashboard=False, log_to_driver=False)
         else:
-            ray.init(address=address, log_to_driver=False)
+            connect_ray(address)
     try:
-        capacity = int(ray.cluster_resources().get("CPU", 1))
+        capacity = largest_node_cpus()
         remote = ray.remote(max_retries=0)(run_job)
         pending: dict[Any, Job] = {}
         todo = list(jobs)
@@ -706,6 +706,53 @@ def describe_plan(
     return "\n".join(lines)
 
 
+class ClusterError(RuntimeError):
+    """A Ray cluster cannot be reached or used; the message says what to fix."""
+
+
+def connect_ray(address: str, timeout_s: float = 5.0) -> None:
+    """``ray.init(address=...)``, failing within ``timeout_s`` with the fix instead of hanging on Ray's retries.
+
+    ``host:port`` and ``ray://host:port`` are probed with a TCP connect first (nothing listening: one line at
+    once); an authentication refusal names ``RAY_AUTH_MODE`` and the token (Ray ≥ 2.60 turns token auth on for
+    ``ray start``).
+    """
+    import socket
+
+    import ray
+
+    target = address.removeprefix("ray://")
+    if address != "auto" and ":" in target:
+        host, _, port = target.rpartition(":")
+        try:
+            with socket.create_connection((host, int(port)), timeout=timeout_s):
+                pass
+        except (OSError, ValueError) as e:
+            raise ClusterError(
+                f"sweep --address {address}: nothing answers at {host}:{port} within {timeout_s:g} s ({e}); start "
+                "the head with `ray start --head --port PORT` on that machine, or check the address"
+            ) from None
+    try:
+        ray.init(address=address, log_to_driver=False)
+    except Exception as e:
+        text = f"{type(e).__name__}: {' '.join(str(e).split())[:200]}"
+        if "auth" in text.lower() or "token" in text.lower():
+            raise ClusterError(
+                f"sweep --address {address}: the cluster refused authentication ({text}); Ray 2.60's `ray start` "
+                "enables token auth: export RAY_AUTH_MODE=token and the cluster's token (see docs/cluster.md) "
+                "before running the sweep"
+            ) from None
+        raise ClusterError(f"sweep --address {address}: cannot join the cluster ({text})") from None
+
+
+def largest_node_cpus() -> int:
+    """CPUs of the largest live node: a job asking more can never be scheduled, whatever the cluster's total."""
+    import ray
+
+    cpus = [n.get("Resources", {}).get("CPU", 0) for n in ray.nodes() if n.get("Alive")]
+    return max(1, int(max(cpus, default=1)))
+
+
 def sweep_stage(
     cfg: Config,
     grid: str | None = None,
@@ -735,7 +782,22 @@ def sweep_stage(
             r = dict(zip(m["rate_key"], m["rate"], strict=True)) or None
         return describe_plan(cfg, grids, seeds, r)
     out = run_ablations(cfg, grids, seeds, progress=progress, **kw)
-    return "\n".join(repr(v["result"]) for v in out.values())
+    text = "\n".join(repr(v["result"]) for v in out.values())
+    bad = {g: v["result"].counts() for g, v in out.items() if set(v["result"].status.values()) & {"failed", "blocked"}}
+    if bad:
+        # Scripts must see it: the tables were written with the variants that finished, but the exit status is not 0.
+        print(text)
+        raise SweepFailed(
+            "sweep: jobs failed or were blocked ("
+            + "; ".join(f"{g}: {c.get('failed', 0)} failed, {c.get('blocked', 0)} blocked" for g, c in bad.items())
+            + "); the tables leave those variants out; the logs above name each failure. Re-run the same command to "
+            "finish only what is missing"
+        )
+    return text
+
+
+class SweepFailed(RuntimeError):
+    """Some jobs of a sweep failed or were blocked by a failed dependency (the rest finished)."""
 
 
 def run_ablations(

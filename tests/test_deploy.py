@@ -350,3 +350,66 @@ def test_an_unacknowledged_land_falls_back_to_the_emergency_stop(seeker):
         tello.close()
         fake.close()
         sim.close()
+
+
+_LOOP_PROCESS = """
+import sys, time
+from omcrl.deploy.loop import ControlLoop
+
+class Drone:
+    def watchdog_address(self):
+        return "127.0.0.1", int(sys.argv[1])
+
+class Policy:
+    spec = {"image_size": 8, "frame_stack": 2, "action_scale": {"max_speed": 1.0, "max_yaw_rate": 1.0},
+            "control_hz": 10.0}
+
+import socket
+loop = ControlLoop(Policy(), Drone(), None, None, (0.0, 0.0), watchdog=sys.argv[2] == "1")
+dog = loop._start_watchdog()
+rc = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+print("flying", flush=True)
+while True:  # each tick: a command to the drone and the heartbeat to the watchdog, until kill -9
+    rc.sendto(b"rc 0 0 0 0", ("127.0.0.1", int(sys.argv[1])))
+    if dog is not None:
+        dog.stdin.write(b"."); dog.stdin.flush()
+    time.sleep(0.1)
+"""
+
+
+@pytest.mark.parametrize("watchdog", [True, False])
+def test_kill_minus_nine_of_the_loop_lands_the_drone(seeker, repo_root, watchdog):
+    """kill -9 of the control process: the watchdog process sends `land` (well under a second, measured on the
+    fake drone's side); without it, only the Tello's own auto-land after its timeout (here 2 s, 15 s on a Tello)."""
+    import subprocess
+    import sys
+
+    from omcrl.deploy.tello import FakeTello
+
+    cfg, _, _ = seeker
+    sim = SimulatedDrone(cfg.env, layout=EMPTY, start=(0.0, 0.0, 0.0), goal=(3.0, 0.0))
+    fake = FakeTello(sim, auto_land_s=2.0)
+    args = [sys.executable, "-c", _LOOP_PROCESS, str(fake.command_port), "1" if watchdog else "0"]
+    proc = subprocess.Popen(args, cwd=repo_root, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "flying"
+        sim.takeoff()
+        time.sleep(0.5)
+        assert sim.flying and "land" not in fake.received
+        killed = time.monotonic()
+        proc.kill()
+        proc.wait(10)
+        deadline = killed + 5.0
+        while sim.flying and time.monotonic() < deadline:
+            time.sleep(0.01)
+        delay = sim.landed_at - killed
+        print(f"[kill -9] watchdog={watchdog}: landed {delay:.3f} s after the kill")
+        if watchdog:
+            assert "land" in fake.received and not fake.auto_landed and delay <= 1.0, delay
+        else:
+            assert fake.auto_landed and "land" not in fake.received and 1.5 <= delay <= 3.0, delay
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        fake.close()
+        sim.close()

@@ -321,3 +321,28 @@ def test_every_damaged_file_is_one_line_or_rebuilt_and_leaves_the_others_alone(t
     assert len(outcomes) == 30
     accepted = [k for k, v in outcomes.items() if v == "accepted"]
     assert not accepted, f"damaged files used as if intact: {accepted}"
+
+
+def test_smaller_refusals_are_one_line(tmp_path):
+    import numpy as np
+    import pytest
+
+    from omcrl.__main__ import describe
+    from omcrl.config import ConfigError, load_config
+    from omcrl.data.collect import CollectResult
+    from omcrl.envs import make_env
+
+    with pytest.raises(ConfigError, match="'results_dir': got ''"):
+        load_config("smoke", overrides=["results_dir="])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("env:\n  image_size: [1,\n")
+    with pytest.raises(ConfigError, match=r"not valid YAML at line 3, column 1: expected the node content") as e:
+        load_config("smoke", path=bad)
+    assert "\n" not in str(e.value)
+    env = make_env("box", seed=0, image_size=16)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="complex"):
+        env.step(np.array([0.5 + 1j, 0, 0]))
+    env.close()
+    text = describe(CollectResult(tmp_path / "box.h5", 6, 0, 0, {"pilot": 4}, {}, 0.5, True))
+    assert "CollectResult(" not in text and f"path: {tmp_path / 'box.h5'}" in text

@@ -53,6 +53,13 @@ def test_expansion_has_the_right_jobs_and_dependencies(tmp_path):
         expand(cfg, "dropout", [0])
 
 
+def test_notebook_06_runs_the_six_ablation_grids_by_default(repo_root):
+    assert list(sweep.ABLATION_GRIDS) == ["mask-prob", "sequential", "dual-transformer", "projection",
+                                          "oracle-teacher", "decay"]  # fmt: skip
+    text = (repo_root / "notebooks" / "06_ablations.ipynb").read_text()
+    assert "else list(ABLATION_GRIDS))" in text
+
+
 def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is_missing(tmp_path, monkeypatch):
     # A variant whose data cannot be written (a folder under a file): its collect job fails, its pretrain, train
     # and evaluate jobs are blocked, and PPO still trains and evaluates.
@@ -83,6 +90,10 @@ def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is
     rates = sweep.measured_rates(cfg).set_index("rate_key")
     assert rates.loc["train:pixel", "rate"] == pytest.approx(cfg.rl.total_steps / times.loc[train.id, "seconds"])
     assert failed.id not in times.index  # a failed job measured nothing
+    # Scripts see it: the stage writes what finished and exits non-zero (SweepFailed: one line in the CLI).
+    with pytest.raises(sweep.SweepFailed, match=r"test: 1 failed, 3 blocked"):
+        sweep.sweep_stage(cfg, "test", seeds=[0], backend="local", progress=False)
+    assert (cfg.run_root / "tables" / "ablation_test.md").exists()
 
 
 def test_plan_counts_shared_jobs_once_and_knows_the_main_comparison(tmp_path):
@@ -356,3 +367,19 @@ def test_remedy_verdicts_compare_with_the_default_and_check_the_target(tmp_path)
     ).to_csv(tmp_path / "transfer_appearance.csv", index=False)  # fmt: skip
     text = "\n".join(_section_transfer({}, tmp_path))
     assert "| box | furniture | 2 | 3 [0, 8] |" in text and "Remedies, `remedy_remedy-data.md`" in text
+
+
+def test_an_unreachable_cluster_fails_within_seconds_with_the_fix(tmp_path, repo_root):
+    import socket
+
+    with socket.socket() as s:  # a free port: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t0 = time.monotonic()
+    r = subprocess.run(
+        [sys.executable, "-m", "omcrl", "sweep", "smoke", "--preset", "smoke", "--address", f"127.0.0.1:{port}",
+         "--set", f"results_dir={tmp_path}"], cwd=repo_root, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert r.returncode == 1 and time.monotonic() - t0 < 30
+    assert f"nothing answers at 127.0.0.1:{port}" in r.stderr and "ray start --head" in r.stderr
+    assert "Traceback" not in r.stderr

@@ -124,6 +124,14 @@ def _finite(values: Any, size: int) -> bool:
     return a.shape == (size,) and bool(np.isfinite(a).all())
 
 
+def _beat(dog: Any, what: bytes) -> None:
+    try:
+        dog.stdin.write(what)
+        dog.stdin.flush()
+    except (OSError, ValueError):  # the watchdog already acted (or was stopped): nothing to tell it
+        pass
+
+
 def _reading(drone: Any, name: str) -> float | None:
     """``drone.<name>()`` (battery %, temperature °C) where the drone reports it, else None."""
     fn = getattr(drone, name, None)
@@ -188,6 +196,8 @@ class ControlLoop:
     camera : (image_size, frame_stack) the camera pipeline is configured for; checked against the model
         before takeoff (ModelSpecError).
     clock, sleep : time functions (``time.monotonic``, ``time.sleep``).
+    watchdog : start :mod:`omcrl.deploy.watchdog` for a drone with a command address (a real or fake Tello):
+        it lands the drone when this process dies, ``kill -9`` included.
     """
 
     LOG_FIELDS = (
@@ -221,6 +231,7 @@ class ControlLoop:
         camera: tuple[int, int] | None = None,
         clock: Any = time.monotonic,
         sleep: Any = time.sleep,
+        watchdog: bool = True,
     ) -> None:
         self.policy, self.drone, self.video, self.pose = policy, drone, video, pose
         spec = policy.spec
@@ -237,6 +248,7 @@ class ControlLoop:
         self.estimator = StateEstimator(goal, spec.get("altitude", 1.0))
         self.log_path = Path(log_path) if log_path is not None else None
         self.clock, self.sleep = clock, sleep
+        self.watchdog = bool(watchdog)
         self.frames: deque = deque(maxlen=self.stack)
         self.cmd = np.zeros(3)
         self._camera_view: Any = None
@@ -302,6 +314,25 @@ class ControlLoop:
         if now - t_start > s.max_time_s:
             return "timeout"
         return None
+
+    def _start_watchdog(self) -> Any:
+        """The watchdog process (:mod:`omcrl.deploy.watchdog`) for a drone that gives a command address, else
+        None (the simulated drone)."""
+        address = getattr(self.drone, "watchdog_address", None)
+        if address is None or not self.watchdog:
+            return None
+        import subprocess
+        import sys
+
+        host, port = address()
+        timeout = max(0.5, 3 * self.dt)
+        # The script itself, not ``-m omcrl...``: it imports only the standard library and starts in milliseconds.
+        script = Path(__file__).with_name("watchdog.py")
+        return subprocess.Popen(
+            [sys.executable, str(script), host, str(port), str(timeout)],
+            stdin=subprocess.PIPE,
+            start_new_session=True,  # a Ctrl-C or SIGHUP to the loop's process group must not end it
+        )
 
     def _wait(self, until: float) -> str | None:
         """Sleep until the next tick, watching the streams every ``WATCH_S``: a video or pose that goes stale, or a
@@ -378,6 +409,7 @@ class ControlLoop:
                 self._log(writer, fh, 0.0, 0, None, None, self.clock(), None, 0.0, f"preflight: {why}")
                 fh.close()
             return FlightResult("preflight", False, 0, 0.0, self.log_path, math.inf, why, [])
+        dog = self._start_watchdog()
         try:
             self.drone.takeoff()
             t_start = self.clock()
@@ -411,6 +443,8 @@ class ControlLoop:
                 poses.append(np.asarray(pose[0][:3], float).tolist())
                 self._log(writer, fh, now - t_start, tick, pose, frame, now, cmd, latency, "")
                 tick += 1
+                if dog is not None:
+                    _beat(dog, b".")
                 next_tick += self.dt
                 lost = self._wait(next_tick)
                 if lost is not None:
@@ -435,6 +469,13 @@ class ControlLoop:
             except Exception as e:
                 event = f"land failed: {type(e).__name__}: {e}"
                 error = f"{error}; {event}" if error else event
+            if dog is not None:  # landed by the loop itself: release the watchdog
+                _beat(dog, b"x")
+                try:
+                    dog.stdin.close()
+                    dog.wait(2.0)
+                except Exception:
+                    dog.kill()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
             if stopping["signals"] > 1:

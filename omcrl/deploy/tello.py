@@ -76,6 +76,11 @@ class TelloDrone:
     def takeoff(self) -> None:
         self.tello.takeoff()
 
+    def watchdog_address(self) -> tuple[str, int]:
+        """Where the watchdog sends ``land`` if the control process dies: the Tello's SDK command address."""
+        host, port = self.tello.address
+        return str(host), int(port)
+
     def battery(self) -> float:
         """Charge in % (from the Tello's state packets; no command is sent)."""
         return float(self.tello.get_battery())
@@ -285,10 +290,14 @@ class FakeTello:
         video_fps: float = 15.0,
         acknowledge_land: bool = True,
         battery: int = 90,
+        auto_land_s: float = 15.0,
     ) -> None:
         self.drone, self.host = drone, host
         self.acknowledge_land = bool(acknowledge_land)  # False: a drone that never answers `land` (tests)
         self.battery = int(battery)  # the charge its state packets report, %
+        # Like the Tello's firmware: land by itself after this long without any command while flying.
+        self.auto_land_s, self._last_cmd = float(auto_land_s), time.monotonic()
+        self.auto_landed = False
         self.state_port, self.video_port = state_port, video_port
         self.speed_at_100, self.yaw_at_100 = speed_at_100, yaw_rate_at_100
         self.state_hz, self.video_fps = state_hz, video_fps
@@ -313,9 +322,13 @@ class FakeTello:
             try:
                 data, addr = self.sock.recvfrom(1024)
             except (TimeoutError, OSError):
+                if self.drone.flying and time.monotonic() - self._last_cmd > self.auto_land_s:
+                    self.auto_landed = True
+                    self.drone.land()
                 continue
             cmd = data.decode("utf-8", "replace").strip()
             self.received.append(cmd)
+            self._last_cmd = time.monotonic()
             reply = "ok"
             if cmd.startswith("rc "):
                 a, b, _, d = (int(v) for v in cmd.split()[1:5])
