@@ -345,6 +345,9 @@ def test_an_unacknowledged_land_falls_back_to_the_emergency_stop(seeker):
         with pytest.raises(RuntimeError, match="land not acknowledged within 1 s.*motors cut"):
             tello.land(timeout_s=1.0)
         assert time.monotonic() - t0 <= 2.5
+        deadline = time.monotonic() + 2.0  # djitellopy sends `emergency` without waiting for the reply
+        while not sim.motors_cut and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert fake.received[-1] == "emergency" and sim.motors_cut and not sim.flying
     finally:
         tello.close()
