@@ -62,6 +62,7 @@ STAGES: dict[str, tuple[str, str]] = {
     ),
     "summary": ("omcrl.summary:run", "write and print results/<preset>/summary.md from what the stages left"),
     "export": ("omcrl.deploy.export:export_stage", "export a visuomotor policy to ONNX: --policy RUN [--out FILE]"),
+    "replay": ("omcrl.__main__:replay_stage", "draw a flight log (path, commands, stream ages, battery, events): LOG"),
 }
 # Stages that take --method.
 METHOD_STAGES = ("train", "pretrain")
@@ -104,6 +105,16 @@ def print_config(cfg: Config) -> None:
     sys.stdout.write(yaml.safe_dump(plain, sort_keys=False))
 
 
+def replay_stage(cfg: Config, log: str, out: str | None = None) -> str:
+    """CLI stage ``replay``: ``python -m omcrl replay LOG [--out PNG]``; returns where the drawing went."""
+    from omcrl.viz.deploy import replay
+
+    try:
+        return f"replay: {replay(log, out=out)}"
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+
+
 def describe(result: Any) -> str:
     """What a stage returned, for a person: its own ``repr`` where it has one written for reading, else a
     dataclass's fields one per line (paths as paths, numbers rounded), not a ``Result(...)`` one-liner."""
@@ -137,7 +148,7 @@ def _methods_help() -> str:
 
 
 # Stages that need no preset (they act on a file named on the command line).
-NO_PRESET_STAGES = ("export",)
+NO_PRESET_STAGES = ("export", "replay")
 PRESET_HELP = (
     "configuration preset, required: smoke (minutes; checks the plumbing, numbers mean nothing), quick (a laptop "
     "CPU, hours), paper (the paper's scale, a GPU machine)"
@@ -210,6 +221,9 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "notebooks":
             sp.add_argument("--only", default=None, metavar="NN,..", help="run only these notebooks, e.g. 05,07")
             sp.add_argument("--skip", default=None, metavar="NN,..", help="leave these out, e.g. 06 (the ablations)")
+        if name == "replay":
+            sp.add_argument("log", help="a flight log CSV (ControlLoop's log_path)")
+            sp.add_argument("--out", default=None, help="the PNG (default: beside the log)")
         if name == "export":
             sp.add_argument("--policy", default=None, help="a run folder or its final.pt (required)")
             sp.add_argument("--out", default=None, help="the ONNX file (default: policy.onnx beside final.pt)")
@@ -286,6 +300,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             result = func(cfg, method=args.method)
         elif args.stage == "export":
             result = func(cfg, policy=args.policy, out=args.out)
+        elif args.stage == "replay":
+            result = func(cfg, log=args.log, out=args.out)
         elif args.stage == "notebooks":
             result = func(cfg, only=_csv(args.only), skip=_csv(args.skip))
         elif args.stage == "sweep":

@@ -137,6 +137,19 @@ def test_simulated_flight_arrives_and_logs(tmp_path, seeker):
     # The column holds each decision's measured latency; how long it is, is `python -m omcrl.bench deploy`'s
     # business (against the control period), not a unit test's, whose timing depends on the host's load.
     assert len(lat) == res.ticks and np.isfinite(lat).all() and (lat > 0).all()
+    # The log replays: per tick the state vector and the policy's raw action beside the command sent.
+    import pandas as pd
+
+    log = pd.read_csv(tmp_path / "flight.csv")
+    ticks = log[log.event.isna()]
+    assert ticks[[f"state_{i}" for i in range(12)] + ["act_vx", "act_vy", "act_wz"]].notna().all().all()
+    assert (ticks.frame_age >= 0).all() and (ticks.frame_age < 0.4).all()
+    from omcrl.__main__ import main as cli
+
+    assert cli(["replay", str(tmp_path / "flight.csv")]) == 0
+    png = (tmp_path / "flight.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+    assert cli(["replay", str(tmp_path / "nope.csv")]) == 1
 
 
 @pytest.mark.parametrize("what", ["video", "pose"])

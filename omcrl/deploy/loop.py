@@ -216,6 +216,10 @@ class ControlLoop:
         "goal_distance",
         "battery",
         "temperature",
+        *(f"state_{i}" for i in range(12)),
+        "act_vx",
+        "act_vy",
+        "act_wz",
         "event",
     )
 
@@ -441,7 +445,7 @@ class ControlLoop:
                 self.drone.send_velocity(*cmd.tolist())
                 latency = (time.perf_counter() - t0) * 1e3
                 poses.append(np.asarray(pose[0][:3], float).tolist())
-                self._log(writer, fh, now - t_start, tick, pose, frame, now, cmd, latency, "")
+                self._log(writer, fh, now - t_start, tick, pose, frame, now, cmd, latency, "", state, action)
                 tick += 1
                 if dog is not None:
                     _beat(dog, b".")
@@ -490,7 +494,7 @@ class ControlLoop:
         return FlightResult(reason, reason == "arrived", tick, self.clock() - t_start, self.log_path, d, error, poses)
 
     def _log(self, writer: Any, fh: Any, t: float, tick: int, pose: Any, frame: Any, now: float, cmd: Any,
-             latency: float, event: str) -> None:  # fmt: skip
+             latency: float, event: str, state: Any = None, action: Any = None) -> None:  # fmt: skip
         if writer is None:
             return
         p = pose[0] if pose is not None else [math.nan] * 6
@@ -510,6 +514,8 @@ class ControlLoop:
                     "" if v is None else f"{v:.0f}"
                     for v in (_reading(self.drone, "battery"), _reading(self.drone, "temperature"))
                 ),
+                *([""] * 12 if state is None else [f"{float(v):.5g}" for v in state]),
+                *([""] * 3 if action is None else [f"{float(v):.5g}" for v in action]),
                 event,
             ]
         )
