@@ -499,7 +499,10 @@ def run_job(preset_cfg: dict, job: Job, log_path: str) -> dict:
             path = final_policy_path(cfg, job.method, oracle_cfg)
             if path is None:
                 raise FileNotFoundError(f"{job.method} seed {job.seed}: no finished run to evaluate")
-            df = evaluate_methods(cfg, {job.method: path})
+            counts: dict[str, int] = {}
+            df = evaluate_methods(cfg, {job.method: path}, stats=counts)
+            # Read back whole from the cache: a skip, so jobs.csv keeps the time the evaluation took when it ran.
+            skipped = counts.get("evaluated", 0) == 0
             df = df.drop(columns=["trajectory"], errors="ignore").assign(
                 label=job.label, overrides=" ".join(job.overrides)
             )
@@ -543,6 +546,8 @@ def run_sweep(
             res.status[job.id] = out["status"]
             res.seconds[job.id] = float(out["seconds"])
             rows.extend(out["rows"])
+            # After every job, not at the end: a killed driver loses no measured time.
+            _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
         bar.update(1, **_postfix(res, running))
 
     running: set[str] = set()

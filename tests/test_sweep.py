@@ -87,6 +87,10 @@ def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is
     assert times.loc[train.id, "status"] == "done"
     assert times.loc[train.id, "seconds"] == pytest.approx(res.seconds[train.id], abs=0.01)
     assert times.loc[train.id, "work"] == cfg.rl.total_steps
+    # ... and so does a cached evaluation (it used to overwrite the time with the 0.05 s of reading its cache).
+    ev = next(j for j in again.jobs if j.kind == "evaluate" and j.method == "ppo")
+    assert again.status[ev.id] == "skipped" and res.status[ev.id] == "done"
+    assert times.loc[ev.id, "seconds"] == pytest.approx(res.seconds[ev.id], abs=0.01)
     rates = sweep.measured_rates(cfg).set_index("rate_key")
     assert rates.loc["train:pixel", "rate"] == pytest.approx(cfg.rl.total_steps / times.loc[train.id, "seconds"])
     assert failed.id not in times.index  # a failed job measured nothing

@@ -187,6 +187,7 @@ def evaluate_methods(
     progress: bool = False,
     pool: EvalPool | None = None,
     disturbance: Mapping[str, Any] | None = None,
+    stats: dict[str, int] | None = None,
 ) -> pd.DataFrame:
     """Evaluate each method in each scene on the same evaluation seeds; one row per episode.
 
@@ -203,6 +204,8 @@ def evaluate_methods(
         ``cfg.eval.workers`` processes for this call (in this process when 1). Results do not depend on it.
     disturbance : passed to every env (e.g. ``{"appearance": "box"}``: each scene's layouts in box's look, see
         :class:`omcrl.envs.Disturbance`); part of the cache key, and of the cache file's name.
+    stats : when given, ``stats["cached"]`` and ``stats["evaluated"]`` count the (method, scene) evaluations read
+        from the cache and flown.
 
     Every method, and every training seed ``cfg.seed``, is evaluated on the same episodes: episode ``i`` resets
     with seed ``cfg.eval.seed_offset + i`` (paired comparisons across methods and seeds).
@@ -237,6 +240,9 @@ def evaluate_methods(
                 # Caches written before scenes had versions are named by the bare family (v0, same key).
                 old_stem = scene_key(scene) + tail
                 df = _read_cache(folder, stem, key, old_stem, rows=episodes) if cache else None
+                if stats is not None:
+                    k = "cached" if df is not None else "evaluated"
+                    stats[k] = stats.get(k, 0) + 1
                 if df is None:
                     df = evaluate(
                         policy,
