@@ -14,6 +14,31 @@ os.environ["MPLBACKEND"] = "Agg"
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
+# Modules whose tests run stages end to end (training, pretraining, collection, sweeps, notebook chains, flights):
+# marked "stage". The fast developer loop leaves them out: pytest -m "not slow and not stage". CI and
+# ./reproduce.sh --test run everything but "slow".
+STAGE_MODULES = {
+    "test_notebooks",
+    "test_integration",
+    "test_integrity",
+    "test_precision",
+    "test_sweep",
+    "test_methods",
+    "test_deploy",
+    "test_hardening",
+    "test_pretrain",
+    "test_collect",
+    "test_table1",
+    "test_interpret",
+    "test_transfer",
+}
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.module is not None and item.module.__name__.rsplit(".", 1)[-1] in STAGE_MODULES:
+            item.add_marker(pytest.mark.stage)
+
 
 def pytest_configure(config: pytest.Config) -> None:
     try:

@@ -119,7 +119,7 @@ def test_paths_resolve_from_the_repository_root_wherever_the_kernel_runs(repo_ro
 
 # ---------------------------------------------------------------- CLI
 def test_every_stage_has_its_own_help(capsys):
-    from omcrl.__main__ import STAGES, main
+    from omcrl.__main__ import NO_PRESET_STAGES, STAGES, main
 
     for stage in STAGES:
         with pytest.raises(SystemExit) as e:
@@ -127,7 +127,7 @@ def test_every_stage_has_its_own_help(capsys):
         assert e.value.code == 0
         out = capsys.readouterr().out
         assert f"python -m omcrl {stage}: " in out, stage
-        assert ("--preset" in out) == (stage != "export"), stage
+        assert ("--preset" in out) == (stage not in NO_PRESET_STAGES), stage
     with pytest.raises(SystemExit):
         main(["train", "--help"])
     assert "hybrid-apf-perceptive" in capsys.readouterr().out  # the methods are listed where --method is taken
