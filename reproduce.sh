@@ -134,7 +134,13 @@ case "$mode" in
       "$PY" -m pip install --quiet -e "$ROOT[dev,lab]"
     fi
     say "opening JupyterLab in notebooks/ (results and data resolve from $ROOT whatever the working directory)"
-    exec "$VENV/bin/jupyter" lab --notebook-dir="$ROOT/notebooks" "$@"
+    extra=()
+    if [[ "$(id -u)" == 0 ]]; then
+      # Jupyter refuses to run as root unless told to; containers usually run as root.
+      say "running as root (a container?): passing --allow-root to JupyterLab"
+      extra+=(--allow-root)
+    fi
+    exec "$VENV/bin/jupyter" lab --notebook-dir="$ROOT/notebooks" "${extra[@]}" "$@"
     ;;
   --smoke | --quick | --paper)
     preset="${mode#--}"
