@@ -141,10 +141,13 @@ def describe(result: Any) -> str:
     return "\n".join(f"{name}: {short(v)}" for name, v in fields)
 
 
-def _methods_help() -> str:
+def _methods_help(stage: str = "train") -> str:
+    """The methods ``stage`` takes: every learned one for ``train``, those with a pretrained encoder for
+    ``pretrain``."""
     from omcrl.rl.methods import METHODS
 
-    return "\n".join(f"  {n:<22} {s.description}" for n, s in METHODS.items())
+    keep = (lambda s: s.features == "frozen") if stage == "pretrain" else (lambda s: s.learned)
+    return "\n".join(f"  {n:<22} {s.description}" for n, s in METHODS.items() if keep(s))
 
 
 # Stages that need no preset (they act on a file named on the command line).
@@ -157,7 +160,7 @@ PRESET_HELP = (
 
 def _stage_epilog(name: str) -> str:
     if name in METHOD_STAGES:
-        return f"methods (--method):\n{_methods_help()}"
+        return f"methods (--method):\n{_methods_help(name)}"
     return ""
 
 
@@ -211,7 +214,12 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "sweep":
             from omcrl.sweep import GRIDS
 
-            sp.add_argument("grid", nargs="?", default=None, help=f"the grid to run, one of {list(GRIDS)}")
+            sp.add_argument(
+                "grid",
+                nargs="?",
+                default=None,
+                help=f"the grid to run: one of {list(GRIDS)}, or all (the six ablations)",
+            )
             sp.add_argument("--seeds", default=None, help="comma-separated seeds (default: the config's seeds)")
             sp.add_argument("--backend", default="ray", choices=("ray", "local"), help="Ray tasks or in-process")
             sp.add_argument("--address", default=None, help="a Ray cluster (auto, ray://host:port); default: embedded")

@@ -127,9 +127,7 @@ def check_notebook(path: str | Path) -> list[str]:
     problems = []
     for i, c in enumerate(nb.cells):
         if c.cell_type == "code" and (c.get("outputs") or c.get("execution_count") is not None):
-            problems.append(
-                f"cell {i} has outputs or an execution count (run: python -m omcrl.notebooks strip {path})"
-            )
+            problems.append(f"cell {i} has outputs or an execution count (run: python -m omcrl.notebooks strip {path})")
     cells = parameters_cells(nb)
     if len(cells) != 1:
         problems.append(f"expected exactly one cell tagged 'parameters', found {len(cells)}")

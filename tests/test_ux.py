@@ -130,7 +130,12 @@ def test_every_stage_has_its_own_help(capsys):
         assert ("--preset" in out) == (stage not in NO_PRESET_STAGES), stage
     with pytest.raises(SystemExit):
         main(["train", "--help"])
-    assert "hybrid-apf-perceptive" in capsys.readouterr().out  # the methods are listed where --method is taken
+    out = capsys.readouterr().out  # the methods are listed where --method is taken: those it can take
+    assert "npe-expert" in out and "ppo " in out and "hybrid-apf-perceptive" not in out
+    with pytest.raises(SystemExit):
+        main(["pretrain", "--help"])
+    out = capsys.readouterr().out
+    assert "curl-phi" in out and "ppo " not in out and "oracle " not in out
 
 
 def test_a_stage_without_preset_is_refused_before_any_work(repo_root, tmp_path):

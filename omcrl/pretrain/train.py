@@ -27,7 +27,7 @@ from pathlib import Path
 import torch
 
 from omcrl.config import Config, PretrainConfig, config_hash, drop_neutral, save_config
-from omcrl.data.dataset import open_dataset
+from omcrl.data.dataset import DatasetError, open_dataset
 from omcrl.data.sampler import SequenceSampler
 from omcrl.envs.scenes import scene_key
 from omcrl.models.artifact import save_encoder
@@ -207,6 +207,11 @@ def run(
         fp = str(done.get("dataset_fingerprint", ""))
         ds = None
     else:
+        if not path.exists():
+            raise DatasetError(
+                f"dataset {path}: file does not exist; run first: python -m omcrl collect --preset {cfg.preset}"
+                + (f" --seed {cfg.seed}" if cfg.data.policy == "oracle" else "")
+            )
         ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
         fp = ds.fingerprint
     full_hash, compat_hash = _hashes(cfg, fp)
