@@ -131,11 +131,11 @@ def test_every_stage_has_its_own_help(capsys):
     with pytest.raises(SystemExit):
         main(["train", "--help"])
     out = capsys.readouterr().out  # the methods are listed where --method is taken: those it can take
-    assert "npe-expert" in out and "ppo " in out and "hybrid-apf-perceptive" not in out
+    assert "\n  npe-expert " in out and "\n  ppo " in out and "\n  hybrid-apf-perceptive " not in out
     with pytest.raises(SystemExit):
         main(["pretrain", "--help"])
     out = capsys.readouterr().out
-    assert "curl-phi" in out and "ppo " not in out and "oracle " not in out
+    assert "\n  curl-phi " in out and "\n  ppo " not in out and "\n  oracle " not in out
 
 
 def test_a_stage_without_preset_is_refused_before_any_work(repo_root, tmp_path):
