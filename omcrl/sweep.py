@@ -646,6 +646,7 @@ def _run_ray(
         else:
             connect_ray(address)
     try:
+        check_shared_results(cfg, base)
         capacity = largest_node_cpus()
         remote = ray.remote(max_retries=0)(run_job)
         pending: dict[Any, Job] = {}
@@ -708,6 +709,12 @@ def describe_plan(
                 f"  on {n} machine(s): {c['machine_hours']:.1f} machine-hours, {c['wall_hours']:.1f} h wall "
                 "(the jobs not shared with the main comparison)"
             )
+    else:
+        lines.append(
+            "  no rates, so no hours: finished sweeps of this preset record theirs (sweeps/<grid>/jobs.csv) and are "
+            "used when present; or measure this machine: python -m omcrl.bench cost --rates-out rates.json, then "
+            "--plan --rates rates.json"
+        )
     return "\n".join(lines)
 
 
@@ -748,6 +755,49 @@ def connect_ray(address: str, timeout_s: float = 5.0) -> None:
                 "before running the sweep"
             ) from None
         raise ClusterError(f"sweep --address {address}: cannot join the cluster ({text})") from None
+
+
+def _sees(base: dict, name: str) -> tuple[str, bool]:
+    """On a node: where this node's jobs would keep results, and whether the driver's marker ``name`` is there."""
+    cfg = load_config(base["preset"], overrides=base["overrides"])
+    path = cfg.run_root / "sweeps" / name
+    return str(path), path.exists()
+
+
+def check_shared_results(cfg: Config, base: dict, timeout_s: float = 120.0) -> None:
+    """On a cluster of more than one node, refuse to start unless every node's jobs see the driver's results
+    folder: a job reads its inputs (encoders, oracles, data, caches) from, and writes its run to, the results
+    folder as its node resolves it (``results_dir``, ``OMCRL_ROOT``). The driver writes a marker file; a task
+    pinned to each node looks for it. One node (an embedded Ray, or a head alone) needs no check."""
+    import uuid
+
+    import ray
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    nodes = [n for n in ray.nodes() if n.get("Alive")]
+    if len(nodes) < 2:
+        return
+    name = f".shared-check-{uuid.uuid4().hex[:12]}"
+    marker = cfg.run_root / "sweeps" / name
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    marker.write_text("written by the sweep's driver\n")
+    try:
+        sees = ray.remote(num_cpus=0, max_retries=0)(_sees)
+        refs = [
+            sees.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote(base, name)
+            for n in nodes
+        ]
+        answers = ray.get(refs, timeout=timeout_s)
+    finally:
+        marker.unlink(missing_ok=True)
+    blind = [f"{n.get('NodeManagerAddress', '?')} (looks in {path})" for n, (path, ok) in zip(nodes, answers) if not ok]
+    if blind:
+        raise ClusterError(
+            f"sweep: {len(blind)} of {len(nodes)} nodes do not see the driver's results folder {cfg.run_root}: "
+            + "; ".join(blind)
+            + ". Jobs read and write runs there, so every node needs the same folder: mount a shared filesystem at "
+            "the same path (or point OMCRL_ROOT / results_dir at it) on every node; see docs/cluster.md"
+        )
 
 
 def largest_node_cpus() -> int:

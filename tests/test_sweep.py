@@ -387,3 +387,31 @@ def test_an_unreachable_cluster_fails_within_seconds_with_the_fix(tmp_path, repo
     assert r.returncode == 1 and time.monotonic() - t0 < 30
     assert f"nothing answers at 127.0.0.1:{port}" in r.stderr and "ray start --head" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+@pytest.mark.slow
+def test_two_nodes_that_see_different_results_folders_are_refused_before_any_job(tmp_path, repo_root):
+    """Two Ray nodes on this machine whose jobs resolve different project roots (OMCRL_ROOT per node): the sweep
+    refuses at once, naming the node, instead of failing jobs on files that are not there."""
+    ray_bin = shutil.which("ray", path=os.path.dirname(sys.executable))
+    port = "6393"
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    base = {**os.environ, "RAY_AUTH_MODE": "disabled"}
+    start = [ray_bin, "start", "--num-cpus", "1"]
+    head = [*start, "--head", "--port", port, "--include-dashboard=false"]
+    subprocess.run(head, check=True, capture_output=True, env={**base, "OMCRL_ROOT": str(a)})
+    try:
+        subprocess.run([*start, "--address", f"127.0.0.1:{port}"], check=True, capture_output=True,
+                       env={**base, "OMCRL_ROOT": str(b)})  # fmt: skip
+        t0 = time.monotonic()
+        r = subprocess.run(
+            [sys.executable, "-m", "omcrl", "sweep", "smoke", "--preset", "smoke", "--address", f"127.0.0.1:{port}"],
+            cwd=repo_root, capture_output=True, text=True, timeout=300, env={**base, "OMCRL_ROOT": str(a)},
+        )  # fmt: skip
+        assert r.returncode == 1, r.stderr[-2000:]
+        assert "1 of 2 nodes do not see the driver's results folder" in r.stderr and f"looks in {b}" in r.stderr
+        assert not list((a / "results").glob("smoke/runs/*")) and time.monotonic() - t0 < 120
+    finally:
+        subprocess.run([ray_bin, "stop", "--force"], capture_output=True, env=base)
