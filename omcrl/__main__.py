@@ -69,7 +69,7 @@ METHOD_STAGES = ("train", "pretrain")
 
 
 class StageUnavailable(RuntimeError):
-    """The stage is registered but its module or function does not exist (yet)."""
+    """A registered stage whose module or function cannot be loaded (a broken install or a typo in the registry)."""
 
 
 def load_stage(name: str, registry: dict[str, tuple[str, str]] | None = None) -> Callable[[Config], Any]:
@@ -86,14 +86,12 @@ def load_stage(name: str, registry: dict[str, tuple[str, str]] | None = None) ->
         # inside an existing module is a real error and propagates.
         if e.name and (module_name == e.name or module_name.startswith(e.name + ".")):
             raise StageUnavailable(
-                f"stage {name!r} is not available yet ({target}: module {e.name} does not exist)"
+                f"stage {name!r} cannot be loaded ({target}: module {e.name} does not exist)"
             ) from None
         raise
     func = getattr(module, func_name, None)
     if not callable(func):
-        raise StageUnavailable(
-            f"stage {name!r} is not available yet ({target}: {module_name} has no function {func_name})"
-        )
+        raise StageUnavailable(f"stage {name!r} cannot be loaded ({target}: {module_name} has no function {func_name})")
     return func
 
 

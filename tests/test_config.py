@@ -131,7 +131,7 @@ def test_stage_loader_reports_missing_stage():
 
     assert {"notebooks", "collect", "pretrain", "oracle", "student", "evaluate", "config"} <= set(STAGES)
     fake = {"later": ("omcrl.not_written_yet:run", ""), "nofunc": ("omcrl.config:no_such_function", "")}
-    with pytest.raises(StageUnavailable, match="not available yet"):
+    with pytest.raises(StageUnavailable, match="cannot be loaded"):
         load_stage("later", fake)
     with pytest.raises(StageUnavailable, match="no_such_function"):
         load_stage("nofunc", fake)

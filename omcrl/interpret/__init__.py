@@ -1,4 +1,5 @@
-"""Interpretability and transfer diagnostics: feature shift between scenes (more to come: Grad-CAM, t-SNE)."""
+"""Interpretability and transfer diagnostics: Grad-CAM, feature stability and t-SNE inputs, disturbance tests,
+feature shift between scenes, the zero-shot diagnosis and the scenes' gradient of difficulty."""
 
 from omcrl.interpret.shift import (
     encode,

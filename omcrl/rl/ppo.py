@@ -4,7 +4,8 @@ Design
 ------
 A policy is ``features -> heads`` (:mod:`omcrl.models.features`, :mod:`omcrl.models.actor_critic`). The
 rollout runner (:mod:`omcrl.rl.rollout`) fills a :class:`Rollout`; :class:`PPO` owns the optimiser and turns a
-rollout into an update with ``update(batch, alpha=..., lr=..., step=...) -> dict[str, float]`` of metrics.
+rollout into an update with ``update(batch, alpha=..., step=...) -> dict[str, float]`` of metrics (the trainer
+sets the learning rate before each update with ``set_lr``).
 Extra losses (an auxiliary objective of a baseline) plug in as ``extra_losses``: callables
 ``(agent, minibatch) -> (loss tensor, metrics dict)`` added to the total.
 
