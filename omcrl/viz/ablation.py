@@ -85,10 +85,14 @@ def plot_radar(table: pd.DataFrame) -> plt.Figure:
     return fig
 
 
-def plot_bars(table: pd.DataFrame, metric: str = "SR") -> plt.Figure:
-    """Fig. 9: ``metric`` per scene (groups) and variant (bars) with 95 % CIs."""
+UNIT_LABEL = {"NE": "NE (m)", "SR": "SR (%)", "SPL": "SPL (0–1)", "CR": "CR (%)", "OS": "OS (%)", "TTS": "TTS (steps)"}
+
+
+def plot_bars(table: pd.DataFrame, metric: str = "SR", title: str = "") -> plt.Figure:
+    """Fig. 9: ``metric`` per scene (groups) and variant (bars) with 95 % CIs (two-stage bootstrap over training
+    seeds and evaluation episodes)."""
     scenes, variants = _scenes(table), _variants(table)
-    fig, ax = plt.subplots(figsize=(1.5 + 1.6 * len(scenes), 3.2))
+    fig, ax = plt.subplots(figsize=(1.5 + 1.6 * len(scenes), 3.4))
     w = 0.8 / len(variants)
     for i, v in enumerate(variants):
         x = np.arange(len(scenes)) + (i - (len(variants) - 1) / 2) * w
@@ -97,8 +101,10 @@ def plot_bars(table: pd.DataFrame, metric: str = "SR") -> plt.Figure:
                         for j, s in enumerate(scenes)]).T  # fmt: skip
         ax.bar(x, y, w, yerr=err, capsize=3, label=v)
     ax.set_xticks(np.arange(len(scenes)), scenes)
-    ax.set_ylabel(metric)
-    ax.legend(fontsize=7)
+    ax.set_xlabel("evaluation scene (trained in box only)")
+    ax.set_ylabel(UNIT_LABEL.get(metric, metric))
+    ax.legend(fontsize=7, title="variant; bars: 95 % CI", title_fontsize=7)
+    ax.set_title(title or f"{UNIT_LABEL.get(metric, metric)} per scene and variant", fontsize=9)
     fig.tight_layout()
     return fig
 
@@ -106,13 +112,18 @@ def plot_bars(table: pd.DataFrame, metric: str = "SR") -> plt.Figure:
 def plot_heatmap(table: pd.DataFrame) -> plt.Figure:
     """Fig. 10: variants × (scene, metric), normalised per column (1 = best), raw values printed."""
     norm = normalised(table)
-    fig, ax = plt.subplots(figsize=(0.55 * norm.shape[1] + 2.0, 0.5 * norm.shape[0] + 1.6))
-    ax.imshow(norm.to_numpy(float), cmap="viridis", vmin=0, vmax=1, aspect="auto")
+    fig, ax = plt.subplots(figsize=(0.55 * norm.shape[1] + 2.8, 0.5 * norm.shape[0] + 1.8))
+    values = norm.to_numpy(float)
+    im = ax.imshow(values, cmap="viridis", vmin=0, vmax=1, aspect="auto")
     for i, v in enumerate(norm.index):
         for j, (sc, m) in enumerate(norm.columns):
-            ax.text(j, i, f"{table.loc[(v, sc), m]:.2g}", ha="center", va="center", fontsize=6, color="w")
+            # Dark text on the light (yellow) end of viridis, white on the dark end: readable on every cell.
+            color = "k" if values[i, j] > 0.6 else "w"
+            ax.text(j, i, f"{table.loc[(v, sc), m]:.2g}", ha="center", va="center", fontsize=6, color=color)
     ax.set_yticks(range(len(norm.index)), norm.index)
     ax.set_xticks(range(norm.shape[1]), [f"{sc}\n{m}" for sc, m in norm.columns], fontsize=6)
+    fig.colorbar(im, ax=ax, fraction=0.03, label="relative to the best variant (1 = best)")
+    ax.set_title("Printed: the metric's value (NE m, SR/CR %, SPL 0–1); colour: relative to the best", fontsize=8)
     fig.tight_layout()
     return fig
 
