@@ -4,6 +4,7 @@ the simulated drone, and the loop through the real djitellopy client against the
 from __future__ import annotations
 
 import os
+import re
 import signal
 import threading
 import time
@@ -202,8 +203,37 @@ def _sigint_flight(tmp_path, seeker):
     assert res.reason == "interrupted" and drone.landed_at is not None and res.ticks >= 3, res
 
 
+# djitellopy binds its command and state ports (8889, 8890) once per process and never releases them, so a test
+# that flies through it runs in a child process: the pytest process must leave those ports free for the
+# notebook chain's kernel (notebook 09 flies the fake Tello too).
+IN_CHILD = os.environ.get("OMCRL_DJITELLOPY_CHILD") == "1"
+child_only = pytest.mark.skipif(not IN_CHILD, reason="runs in a child process (see _in_child)")
+
+
+def _in_child(repo_root, test: str) -> None:
+    import subprocess
+    import sys
+
+    env = {**os.environ, "OMCRL_DJITELLOPY_CHILD": "1"}
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", f"{__file__}::{test}"],
+                       cwd=repo_root, capture_output=True, text=True, env=env, timeout=600)  # fmt: skip
+    assert r.returncode == 0 and re.search(r"^1 passed", r.stdout, re.M), r.stdout[-4000:] + r.stderr[-2000:]
+
+
+def test_djitellopy_against_the_loopback_fake_tello(repo_root):
+    """Every rule through the real djitellopy client (in a child process): arrival, video cut, pose cut,
+    geofence, Ctrl-C."""
+    _in_child(repo_root, "test_child_djitellopy_against_the_loopback_fake_tello")
+
+
+def test_an_unacknowledged_land_falls_back_to_the_emergency_stop(repo_root):
+    """Through djitellopy (in a child process): a drone that never answers `land` gets `emergency`."""
+    _in_child(repo_root, "test_child_an_unacknowledged_land_falls_back_to_the_emergency_stop")
+
+
+@child_only
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
-def test_djitellopy_against_the_loopback_fake_tello(tmp_path, seeker):
+def test_child_djitellopy_against_the_loopback_fake_tello(tmp_path, seeker):
     """Every rule through the real djitellopy client: arrival, video cut, pose cut, geofence, Ctrl-C."""
     from omcrl.deploy.tello import FakeTello, TelloDrone
 
@@ -343,7 +373,8 @@ def test_commands_are_clamped_and_rate_limited_and_an_exception_lands():
     assert res.reason == "error" and "radio link lost" in res.error and drone.landed == 1
 
 
-def test_an_unacknowledged_land_falls_back_to_the_emergency_stop(seeker):
+@child_only
+def test_child_an_unacknowledged_land_falls_back_to_the_emergency_stop(seeker):
     """Through djitellopy: a drone that never answers `land` gets `emergency` (motors cut) within the bound."""
     from omcrl.deploy.tello import FakeTello, TelloDrone
 
