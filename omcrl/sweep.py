@@ -459,6 +459,14 @@ def job_cpus(cfg: Config, job: Job) -> int:
     return max(1, cfg.eval.workers or cpu_count())
 
 
+def job_gpus(cfg: Config, job: Job) -> int:
+    """GPUs a job asks Ray for: one for training and pretraining when its section says ``device=cuda`` (so
+    paper-preset jobs are steered to GPU nodes and never share a GPU unasked), else none. ``auto`` asks for none:
+    the driver cannot know whether the node it lands on has a GPU."""
+    device = {"train": cfg.rl.device, "pretrain": cfg.pretrain.device}.get(job.kind)
+    return 1 if device == "cuda" else 0
+
+
 def run_job(preset_cfg: dict, job: Job, log_path: str) -> dict:
     """Run one job (any backend) with its output in ``log_path``; returns ``{"status", "seconds", "rows"}``.
 
@@ -648,7 +656,10 @@ def _run_ray(
     try:
         check_shared_results(cfg, base)
         capacity = largest_node_cpus()
-        remote = ray.remote(max_retries=0)(run_job)
+        # A task lost with its node (a system failure) is retried twice; a job that raised is not (Ray retries
+        # application errors only with retry_exceptions, off here): a deterministic error fails once, with its log.
+        remote = ray.remote(max_retries=2)(run_job)
+        cluster_gpus = int(ray.cluster_resources().get("GPU", 0))
         pending: dict[Any, Job] = {}
         todo = list(jobs)
         while todo or pending:
@@ -660,8 +671,15 @@ def _run_ray(
                     bar.update(1, **_postfix(res, running))
                 elif all(s in ("done", "skipped") for s in st):
                     todo.remove(job)
-                    need = min(job_cpus(_config(cfg, job.overrides, job.seed), job), capacity)
-                    ref = remote.options(num_cpus=need).remote(base, job, str(res.logs[job.id]))
+                    jcfg = _config(cfg, job.overrides, job.seed)
+                    need, gpus = min(job_cpus(jcfg, job), capacity), job_gpus(jcfg, job)
+                    if gpus > cluster_gpus:
+                        raise ClusterError(
+                            f"sweep: job {job.kind} {job.method} seed {job.seed} asks for {gpus} GPU ({job.kind} "
+                            f"device=cuda) and {need} CPUs, but the cluster has {cluster_gpus} GPUs: it could never "
+                            "run; add a GPU node, or set rl.device / pretrain.device to auto or cpu"
+                        )
+                    ref = remote.options(num_cpus=need, num_gpus=gpus).remote(base, job, str(res.logs[job.id]))
                     pending[ref] = job
                     running.add(job.id)
             if not pending:

@@ -194,6 +194,16 @@ def test_killed_driver_resumes_without_redoing_finished_jobs(tmp_path, repo_root
     pd.testing.assert_frame_equal(_episodes(res), _episodes(clean))
 
 
+def test_jobs_ask_for_a_gpu_only_when_their_stage_runs_on_cuda():
+    mk = lambda kind: sweep.Job("x", kind, "ours", 0, ())  # noqa: E731
+    cpu = load_config("smoke")
+    cuda = cpu.__class__(**{**cpu.__dict__})
+    cuda.rl = cpu.rl.__class__(**{**cpu.rl.__dict__, "device": "cuda"})
+    cuda.pretrain = cpu.pretrain.__class__(**{**cpu.pretrain.__dict__, "device": "cuda"})
+    assert [sweep.job_gpus(cpu, mk(k)) for k in ("train", "pretrain", "evaluate", "collect")] == [0, 0, 0, 0]
+    assert [sweep.job_gpus(cuda, mk(k)) for k in ("train", "pretrain", "evaluate", "collect")] == [1, 1, 0, 0]
+
+
 def test_job_cpus_follow_what_a_job_keeps_busy():
     cfg = load_config("smoke", overrides=["rl.n_envs=3", "pretrain.num_threads=2", "eval.workers=1"])
     mk = lambda kind: sweep.Job("x", kind, "ours", 0, ())  # noqa: E731
@@ -415,3 +425,13 @@ def test_two_nodes_that_see_different_results_folders_are_refused_before_any_job
         assert not list((a / "results").glob("smoke/runs/*")) and time.monotonic() - t0 < 120
     finally:
         subprocess.run([ray_bin, "stop", "--force"], capture_output=True, env=base)
+
+
+@pytest.mark.slow
+def test_a_job_no_node_can_run_is_one_line_not_a_hang(tmp_path):
+    """On an embedded Ray without GPUs, a sweep whose training asks for CUDA stops at once naming the job."""
+    cfg = _cfg(tmp_path, "rl.device=cuda")
+    t0 = time.monotonic()
+    with pytest.raises(sweep.ClusterError, match=r"job train .* asks for 1 GPU .* the cluster has 0 GPUs"):
+        run_sweep(cfg, "smoke", [0], backend="ray", num_cpus=2, progress=False)
+    assert time.monotonic() - t0 < 300

@@ -70,7 +70,12 @@ def resolve_precision(name: str, device: Any = "cpu") -> str:
 
 
 def section_precision(section: Any) -> str:
-    """The resolved precision of a config section with ``precision`` and ``device`` fields (pretrain, rl)."""
+    """The resolved precision of a config section with ``precision`` and ``device`` fields (pretrain, rl).
+
+    Only ``auto`` looks at the device (and so needs it here): a driver without a GPU can plan ``fp32`` or ``bf16``
+    jobs for GPU nodes."""
+    if section.precision != "auto":
+        return resolve_precision(section.precision)
     from omcrl.utils.runtime import resolve_device
 
     return resolve_precision(section.precision, resolve_device(section.device))
