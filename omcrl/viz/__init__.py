@@ -10,7 +10,7 @@ import importlib
 from pathlib import Path
 from typing import Any
 
-__all__ = ["save_figure"]
+__all__ = ["METHOD_COLORS", "method_color", "save_figure", "steps_axis"]
 
 
 def save_figure(fig: Any, directory: str | Path, name: str, dpi: int = 120) -> Path:
@@ -20,6 +20,35 @@ def save_figure(fig: Any, directory: str | Path, name: str, dpi: int = 120) -> P
     path = out / f"{name}.png"
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     return path
+
+
+# One colour per method in every figure (by kit name or the paper's label). Blue and orange are left to maps
+# (start, shortest path); the rest are distinct under common colour-vision deficiencies as far as 10 colours go.
+METHOD_COLORS = {
+    "oracle": "#000000",
+    "ours": "#d62728",
+    "ours-noOT": "#ff9896",
+    "npe": "#2ca02c",
+    "npe-ot": "#98df8a",
+    "npe-expert": "#17becf",
+    "curl": "#9467bd",
+    "curl-phi": "#c5b0d5",
+    "ppo": "#8c564b",
+    "hybrid-apf": "#7f7f7f",
+    "hybrid-apf-perceptive": "#bcbd22",
+    "HybridAPF": "#7f7f7f",
+}
+
+
+def method_color(method: str) -> str:
+    """The colour of ``method`` (a kit name such as ``ours-noOT`` or its label such as ``Ours w/o OT``) in every
+    figure; a stable grey-blue for names the kit does not know."""
+    if method in METHOD_COLORS:
+        return METHOD_COLORS[method]
+    from omcrl.rl.methods import METHODS
+
+    by_label = {s.label: n for n, s in METHODS.items()}
+    return METHOD_COLORS.get(by_label.get(method, ""), "#4c72b0")
 
 
 def steps_axis(axis: Any) -> None:

@@ -152,13 +152,22 @@ def plot_trajectory_grid(
     env_config: Any = None,
 ) -> plt.Figure:
     """Fig. 6: every method's path from the same start to the same goal, one panel per scene, on the map."""
-    from omcrl.viz.rl import plot_trajectories
+    from omcrl.viz.rl import TRAJECTORY_KEY, plot_trajectories
 
     labels = _labels()
     seed = train_seed if train_seed is not None else int(episodes["train_seed"].min())
     sub = episodes[episodes["train_seed"] == seed].assign(method=lambda d: d["method"].map(lambda m: labels.get(m, m)))
-    fig, axes = plt.subplots(1, len(scenes), figsize=(4.8 * len(scenes), 4.8), squeeze=False)
+    fig, axes = plt.subplots(1, len(scenes), figsize=(4.8 * len(scenes), 5.6), squeeze=False)
     for ax, scene in zip(axes[0], scenes):
-        plot_trajectories(sub, scene, episode, env_config=env_config, ax=ax)
-    fig.tight_layout()
+        plot_trajectories(sub, scene, episode, env_config=env_config, ax=ax, legend=False)
+    # One legend for the figure, below the maps (inside one it hid the tree map), methods in a fixed colour.
+    handles, names = {}, []
+    for ax in axes[0]:
+        for h, n in zip(*ax.get_legend_handles_labels()):
+            if n not in handles and n not in ("start", "goal") and not n.startswith("shortest"):
+                handles[n] = h
+                names.append(n)
+    fig.legend([handles[n] for n in names], names, loc="lower center", ncol=min(6, len(names)), fontsize=8,
+               title=TRAJECTORY_KEY.replace("\n", " "), title_fontsize=8, frameon=False)  # fmt: skip
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
     return fig

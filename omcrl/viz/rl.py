@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from omcrl.envs.scenes import scene_id
-from omcrl.viz import steps_axis
+from omcrl.viz import method_color, steps_axis
 from omcrl.viz.pretrain import final_value, read_metrics, smooth
 
 # (panel title, metrics drawn in it); several metrics in one panel are told apart by line style.
@@ -136,8 +136,16 @@ def plot_eval_bars(
     return fig
 
 
+TRAJECTORY_KEY = "path per method; ✕ end: green success,\nred collision, grey timeout"
+
+
 def plot_trajectories(
-    episodes: pd.DataFrame, scene: str, episode: int = 0, env_config: Any = None, ax: plt.Axes | None = None
+    episodes: pd.DataFrame,
+    scene: str,
+    episode: int = 0,
+    env_config: Any = None,
+    ax: plt.Axes | None = None,
+    legend: bool = True,
 ) -> plt.Figure:
     """Top-down (x, y) paths of every method on one evaluation episode (the same layout for all methods).
 
@@ -162,15 +170,14 @@ def plot_trajectories(
         from omcrl.viz.scenes import draw_map, scene_snapshot
 
         draw_map(ax, scene_snapshot(scene, int(rows.eval_seed.iloc[0]), env_config, image_size=32))
-    for i, (_, r) in enumerate(rows.iterrows()):
+    for _, r in rows.iterrows():
         xy = np.asarray(r["trajectory"], float)
         if len(xy) == 0:
             continue
-        # Blue and orange are the map's start and shortest path: methods take the other tab20 colours.
-        c = plt.cm.tab20((4 + i) % 20)
-        ax.plot(xy[:, 0], xy[:, 1], color=c, label=r["method"])
+        ax.plot(xy[:, 0], xy[:, 1], color=method_color(r["method"]), lw=1.6, label=r["method"])
         end = "green" if r["success"] else ("red" if r["collision"] else "grey")
         ax.plot(*xy[-1], "x", color=end, ms=7, mew=2)
     ax.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title=f"{scene}, evaluation episode {episode}")
-    ax.legend(fontsize=7, loc="upper right")
+    if legend:
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), title=TRAJECTORY_KEY, title_fontsize=7)
     return fig
