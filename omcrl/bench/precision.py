@@ -10,12 +10,12 @@ not depend on them) and the shapes of ``--preset`` (default quick):
 * ``rollout forward <kind>``: 32 × ``agent.step`` on a batch of ``rl.n_envs`` observations in one autocast region
   (what a rollout does per vector step; seconds per 32), for the student with the frozen encoder's forward
   (``agent.prepare``);
-* ``eval forward student``: the deterministic action of 8 observations (``eval.lanes``), s.
+* ``eval forward student``: the deterministic action of 8 observations (``eval.lanes``), s;
+* ``pretrain omc`` / ``pretrain curl``: one optimisation step of the contrastive learner (batch, sequence,
+  crop and d of ``pretrain``), ms.
 
 The two inference rows force autocast on: the kit runs inference in fp32 whatever the precision, because these
 rows measured bf16 slower there (``omcrl.models.actor_critic.ActorCritic``); they show what bf16 would cost.
-* ``pretrain omc`` / ``pretrain curl``: one optimisation step of the contrastive learner (batch, sequence,
-  crop and d of ``pretrain``), ms.
 
 With ``--paper`` the same units at the paper preset's shapes (224 px, crop 192, d = 384) at smaller batches
 (``--paper-batch`` transitions per PPO minibatch, 2 sequences per pretraining step): their CPU per-unit cost.

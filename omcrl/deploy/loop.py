@@ -12,11 +12,13 @@ Each tick (at the model's ``control_hz``) the loop checks its safety rules, buil
 the simulator does (frames resized to the model's image size and stacked, state v, ω, θ, Δp_goal in the body
 frame), runs the policy, scales, clamps and rate-limits the command and sends it. It lands, and says why, on:
 arrival within ``goal_radius`` (the paper's real-world success rule, 0.5 m), video or pose older than
-``stale_s`` (0.5 s), leaving the geofence, the time limit, any exception, and Ctrl-C (SIGINT). Nothing
-non-finite reaches the motors: a pose, frame, state, policy output or command that is not finite (or not of
-its shape) stops the flight with reason ``bad_pose`` / ``bad_frame`` / ``bad_state`` / ``bad_action`` /
-``bad_command`` before it is used: the drone hovers (a zero command) and lands. Every tick is appended to a CSV
-flight log and flushed, so a crash loses nothing.
+``stale_s`` (0.4 s, checked every 20 ms between ticks too), leaving the geofence, the time limit, a low battery,
+any exception, and the signals in ``STOP_SIGNALS`` (Ctrl-C, SIGTERM, SIGHUP). Nothing non-finite reaches the
+motors: a pose, frame, state, policy output or command that is not finite (or not of its shape) stops the flight
+with reason ``bad_pose`` / ``bad_frame`` / ``bad_state`` / ``bad_action`` / ``bad_command`` before it is used:
+the drone hovers (a zero command) and lands. Before take-off a preflight check refuses to fly without a fresh,
+finite pose and frame; in flight a watchdog process (:mod:`omcrl.deploy.watchdog`) lands a drone whose loop
+stops beating. Every tick is appended to a CSV flight log and flushed, so a crash loses nothing.
 """
 
 from __future__ import annotations
@@ -85,8 +87,8 @@ class Safety:
 class FlightResult:
     """How a flight ended: ``reason`` is arrived | video_lost | pose_lost | geofence | timeout | error |
     interrupted | bad_frame | bad_pose | bad_state | bad_action | bad_command | battery_low | preflight (nothing was
-    sent; ``error`` says why); ``final_distance`` (m) from the
-    last valid pose to the goal; ``poses`` the (x, y, z) of every tick."""
+    sent; ``error`` says why); ``final_distance`` (m) from the last valid pose to the goal; ``poses`` the
+    (x, y, z) of every tick."""
 
     reason: str
     success: bool
@@ -142,13 +144,6 @@ def _reading(drone: Any, name: str) -> float | None:
     except Exception:
         return None
     return v if math.isfinite(v) else None
-
-
-def _finite_time(t: Any) -> bool:
-    try:
-        return math.isfinite(float(t))
-    except (TypeError, ValueError):
-        return False
 
 
 class StateEstimator:
@@ -298,14 +293,14 @@ class ControlLoop:
 
     def _check(self, now: float, t_start: float, frame: Any, pose: Any) -> str | None:
         s = self.safety
-        if frame is not None and not _finite_time(frame[1]):
+        if frame is not None and not _finite(frame[1], 1):
             return "bad_frame"
         if frame is None or now - frame[1] > s.stale_s:
             return "video_lost"
         img = frame[0]
         if not (isinstance(img, np.ndarray) and img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8):
             return "bad_frame"
-        if pose is not None and not (_finite_time(pose[1]) and _finite(pose[0], 6)):
+        if pose is not None and not (_finite(pose[1], 1) and _finite(pose[0], 6)):
             return "bad_pose"
         if pose is None or now - pose[1] > s.stale_s:
             return "pose_lost"
@@ -350,9 +345,9 @@ class ControlLoop:
             self.sleep(min(WATCH_S, until - now))
             now = self.clock()
             frame, pose = self.video.read(), self.pose.read()
-            if frame is not None and not _finite_time(frame[1]):
+            if frame is not None and not _finite(frame[1], 1):
                 return "bad_frame"
-            if pose is not None and not (_finite_time(pose[1]) and _finite(pose[0], 6)):
+            if pose is not None and not (_finite(pose[1], 1) and _finite(pose[0], 6)):
                 return "bad_pose"  # a bad sample stops the flight whenever it is seen
             for name, got in (("video_lost", frame), ("pose_lost", pose)):
                 if got is None or now - got[1] > s.stale_s:
@@ -367,10 +362,10 @@ class ControlLoop:
             return f"battery {battery:.0f} % below the floor of {s.min_battery:.0f} %"
         now = self.clock()
         pose = self.pose.read()
-        if pose is None or not (_finite_time(pose[1]) and _finite(pose[0], 6)) or now - pose[1] > s.stale_s:
+        if pose is None or not (_finite(pose[1], 1) and _finite(pose[0], 6)) or now - pose[1] > s.stale_s:
             return "no fresh pose from the motion capture (is the rigid body visible?)"
         frame = self.video.read()
-        if frame is None or not _finite_time(frame[1]) or now - frame[1] > s.stale_s:
+        if frame is None or not _finite(frame[1], 1) or now - frame[1] > s.stale_s:
             return "no fresh video frame"
         xmin, xmax, ymin, ymax = s.geofence
         for name, (x, y) in (("start", pose[0][:2]), ("goal", self.goal)):

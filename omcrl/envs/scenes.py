@@ -510,10 +510,10 @@ for _spec in (
     register_scene(_spec)
 
 # Scene families, as in the public API; each name means its latest version.
-SCENES = ("box", "furniture", "barrier", "tree")
-# The paper's four scenes (training scene first), and the stress test beside them (docs/generalization.md).
-PAPER_SUITE = ("box-v0", "furniture-v1", "barrier-v0", "tree-v0")
-STRESS_SCENES = ("furniture-v0",)
+SCENES = families()
+# The paper's four scenes (training scene first), and the stress tests beside them (docs/generalization.md).
+PAPER_SUITE = tuple(s.id for s in SCENE_SPECS.values() if s.difficulty != "stress")
+STRESS_SCENES = tuple(s.id for s in SCENE_SPECS.values() if s.difficulty == "stress")
 
 
 def generate_scene(scene: str, seed: int, arena_half: float, n_obstacles: int = 0) -> list[Primitive]:

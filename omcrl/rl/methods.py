@@ -172,25 +172,23 @@ def train_method(
         raise ConfigError(f"method {method!r} is a planner: it is not trained (evaluate it directly)")
     if spec.features == "oracle":
         return train_oracle(cfg, name=spec.name, make_env=make_env, overwrite=overwrite, progress=progress)
+    oracle = oracle_path(oracle_cfg or cfg) if spec.guide == "oracle" else None
+    enc = encoder_path(cfg, spec) if spec.features == "frozen" else None
     # Every missing prerequisite at once, with its command (not one now and the next after 30 minutes).
-    needs = []
-    if spec.guide == "oracle":
-        needs.append((oracle_path(oracle_cfg or cfg), "oracle checkpoint",
-                      f"python -m omcrl train --method oracle --preset {cfg.preset} --seed {cfg.seed}"))  # fmt: skip
-    if spec.features == "frozen":
-        needs.append((encoder_path(cfg, spec), f"{spec.name} encoder", pretrain_command(cfg, spec)))
-    missing = [(p, what, cmd) for p, what, cmd in needs if not p.exists()]
+    needs = [
+        (oracle, "oracle checkpoint", f"python -m omcrl train --method oracle --preset {cfg.preset} --seed {cfg.seed}"),
+        (enc, f"{spec.name} encoder", pretrain_command(cfg, spec) if enc is not None else ""),
+    ]
+    missing = [(p, what, cmd) for p, what, cmd in needs if p is not None and not p.exists()]
     if missing:
         raise CheckpointError(
             "; ".join(f"{what} {p} does not exist" for p, what, _ in missing)
             + "; run first: "
             + " && ".join(cmd for _, _, cmd in missing)
         )
-    oracle = needs[0][0] if spec.guide == "oracle" else None
     planner = _planner_factory(cfg, spec.guide)
     common = {"name": spec.name, "planner_factory": planner, "make_env": make_env, "overwrite": overwrite}
-    if spec.features == "frozen":
-        enc = needs[-1][0]
+    if enc is not None:
         return train_student(cfg, enc, oracle, progress=progress, **common)
     return train_pixel(cfg, oracle, progress=progress, **common)
 

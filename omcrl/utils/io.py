@@ -45,7 +45,6 @@ def atomic_save_torch(obj: Any, path: str | Path, before_replace: Any = None) ->
     given, runs before the file appears (a producer records the digest first, so a kill between the two never
     leaves a file whose digest is not on record).
     """
-    import hashlib
     import io
 
     import torch
@@ -53,11 +52,18 @@ def atomic_save_torch(obj: Any, path: str | Path, before_replace: Any = None) ->
     buf = io.BytesIO()
     torch.save(obj, buf)
     data = buf.getvalue()
-    digest = hashlib.sha1(data).hexdigest()[:16]
+    digest = bytes_digest(data)
     if before_replace is not None:
         before_replace(digest)
     atomic_write_bytes(path, data)
     return digest
+
+
+def bytes_digest(data: bytes, length: int = 16) -> str:
+    """Hex SHA-1 prefix of ``data``: what :func:`file_digest` gives for a file holding it."""
+    import hashlib
+
+    return hashlib.sha1(data).hexdigest()[:length]
 
 
 def file_digest(path: str | Path, length: int = 16) -> str:
