@@ -14,103 +14,13 @@ Examples
 from __future__ import annotations
 
 import argparse
-import importlib
-import json
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
-from omcrl.config import PRESETS, Config, ConfigError, load_config
-from omcrl.deploy.export import ExportError
-from omcrl.models.features import CheckpointError
-from omcrl.runs import CorruptFile, RunConfigMismatch, RunLocked
-
-# name -> (target "module:function", one-line description)
-STAGES: dict[str, tuple[str, str]] = {
-    "config": ("omcrl.__main__:print_config", "print the resolved config as YAML"),
-    "notebooks": (
-        "omcrl.notebooks:run",
-        "run the notebook chain; executed copies in results/<preset>/executed/",
-    ),
-    "collect": ("omcrl.data.collect:run", "collect trajectory data for pretraining"),
-    "pretrain": (
-        "omcrl.rl.methods:pretrain_stage",
-        "pretrain an encoder: of --method (ours, curl, curl-phi), else as cfg.pretrain says",
-    ),
-    "oracle": ("omcrl.rl.methods:oracle_stage", "train the privileged oracle with PPO (= train --method oracle)"),
-    "student": ("omcrl.rl.methods:student_stage", "train the oracle-guided student (= train --method ours)"),
-    "train": ("omcrl.rl.methods:train_stage", "train one method of the comparison: --method NAME [--seed K]"),
-    "evaluate": ("omcrl.eval:run", "evaluate the policies of --seed (or cfg.seed) and write a quick table"),
-    "tables": ("omcrl.eval.table1:run", "evaluate every method at cfg.seeds and write Table I with CIs"),
-    "interpret": (
-        "omcrl.interpret.stage:run",
-        "disturbance tests in a simulated room, Grad-CAM mass on obstacles, feature stability (notebook 08)",
-    ),
-    "transfer": (
-        "omcrl.interpret.transfer:run",
-        "why a box-trained student fails zero-shot: geometry vs look, blind student, feature shift, probe across",
-    ),
-    "gradient": (
-        "omcrl.interpret.gradient:run",
-        "the scenes' gradient of difficulty with nothing learned: shift from box (random encoders, pixels) and "
-        "planners' SR",
-    ),
-    "sweep": (
-        "omcrl.sweep:sweep_stage",
-        "run a named ablation grid over seeds: sweep GRID [--seeds 0,1,2] [--backend ray|local] [--address A]",
-    ),
-    "summary": ("omcrl.summary:run", "write and print results/<preset>/summary.md from what the stages left"),
-    "export": ("omcrl.deploy.export:export_stage", "export a visuomotor policy to ONNX: --policy RUN [--out FILE]"),
-    "replay": ("omcrl.__main__:replay_stage", "draw a flight log (path, commands, stream ages, battery, events): LOG"),
-}
-# Stages that take --method.
-METHOD_STAGES = ("train", "pretrain")
-
-
-class StageUnavailable(RuntimeError):
-    """A registered stage whose module or function cannot be loaded (a broken install or a typo in the registry)."""
-
-
-def load_stage(name: str, registry: dict[str, tuple[str, str]] | None = None) -> Callable[[Config], Any]:
-    """Import and return the function behind stage ``name``; raise StageUnavailable if it is not there."""
-    reg = STAGES if registry is None else registry
-    if name not in reg:
-        raise StageUnavailable(f"unknown stage {name!r}; stages: {', '.join(reg)}")
-    target = reg[name][0]
-    module_name, func_name = target.split(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as e:
-        # Only a missing stage module (or its package) means "not available"; a missing dependency
-        # inside an existing module is a real error and propagates.
-        if e.name and (module_name == e.name or module_name.startswith(e.name + ".")):
-            raise StageUnavailable(
-                f"stage {name!r} cannot be loaded ({target}: module {e.name} does not exist)"
-            ) from None
-        raise
-    func = getattr(module, func_name, None)
-    if not callable(func):
-        raise StageUnavailable(f"stage {name!r} cannot be loaded ({target}: {module_name} has no function {func_name})")
-    return func
-
-
-def print_config(cfg: Config) -> None:
-    """Stage ``config``: print the resolved config as YAML (loadable with ``--config``)."""
-    import yaml
-
-    plain = json.loads(json.dumps(cfg.to_dict()))  # tuples -> lists, as save_config writes them
-    sys.stdout.write(yaml.safe_dump(plain, sort_keys=False))
-
-
-def replay_stage(cfg: Config, log: str, out: str | None = None) -> str:
-    """CLI stage ``replay``: ``python -m omcrl replay LOG [--out PNG]``; returns where the drawing went."""
-    from omcrl.viz.deploy import replay
-
-    try:
-        return f"replay: {replay(log, out=out)}"
-    except ValueError as e:
-        raise ConfigError(str(e)) from None
+from omcrl.config import PRESETS, ConfigError, load_config
+from omcrl.pipeline.registry import METHOD_STAGES, NO_PRESET_STAGES, STAGES, StageUnavailable, load_stage
 
 
 def describe(result: Any) -> str:
@@ -148,8 +58,6 @@ def _methods_help(stage: str = "train") -> str:
     return "\n".join(f"  {n:<22} {s.description}" for n, s in METHODS.items() if keep(s))
 
 
-# Stages that need no preset (they act on a file named on the command line).
-NO_PRESET_STAGES = ("export", "replay")
 PRESET_HELP = (
     "configuration preset, required: smoke (minutes; checks the plumbing, numbers mean nothing), quick (a laptop "
     "CPU, hours), paper (the paper's scale, a GPU machine)"
@@ -210,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
             help="method of the comparison (see below)" if name in METHOD_STAGES else argparse.SUPPRESS,
         )
         if name == "sweep":
-            from omcrl.sweep import GRIDS
+            from omcrl.pipeline.grids import GRIDS
 
             sp.add_argument(
                 "grid",
@@ -243,12 +151,17 @@ def _csv(text: str | None) -> list[str] | None:
 
 def _expected_errors() -> tuple[type[BaseException], ...]:
     """Errors whose message says all a user needs: printed as one line, exit code 1."""
+    # Imported when a stage runs, not with the CLI: they pull in PyTorch (1.2 s), which `--help` and a wrong
+    # argument should not wait for.
     from omcrl.data.dataset import DatasetError
+    from omcrl.deploy.export import ExportError
     from omcrl.deploy.runtime import ModelSpecError
     from omcrl.models.artifact import EncoderError
-    from omcrl.notebooks import NotebookError
+    from omcrl.models.features import CheckpointError
+    from omcrl.pipeline.notebooks import NotebookError
+    from omcrl.pipeline.sweep import ClusterError, SweepFailed
     from omcrl.rl.ppo import NonFiniteLossError
-    from omcrl.sweep import ClusterError, SweepFailed
+    from omcrl.runs import CorruptFile, RunConfigMismatch, RunLocked
     from omcrl.utils.io import UnsafeFileError
 
     return (

@@ -23,7 +23,9 @@ from typing import Any
 
 import yaml
 
-from omcrl.envs.scenes import PAPER_SUITE, SCENE_SPECS, STRESS_SCENES, families, scene_id
+from omcrl.scenes import PAPER_SUITE, SCENE_SPECS, STRESS_SCENES, families, scene_id
+from omcrl.utils.errors import ConfigError
+from omcrl.utils.io import atomic_write_text
 from omcrl.utils.precision import PRECISIONS
 
 PRESETS = ("smoke", "quick", "paper")
@@ -65,10 +67,6 @@ def resolve_path(path: str | Path) -> Path:
     return p if p.is_absolute() else project_root() / p
 
 
-class ConfigError(ValueError):
-    """A configuration value is invalid; the message names the field, the value and what is allowed."""
-
-
 def _f(
     default: Any,
     *,
@@ -91,7 +89,7 @@ class EnvConfig:
 
     scene: str = _f(
         "box-v0",
-        doc="scene id (box-v0, furniture-v1, ...) or family (its latest version), stored as the id; omcrl.envs.scenes",
+        doc="scene id (box-v0, furniture-v1, ...) or family (its latest version), stored as the id; omcrl.scenes",
     )
     image_size: int = _f(64, lo=16, hi=512, doc="square camera image side (px)")
     frame_stack: int = _f(3, lo=1, hi=16, doc="L, frames per observation stack")
@@ -291,7 +289,7 @@ class EvalConfig:
 
 @dataclass
 class SweepConfig:
-    """Ablation sweeps (paper VI-C; :mod:`omcrl.sweep`): budgets of the runs a sweep trains."""
+    """Ablation sweeps (paper VI-C; :mod:`omcrl.pipeline.sweep`): budgets of the runs a sweep trains."""
 
     rl_steps: int = _f(
         0,
@@ -624,7 +622,6 @@ def _read_yaml(p: Path) -> dict:
 
 def save_config(cfg: Config, directory: str | Path) -> Path:
     """Write the resolved config as ``config.yaml`` in ``directory`` (atomically) and return its path."""
-    from omcrl.utils.io import atomic_write_text
 
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)

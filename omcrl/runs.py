@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import Config, config_hash
-from omcrl.utils.io import atomic_write_text
+from omcrl.utils.io import atomic_write_text, file_digest
 
 RUN_FILE = "run.json"
 
@@ -81,7 +81,6 @@ def recorded_digest(path: str | Path) -> str | None:
 def verify_artifact(path: str | Path, what: str, remedy: str) -> None:
     """Raise :class:`ArtifactMismatch` (one line: the file, the stage to re-run) when ``path`` does not match the
     digest recorded when it was written; nothing when it matches or no digest was recorded."""
-    from omcrl.utils.io import file_digest
 
     want = recorded_digest(path)
     if want is None:
@@ -222,7 +221,6 @@ class Run:
 
         True / False; None when no digest was recorded (a run written before digests were kept).
         """
-        from omcrl.utils.io import file_digest
 
         want = (read_identity(self.dir) or {}).get(field)
         if want is None:

@@ -11,8 +11,8 @@ from gymnasium.utils.env_checker import check_env
 
 from omcrl.config import ConfigError
 from omcrl.envs import SCENES, make_env, make_vec_env
-from omcrl.envs.geometry import Geometry, Primitive
 from omcrl.planners import HybridAPF, build_grid, shortest_path
+from omcrl.scenes.geometry import Geometry, Primitive
 
 WALL = {"kind": "box", "position": (3.0, 0.0), "size": (0.2, 6.0, 3.0), "color": (0.8, 0.2, 0.2)}
 

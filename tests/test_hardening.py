@@ -26,7 +26,7 @@ class _Payload:
 
 def test_crafted_checkpoint_in_a_run_folder_is_refused_without_running_code(tmp_path):
     # Before: checkpoint.pt was loaded with weights_only=False, so `python -m omcrl oracle` ran its code.
-    from omcrl.rl.methods import train_method
+    from omcrl.pipeline import train_method
     from omcrl.rl.train import oracle_run
 
     cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])

@@ -217,7 +217,7 @@ def test_evaluate_stage_finds_policies_writes_tables_and_caches(chain, monkeypat
     with pytest.raises(ValueError, match="only `python -m omcrl tables` writes table1"):
         stage.run(cfg, name="table1", progress=False)
     # A Table I file in another form is one line in the summary, not a traceback.
-    from omcrl.summary import summary_text
+    from omcrl.pipeline.summary import summary_text
 
     res.paths["csv"].rename(tables / "table1.csv")
     assert "_Table I cannot be read: " in summary_text(cfg) and "by `python -m omcrl tables`" in summary_text(cfg)

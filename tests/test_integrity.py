@@ -149,8 +149,8 @@ def test_a_damaged_oracle_is_refused_before_a_student_trains_on_it(tmp_path, rep
     import pytest
 
     from omcrl.config import load_config
+    from omcrl.pipeline import train_method
     from omcrl.rl import load_policy
-    from omcrl.rl.methods import train_method
     from omcrl.runs import ArtifactMismatch
     from omcrl.utils.io import file_digest
 
@@ -225,8 +225,8 @@ def _smoke_artifacts(root):
     from omcrl.config import load_config
     from omcrl.data.collect import run as collect
     from omcrl.eval.stage import evaluate_methods
+    from omcrl.pipeline import train_method
     from omcrl.pretrain.train import run as pretrain
-    from omcrl.rl.methods import train_method
 
     cfg = load_config("smoke", overrides={"results_dir": str(root), "data": {"file": f"{root}/box.h5"},
                                           "eval": {"workers": 1}})  # fmt: skip

@@ -16,14 +16,15 @@ from omcrl.config import ConfigError, load_config
 from omcrl.data import collect
 from omcrl.eval import evaluate_grid, write_table1
 from omcrl.models.features import make_pixel_features
-from omcrl.rl import CheckpointError, RunConfigMismatch, load_policy, train_method
+from omcrl.pipeline import pretrain_method, train_method
+from omcrl.pipeline.stages import collect_stage
+from omcrl.rl import CheckpointError, RunConfigMismatch, load_policy
 from omcrl.rl.methods import (
     METHODS,
     TABLE1_METHODS,
     encoder_path,
     final_policy_path,
     oracle_path,
-    pretrain_method,
     training_runs,
 )
 from omcrl.rl.train import oracle_run, policy_run
@@ -229,12 +230,15 @@ def test_data_flown_by_the_trained_oracle(grid):
     oc = _cfg(grid["root"], "data.episodes=2", "data.max_steps=10", "data.mix={policy: 1.0}", "data.policy=oracle")
     assert oc.data_path.name == "box-oracle-seed0.h5" and oc.with_seed(1).data_path.name == "box-oracle-seed1.h5"
     assert oracle_path(oc) == oracle_path(cfg)  # the data fields are not the oracle's identity
-    res = collect.run(oc, progress=False)
+    res = collect_stage(oc, progress=False)
     assert res.per_source == {"policy": 2} and res.path == oc.data_path and cfg.data_path.exists()
     from omcrl.pretrain.train import pretrain_run
 
     assert pretrain_run(oc).key != pretrain_run(cfg).key  # other data, another encoder run
     # No oracle at seed 7: a clear error before any file is written.
     with pytest.raises(ConfigError, match=r"oracle of this config at seed 7 is not trained"):
+        collect_stage(oc.with_seed(7), progress=False)
+    # The data layer itself takes a policy and never looks for the oracle: without one it says who passes it.
+    with pytest.raises(ConfigError, match=r"no policy was passed \(data.policy='oracle': the collect stage"):
         collect.run(oc.with_seed(7), progress=False)
     assert not oc.with_seed(7).data_path.exists()

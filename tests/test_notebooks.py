@@ -13,8 +13,8 @@ import nbformat
 import pytest
 from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
 
-from omcrl import notebooks as nbr
-from omcrl.notebooks import (
+from omcrl.pipeline import notebooks as nbr
+from omcrl.pipeline.notebooks import (
     NOTEBOOKS,
     NotebookExecutionError,
     NotebookNotFoundError,
@@ -47,7 +47,7 @@ def test_notebook_list_is_ordered(repo_root):
 @pytest.mark.parametrize("name", NOTEBOOKS or [pytest.param(None, marks=pytest.mark.skip(reason=NO_NOTEBOOKS))])
 def test_committed_notebook_is_clean(repo_root, name):
     problems = check_notebook(repo_root / "notebooks" / f"{name}.ipynb")
-    assert problems == [], f"{name}: {problems} (fix with: python -m omcrl.notebooks strip)"
+    assert problems == [], f"{name}: {problems} (fix with: python -m omcrl.pipeline.notebooks strip)"
 
 
 # ---------------------------------------------------------------- helpers

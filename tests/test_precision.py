@@ -66,8 +66,8 @@ def test_bf16_chain_trains_evaluates_and_exports_with_parity(tmp_path):
     from omcrl.data.collect import run as collect
     from omcrl.deploy import OnnxPolicy, export_onnx
     from omcrl.eval.stage import evaluate_methods
+    from omcrl.pipeline import pretrain_method, train_method
     from omcrl.rl import load_policy
-    from omcrl.rl.methods import pretrain_method, train_method
 
     cfg = load_config(
         "smoke",
@@ -104,7 +104,7 @@ def test_precision_table_resolves_a_real_difference_and_not_noise():
     import pandas as pd
 
     from omcrl.eval.ablation import precision_table
-    from omcrl.sweep import ABLATION_GRIDS, FULL_BUDGET_GRIDS, GRIDS
+    from omcrl.pipeline.grids import ABLATION_GRIDS, FULL_BUDGET_GRIDS, GRIDS
 
     rng = np.random.default_rng(0)
     rows = []

@@ -13,7 +13,7 @@ import pytest
 from omcrl.config import ConfigError, load_config
 from omcrl.envs import GYM_IDS, make_env
 from omcrl.envs.nav_env import appearance_materials
-from omcrl.envs.scenes import (
+from omcrl.scenes import (
     PAPER_SUITE,
     SCENE_SPECS,
     SceneSpec,

@@ -11,7 +11,6 @@ import torch
 
 from omcrl.config import ConfigError, load_config
 from omcrl.envs import make_env
-from omcrl.envs.scenes import scene_spec
 from omcrl.envs.stats import geometry_stats, geometry_summary
 from omcrl.interpret import (
     feature_shift,
@@ -21,6 +20,7 @@ from omcrl.interpret import (
     saturated_share,
     with_fixed_features,
 )
+from omcrl.scenes import scene_spec
 
 
 def _roll(scene: str, look: str | None, steps: int = 40, parts: str = "all") -> dict:
@@ -162,7 +162,7 @@ def test_randomized_look_varies_per_layout_keeps_geometry_and_is_seeded():
 
 def test_generic_textures_avoid_the_evaluation_scenes_materials():
     from omcrl.envs.nav_env import GENERIC_TEXTURES, appearance_materials
-    from omcrl.envs.scenes import SCENE_SPECS
+    from omcrl.scenes import SCENE_SPECS
 
     def looks(spec):
         return {t for _, t in appearance_materials(spec.id, 8.0)} | {spec.floor_texture, spec.wall_texture}

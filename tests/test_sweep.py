@@ -11,9 +11,12 @@ import time
 import pandas as pd
 import pytest
 
-from omcrl import sweep
 from omcrl.config import ConfigError, load_config
-from omcrl.sweep import GRIDS, Variant, expand, run_sweep
+from omcrl.pipeline import grids, sweep
+from omcrl.pipeline import plan as planning
+from omcrl.pipeline.grids import GRIDS, Variant
+from omcrl.pipeline.plan import expand
+from omcrl.pipeline.sweep import run_sweep
 
 
 def _cfg(root, *extra):
@@ -54,7 +57,7 @@ def test_expansion_has_the_right_jobs_and_dependencies(tmp_path):
 
 
 def test_notebook_06_runs_the_six_ablation_grids_by_default(repo_root):
-    assert list(sweep.ABLATION_GRIDS) == ["mask-prob", "sequential", "dual-transformer", "projection",
+    assert list(grids.ABLATION_GRIDS) == ["mask-prob", "sequential", "dual-transformer", "projection",
                                           "oracle-teacher", "decay"]  # fmt: skip
     text = (repo_root / "notebooks" / "06_ablations.ipynb").read_text()
     assert "else list(ABLATION_GRIDS))" in text
@@ -91,7 +94,7 @@ def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is
     ev = next(j for j in again.jobs if j.kind == "evaluate" and j.method == "ppo")
     assert again.status[ev.id] == "skipped" and res.status[ev.id] == "done"
     assert times.loc[ev.id, "seconds"] == pytest.approx(res.seconds[ev.id], abs=0.01)
-    rates = sweep.measured_rates(cfg).set_index("rate_key")
+    rates = planning.measured_rates(cfg).set_index("rate_key")
     assert rates.loc["train:pixel", "rate"] == pytest.approx(cfg.rl.total_steps / times.loc[train.id, "seconds"])
     assert failed.id not in times.index  # a failed job measured nothing
     # Scripts see it: the stage writes what finished and exits non-zero (SweepFailed: one line in the CLI).
@@ -102,7 +105,7 @@ def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is
 
 def test_plan_counts_shared_jobs_once_and_knows_the_main_comparison(tmp_path):
     paper = load_config("paper", overrides=[f"results_dir={tmp_path}"])
-    plan = sweep.sweep_plan(paper, ["projection", "oracle-teacher"], [0])
+    plan = planning.sweep_plan(paper, ["projection", "oracle-teacher"], [0])
     assert plan["id"].is_unique
     ours = plan[(plan.kind == "train") & (plan.method == "ours")]
     assert len(ours) == 1 and ours.iloc[0].grids == "projection,oracle-teacher"
@@ -112,7 +115,7 @@ def test_plan_counts_shared_jobs_once_and_knows_the_main_comparison(tmp_path):
     assert ours.iloc[0].work == paper.rl.total_steps and ours.iloc[0].rate_key == "train:frozen"
     # The quick preset's sweep budgets differ from Table I's: no training is shared.
     quick = load_config("quick", overrides=[f"results_dir={tmp_path}"])
-    qplan = sweep.sweep_plan(quick, ["projection"], [0])
+    qplan = planning.sweep_plan(quick, ["projection"], [0])
     assert not qplan[qplan.kind == "train"].table1.any()
     assert set(qplan[qplan.kind == "train"].work) == {quick.sweep.rl_steps}
 
@@ -127,13 +130,13 @@ def test_cost_schedules_jobs_after_their_dependencies():
     ]
     plan = pd.DataFrame([{"id": i, "rate_key": k, "work": w, "deps": d} for i, k, w, d in rows])
     rates = {"collect": 1.0, "pretrain": 1.0, "train:frozen": 1.0}
-    one, two = sweep.sweep_cost(plan, rates, 1), sweep.sweep_cost(plan, rates, 2)
+    one, two = planning.sweep_cost(plan, rates, 1), planning.sweep_cost(plan, rates, 2)
     assert one["machine_hours"] == pytest.approx(310 / 3600) == two["machine_hours"]
     assert one["wall_hours"] == pytest.approx(310 / 3600)
     assert two["wall_hours"] == pytest.approx(160 / 3600)  # c, then p1 | p2, then t1 | t2
     assert two["by_key"]["pretrain"] == (2, pytest.approx(200 / 3600))
     with pytest.raises(ConfigError, match="no rate for"):
-        sweep.sweep_cost(plan, {"collect": 1.0}, 1)
+        planning.sweep_cost(plan, {"collect": 1.0}, 1)
 
 
 def test_planner_variants_and_bad_backends_are_refused(tmp_path, monkeypatch):
@@ -195,19 +198,19 @@ def test_killed_driver_resumes_without_redoing_finished_jobs(tmp_path, repo_root
 
 
 def test_jobs_ask_for_a_gpu_only_when_their_stage_runs_on_cuda():
-    mk = lambda kind: sweep.Job("x", kind, "ours", 0, ())  # noqa: E731
+    mk = lambda kind: planning.Job("x", kind, "ours", 0, ())  # noqa: E731
     cpu = load_config("smoke")
     cuda = cpu.__class__(**{**cpu.__dict__})
     cuda.rl = cpu.rl.__class__(**{**cpu.rl.__dict__, "device": "cuda"})
     cuda.pretrain = cpu.pretrain.__class__(**{**cpu.pretrain.__dict__, "device": "cuda"})
-    assert [sweep.job_gpus(cpu, mk(k)) for k in ("train", "pretrain", "evaluate", "collect")] == [0, 0, 0, 0]
-    assert [sweep.job_gpus(cuda, mk(k)) for k in ("train", "pretrain", "evaluate", "collect")] == [1, 1, 0, 0]
+    assert [planning.job_gpus(cpu, mk(k)) for k in ("train", "pretrain", "evaluate", "collect")] == [0, 0, 0, 0]
+    assert [planning.job_gpus(cuda, mk(k)) for k in ("train", "pretrain", "evaluate", "collect")] == [1, 1, 0, 0]
 
 
 def test_job_cpus_follow_what_a_job_keeps_busy():
     cfg = load_config("smoke", overrides=["rl.n_envs=3", "pretrain.num_threads=2", "eval.workers=1"])
-    mk = lambda kind: sweep.Job("x", kind, "ours", 0, ())  # noqa: E731
-    assert [sweep.job_cpus(cfg, mk(k)) for k in ("train", "pretrain", "evaluate")] == [3, 2, 1]
+    mk = lambda kind: planning.Job("x", kind, "ours", 0, ())  # noqa: E731
+    assert [planning.job_cpus(cfg, mk(k)) for k in ("train", "pretrain", "evaluate")] == [3, 2, 1]
 
 
 def _synthetic_episodes(labels, scenes=("box", "tree"), n=6, seeds=(0, 1)):
@@ -278,7 +281,7 @@ def test_findings_are_written(tmp_path):
     assert pd.read_csv(paths["csv"]).shape == f.shape
     md = paths["md"].read_text()
     assert "6 linear decay beats exponential and fixed" in md and "linear > exp" in md and "undecided" in md
-    from omcrl.summary import _section_ablations
+    from omcrl.pipeline.summary import _section_ablations
 
     text = "\n".join(_section_ablations({}, tmp_path))
     assert "| 6 linear decay beats exponential and fixed | 2 |" in text
@@ -287,7 +290,7 @@ def test_findings_are_written(tmp_path):
 
 
 def test_scaled_overrides_multiply_the_value_before_them():
-    from omcrl.sweep import _config, _scaled
+    from omcrl.pipeline.plan import _scaled, job_config
 
     cfg = load_config("smoke")
     n, it = cfg.data.episodes, cfg.pretrain.iterations
@@ -297,7 +300,7 @@ def test_scaled_overrides_multiply_the_value_before_them():
         "seed=2",
     ]
     # Sequential: a scale applies to what the overrides before it set.
-    assert _config(cfg, ["data.episodes=10", "data.episodes*=2"], 0).data.episodes == 20
+    assert job_config(cfg, ["data.episodes=10", "data.episodes*=2"], 0).data.episodes == 20
     for bad, msg in (
         ("data.epsiodes*=2", "does not exist"),
         ("data.episodes*=many", "expected a number"),
@@ -308,9 +311,9 @@ def test_scaled_overrides_multiply_the_value_before_them():
 
 
 def test_remedy_grids_run_at_full_budget_beside_the_table1_student():
+    from omcrl.pipeline.grids import ABLATION_GRIDS, REMEDY_GRIDS
     from omcrl.pretrain.train import pretrain_run
     from omcrl.rl.methods import encoder_config
-    from omcrl.sweep import ABLATION_GRIDS, REMEDY_GRIDS
 
     cfg = load_config("quick")  # its sweep budgets (50 k steps, 750 iterations) differ from its full ones
     assert not set(REMEDY_GRIDS) & set(ABLATION_GRIDS)  # `sweep all` stays the paper's six grids
@@ -373,7 +376,7 @@ def test_remedy_verdicts_compare_with_the_default_and_check_the_target(tmp_path)
     with pytest.raises(KeyError, match="reference variant"):
         remedy_verdicts(ep[ep.label != "default"], reps=50)
     # The summary shows the remedies beside the transfer diagnosis.
-    from omcrl.summary import _section_transfer
+    from omcrl.pipeline.summary import _section_transfer
 
     pd.DataFrame(
         [{"layout": "box", "look": "furniture", "own look": False, "seeds": 2, "SR": 3.0, "SR_lo": 0.0, "SR_hi": 8.0,

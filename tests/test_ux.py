@@ -65,7 +65,7 @@ with Progress(300, "demo", unit="it", notebook_interval=0.0) as bar:
 
 @pytest.mark.notebooks
 def test_notebook_progress_is_one_output_and_console_gets_status(tmp_path, capfd, monkeypatch):
-    from omcrl.notebooks import run_chain
+    from omcrl.pipeline.notebooks import run_chain
 
     nb = nbformat.v4.new_notebook()
     p = nbformat.v4.new_code_cell('preset = "smoke"')
@@ -180,7 +180,7 @@ def _fake_results(root: Path) -> None:
 
 @pytest.mark.parametrize("preset", ["smoke", "quick"])
 def test_summary_lists_every_figure_and_the_table(tmp_path, preset):
-    from omcrl.summary import SMOKE_NOTE, write_summary
+    from omcrl.pipeline.summary import SMOKE_NOTE, write_summary
 
     cfg = load_config(preset, overrides=[f"results_dir={tmp_path}"])
     _fake_results(cfg.run_root)

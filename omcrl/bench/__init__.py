@@ -11,14 +11,14 @@ import argparse
 import datetime as _dt
 import json
 import math
-import os
-import platform
 import statistics
-import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+from omcrl.utils.io import atomic_write_text
+from omcrl.utils.runtime import machine_info
 
 BENCH_DIR = Path("results") / "bench"
 
@@ -65,23 +65,6 @@ def timeit(
     }
 
 
-def machine_info() -> dict[str, Any]:
-    """What the numbers depend on: CPU count, threads, Python and torch versions."""
-    info: dict[str, Any] = {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "python": platform.python_version(),
-        "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
-    }
-    torch = sys.modules.get("torch")
-    if torch is not None:
-        info["torch"] = torch.__version__
-        info["torch_threads"] = torch.get_num_threads()
-        info["cuda"] = bool(torch.cuda.is_available())
-    return info
-
-
 def _fmt(v: Any) -> str:
     if isinstance(v, bool) or v is None:
         return str(v)
@@ -112,7 +95,6 @@ def format_table(rows: Sequence[dict]) -> str:
 def write_results(name: str, rows: list[dict], out: str | Path | None = None, **meta: Any) -> Path:
     """Print ``rows`` as a table and write them, with machine info, to ``out`` (default
     ``results/bench/<name>.json``) atomically; return the path."""
-    from omcrl.utils.io import atomic_write_text
 
     path = Path(out) if out is not None else BENCH_DIR / f"{name}.json"
     print(f"# benchmark {name}")

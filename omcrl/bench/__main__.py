@@ -10,11 +10,9 @@ from pathlib import Path
 
 import omcrl.bench as _pkg
 
-KNOWN = ("env", "pretrain", "rl", "eval", "deploy", "sweep", "cost", "precision")
-
 
 def available() -> list[str]:
-    """Benchmark modules present in this package (``env``, ``pretrain``, ``rl`` when written)."""
+    """The benchmark modules of this package (``env``, ``pretrain``, ``rl``, ...)."""
     return sorted(m.name for m in pkgutil.iter_modules([str(Path(_pkg.__file__).parent)]) if not m.name.startswith("_"))
 
 
@@ -23,12 +21,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     names = available()
     if not args or args[0] in ("-h", "--help"):
         print(__doc__)
-        print(f"benchmarks: {', '.join(names) or 'none yet'} (planned: {', '.join(KNOWN)})")
+        print(f"benchmarks: {', '.join(names)}")
         return 0 if args else 2
     name, rest = args[0], args[1:]
     if name not in names:
-        state = "is not available yet" if name in KNOWN else "does not exist"
-        print(f"error: benchmark {name!r} {state}; available: {', '.join(names) or 'none'}", file=sys.stderr)
+        print(f"error: benchmark {name!r} does not exist; available: {', '.join(names)}", file=sys.stderr)
         return 2
     module = importlib.import_module(f"omcrl.bench.{name}")
     rc = module.main(rest)

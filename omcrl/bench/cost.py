@@ -11,7 +11,7 @@ Measured on this machine at the preset's shapes, each on its own (no training is
 * ``pretrain omc`` / ``pretrain curl`` — optimiser steps/s at the preset's pretraining shape
   (:func:`omcrl.bench.pretrain.measure`).
 
-From these it writes the rates :func:`omcrl.sweep.sweep_cost` takes (units/s per ``rate_key``) for a node with
+From these it writes the rates :func:`omcrl.pipeline.plan.sweep_cost` takes (units/s per ``rate_key``) for a node with
 ``--cores`` cores. The model: an env step costs ``1 / (env × min(n_envs, cores))`` (env workers in parallel) plus the
 rollout's forwards per step; a trainer whose encoder learns adds ``epochs ×`` its fwd+bwd per sample; the network
 terms shrink by ``this machine's threads / cores`` (linear scaling: optimistic); evaluation episodes take
@@ -29,12 +29,15 @@ import numpy as np
 import torch
 
 from omcrl.bench import parser, timeit, write_results
+from omcrl.bench.env import _walk
+from omcrl.bench.pretrain import measure as pretrain_measure
 from omcrl.config import Config, load_config
+from omcrl.envs import make_env
+from omcrl.models.encoder import DepthEncoder, PixelEncoder
+from omcrl.utils.runtime import cpu_count
 
 
 def _env_rate(cfg: Config, seconds: float) -> float:
-    from omcrl.bench.env import _walk
-    from omcrl.envs import make_env
 
     env = make_env(cfg.env.scene, seed=0, config=cfg.env)
     env.reset(seed=0)
@@ -56,8 +59,6 @@ def _per_item(fn, items: int, min_time: float) -> float:
 
 
 def measure(cfg: Config, minibatch: int, env_seconds: float, min_time: float, pretrain_shape: str) -> dict:
-    from omcrl.bench.pretrain import measure as pretrain_measure
-    from omcrl.models.encoder import DepthEncoder, PixelEncoder
 
     L, S, E = cfg.env.frame_stack, cfg.pretrain.crop_to, cfg.env.image_size
     d, n = cfg.pretrain.feature_dim, cfg.rl.n_envs
@@ -112,7 +113,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--episode-steps", type=int, default=300, help="assumed steps per evaluation episode")
     ap.add_argument("--rates-out", default=None, help="also write the rates as JSON for `sweep --plan --rates`")
     args = ap.parse_args(argv)
-    from omcrl.utils.runtime import cpu_count
 
     cfg = load_config(args.preset)
     threads = torch.get_num_threads()

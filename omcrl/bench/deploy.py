@@ -21,17 +21,18 @@ from pathlib import Path
 import numpy as np
 
 from omcrl.bench import parser, write_results
+from omcrl.config import load_config, save_config
+from omcrl.deploy import OnnxPolicy, export_onnx
+from omcrl.envs import make_env
+from omcrl.models import ActorCritic, random_encoder, save_encoder
+from omcrl.models.features import make_student_features
+from omcrl.rl import load_policy
+from omcrl.rl.policy import policy_payload
 
 
 def _fresh_policy(root: Path, image_size: int) -> Path:
     """A run folder with an untrained ``ours``-shaped policy (random frozen encoder) at ``image_size``."""
     import torch
-
-    from omcrl.config import load_config, save_config
-    from omcrl.envs import make_env
-    from omcrl.models import ActorCritic, random_encoder, save_encoder
-    from omcrl.models.features import make_student_features
-    from omcrl.rl.policy import policy_payload
 
     crop = image_size - image_size // 8
     cfg = load_config("quick", overrides=[f"env.image_size={image_size}", f"pretrain.crop_from={image_size}",
@@ -51,9 +52,6 @@ def _fresh_policy(root: Path, image_size: int) -> Path:
 
 def measure(run: Path, seconds: float, blocks: int = 10) -> list[dict]:
     import torch
-
-    from omcrl.deploy import OnnxPolicy, export_onnx
-    from omcrl.rl import load_policy
 
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:  # never write into the user's run folder

@@ -27,17 +27,20 @@ import numpy as np
 
 from omcrl.bench import parser, write_results
 from omcrl.bench.env import _walk
+from omcrl.bench.rl import _vec_env_rate
 from omcrl.config import Config, load_config
+from omcrl.envs import make_env, make_vec_env
+from omcrl.eval.runner import EvalPool, evaluate
+from omcrl.eval.stage import planner_for
+from omcrl.models import random_encoder, save_encoder
+from omcrl.models.actor_critic import ActorCritic
+from omcrl.rl import load_policy
+from omcrl.rl.policy import make_student_features, policy_payload, space_shapes
 
 
 def _student_policy(cfg: Config, root: Path) -> Path:
     """A student policy file on a random-init frozen encoder (its cost does not depend on its weights)."""
     import torch
-
-    from omcrl.envs import make_env
-    from omcrl.models import random_encoder, save_encoder
-    from omcrl.models.actor_critic import ActorCritic
-    from omcrl.rl.policy import make_student_features, policy_payload, space_shapes
 
     enc = random_encoder(cfg, seed=0)
     enc_path = save_encoder(root / "encoder.pt", enc.f, enc.phi, cfg)
@@ -53,12 +56,6 @@ def _student_policy(cfg: Config, root: Path) -> Path:
 def measure(
     cfg: Config, episodes: int, rounds: int, vec_seconds: float, root: Path, lanes: Sequence[int] = (1,)
 ) -> list[dict]:
-    from omcrl.bench.rl import _vec_env_rate
-    from omcrl.envs import make_vec_env
-    from omcrl.eval.runner import EvalPool, evaluate
-    from omcrl.eval.stage import planner_for
-    from omcrl.rl import load_policy
-    from omcrl.rl.policy import make_student_features
 
     student = _student_policy(cfg, root)
     enc_path = root / "encoder.pt"

@@ -35,12 +35,19 @@ import torch
 
 from omcrl.bench import parser, write_results
 from omcrl.config import Config, load_config
+from omcrl.envs import make_env
+from omcrl.models import random_encoder, save_encoder
+from omcrl.models.actor_critic import ActorCritic
+from omcrl.models.features import make_oracle_features, make_pixel_features, make_student_features
+from omcrl.pretrain.learner import ContrastiveLearner
+from omcrl.rl.ppo import PPO, Rollout
+from omcrl.utils.precision import autocast, native_bf16
+from omcrl.utils.runtime import cpu_count
 
 PRECISIONS = ("fp32", "bf16")
 
 
 def _space(cfg: Config) -> Any:
-    from omcrl.envs import make_env
 
     env = make_env(cfg.env.scene, seed=0, config=cfg.env)
     space = env.observation_space
@@ -62,9 +69,6 @@ def _obs(space: Any, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
 def _agents(cfg: Config, space: Any, root: Path) -> dict[str, Any]:
     """``{kind: ActorCritic}`` with fresh weights for the three feature kinds (the frozen encoder is written to
     ``root`` and loaded as a student loads it)."""
-    from omcrl.models import random_encoder, save_encoder
-    from omcrl.models.actor_critic import ActorCritic
-    from omcrl.models.features import make_oracle_features, make_pixel_features, make_student_features
 
     p = cfg.pretrain
     torch.manual_seed(0)
@@ -79,7 +83,6 @@ def _agents(cfg: Config, space: Any, root: Path) -> dict[str, Any]:
 
 def _rollout(agent: Any, space: Any, cfg: Config, transitions: int, rng: np.random.Generator) -> Any:
     """A :class:`~omcrl.rl.ppo.Rollout` of ``transitions`` random transitions (T × n_envs) for ``agent``."""
-    from omcrl.rl.ppo import Rollout
 
     n = cfg.rl.n_envs
     t = max(1, transitions // n)
@@ -104,7 +107,6 @@ ROLLOUT_BLOCK = 32
 
 def _forced(agent: Any, fn: Callable[[], Any]) -> Any:
     """``fn()`` under autocast of ``agent.precision`` (inference is fp32 in the kit; this measures bf16's)."""
-    from omcrl.utils.precision import autocast
 
     with torch.no_grad(), autocast(agent.precision):
         return fn()
@@ -115,7 +117,6 @@ def _steps(agent: Any, batch: dict[str, np.ndarray]) -> None:
 
     The kit runs inference in fp32 whatever the precision (the agent's own rule); this region forces bf16 on it,
     so the row measures what bf16 inference would cost: the reason for that rule."""
-    from omcrl.utils.precision import autocast
 
     with autocast(agent.precision):
         for _ in range(ROLLOUT_BLOCK):
@@ -143,8 +144,6 @@ def _interleaved(units: dict[str, dict[str, Callable[[], Any]]], rounds: int) ->
 def units(cfg: Config, root: Path, paper_batch: int | None = None) -> dict[str, dict[str, Callable[[], Any]]]:
     """The timed callables, ``{unit: {precision: fn}}``; ``paper_batch`` shrinks the PPO batch and pretraining
     batch (the paper's shapes on a CPU)."""
-    from omcrl.pretrain.learner import ContrastiveLearner
-    from omcrl.rl.ppo import PPO
 
     rng = np.random.default_rng(0)
     space = _space(cfg)
@@ -210,8 +209,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--paper", action="store_true", help="also the paper preset's shapes at small batches")
     ap.add_argument("--paper-batch", type=int, default=64, help="PPO transitions per update at --paper (64)")
     args = ap.parse_args(argv)
-    from omcrl.utils.precision import native_bf16
-    from omcrl.utils.runtime import cpu_count
 
     torch.set_num_threads(args.threads or cpu_count())
     rounds = 2 if args.quick else args.rounds

@@ -39,7 +39,23 @@ import torch
 
 from omcrl.bench import parser, write_results
 from omcrl.config import Config, load_config
+from omcrl.envs import make_env, make_vec_env
+from omcrl.models import random_encoder, save_encoder
+from omcrl.models.actor_critic import ActorCritic
+from omcrl.rl import train_oracle, train_pixel, train_student
+from omcrl.rl.guidance import PolicyGuide
+from omcrl.rl.methods import METHODS, planner_factory
+from omcrl.rl.policy import (
+    load_policy,
+    make_oracle_features,
+    make_pixel_features,
+    make_student_features,
+    policy_payload,
+    space_shapes,
+)
+from omcrl.rl.rollout import GUIDE_CHUNK
 from omcrl.utils.precision import section_precision
+from omcrl.viz.rl import run_summary
 
 
 def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | None, guide: Path | None = None) -> float:
@@ -50,11 +66,6 @@ def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | Non
     oracle policy file evaluated as the rollout evaluates its guide (inputs prepared every step, the network
     run once per chunk of :data:`omcrl.rl.rollout.GUIDE_CHUNK` states).
     """
-    from omcrl.envs import make_vec_env
-    from omcrl.models.actor_critic import ActorCritic
-    from omcrl.rl.guidance import PolicyGuide
-    from omcrl.rl.policy import load_policy
-    from omcrl.rl.rollout import GUIDE_CHUNK
 
     env = make_vec_env(cfg.env.scene, cfg.rl.n_envs, seed=0, config=cfg.env)
     try:
@@ -84,9 +95,6 @@ def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | Non
 
 def _untrained_oracle(cfg: Config, path: Path) -> Path:
     """An oracle policy file with the env's observation shapes and fresh weights."""
-    from omcrl.envs import make_env
-    from omcrl.rl.policy import make_oracle_features, policy_payload, space_shapes
-    from omcrl.rl.ppo import ActorCritic
 
     env = make_env(cfg.env.scene, seed=0, config=cfg.env)
     space = env.observation_space
@@ -97,7 +105,6 @@ def _untrained_oracle(cfg: Config, path: Path) -> Path:
 
 
 def _train_rate(label: str, limit: str, fn: Callable[[], Any]) -> dict:
-    from omcrl.viz.rl import run_summary
 
     t0 = time.perf_counter()
     res = fn()
@@ -127,11 +134,6 @@ def measure(
 ) -> list[dict]:
     import importlib
 
-    from omcrl.models import random_encoder, save_encoder
-    from omcrl.rl import train_oracle, train_pixel, train_student
-    from omcrl.rl.methods import METHODS, _planner_factory
-    from omcrl.rl.policy import make_oracle_features, make_pixel_features, make_student_features
-
     rollout = importlib.import_module("omcrl.rl.rollout")  # where the runner reads GUIDE_CHUNK
 
     enc = random_encoder(cfg, seed=0)
@@ -152,7 +154,7 @@ def measure(
         prec = [f"rl.precision={cfg.rl.precision}", f"pretrain.precision={cfg.pretrain.precision}"]
         return load_config(cfg.preset, overrides=[f"results_dir={root}", f"rl.total_steps={steps}", *prec, *extra])
 
-    run, apf = config(), _planner_factory(cfg, METHODS["npe"].guide)
+    run, apf = config(), planner_factory(cfg, METHODS["npe"].guide)
     rows.append(
         _train_rate("(c) student", "student+guide", lambda: train_student(run, enc_path, oracle_path, progress=False))
     )

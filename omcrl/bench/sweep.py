@@ -1,8 +1,8 @@
 """``python -m omcrl.bench sweep``: the same sweep on an embedded Ray with 1 and with N CPUs, side by side.
 
 Each case runs the grid from nothing (its own empty results folder, so no job is cached) with
-``ray.init(num_cpus=k)``; jobs ask Ray for the CPUs they keep busy (:func:`omcrl.sweep.job_cpus`), so with one CPU
-they run one at a time and with more they overlap where dependencies and CPUs allow. Reported per case: the
+``ray.init(num_cpus=k)``; jobs ask Ray for the CPUs they keep busy (:func:`omcrl.pipeline.sweep.job_cpus`), so
+with one CPU they run one at a time and with more they overlap where dependencies and CPUs allow. Reported per case: the
 sweep's wall time, the sum of its jobs' own times, and ``speedup`` = wall(1 CPU) / wall(k CPUs). The evaluation
 rows of every case are compared with the first case's (``same_rows``): scaling must not change results.
 
@@ -21,13 +21,13 @@ import pandas as pd
 
 from omcrl.bench import parser, write_results
 from omcrl.config import load_config
+from omcrl.pipeline.sweep import run_sweep
 
 
 def run_case(
     preset: str, grid: str, seeds: list[int], num_cpus: int, root: Path, overrides: Sequence[str] = ()
 ) -> tuple[float, float, pd.DataFrame]:
     """One sweep from an empty ``root`` on an embedded Ray of ``num_cpus``: (wall s, Σ job s, episodes)."""
-    from omcrl.sweep import run_sweep
 
     cfg = load_config(preset, overrides=[f"results_dir={root}", f"data.file={root}/data/box.h5", *overrides])
     res = run_sweep(cfg, grid, seeds, backend="ray", num_cpus=num_cpus, progress=False)

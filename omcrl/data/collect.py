@@ -17,8 +17,9 @@ Sources (proportions ``cfg.data.mix``)
             ``cfg.data.random_corr``, σ = 0.6, ε ~ N(0, I)); the action is (0.3 + x₀, 0.5·x₁, x₂) clipped to
             [-1, 1], i.e. a forward bias so the drone travels through the scene instead of spinning in place.
 ``policy``  any callable ``policy(obs, info) -> action (3,)`` given to :func:`run`, or, with
-            ``cfg.data.policy = "oracle"``, this config's trained oracle at ``cfg.seed`` (deterministic);
-            ``obs``/``info`` are those of a single env.
+            ``cfg.data.policy = "oracle"``, this config's trained oracle at ``cfg.seed`` (deterministic), which
+            the collect stage (:func:`omcrl.pipeline.stages.collect_stage`, ``python -m omcrl collect``) finds
+            and passes in; ``obs``/``info`` are those of a single env.
 
 Determinism and ordering
 ------------------------
@@ -50,7 +51,9 @@ import numpy as np
 
 from omcrl.config import Config, ConfigError
 from omcrl.data.dataset import SOURCES, DatasetError, DatasetWriter, EpisodeBuffer, open_dataset
+from omcrl.envs import make_vec_env
 from omcrl.envs.render import resolve_renderer
+from omcrl.planners.apf import HybridAPF
 from omcrl.utils.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -228,26 +231,12 @@ def _check(cfg: Config, policy: Policy | None) -> None:
             f"(e.g. --set pretrain.crop_from={cfg.env.image_size})"
         )
     if cfg.data.mix.get("policy", 0.0) > 0 and policy is None:
-        raise ConfigError(f"data.mix gives 'policy' weight {cfg.data.mix['policy']} but no policy was passed")
-
-
-def oracle_policy(cfg: Config) -> Policy:
-    """The act function of this config's trained oracle at ``cfg.seed`` (for ``data.policy=oracle``).
-
-    Raises
-    ------
-    ConfigError : the oracle is not trained (checked before any episode is flown).
-    """
-    from omcrl.rl.methods import oracle_path
-    from omcrl.rl.policy import load_policy
-
-    path = oracle_path(cfg)
-    if not path.exists():
-        raise ConfigError(
-            f"data.policy='oracle': the oracle of this config at seed {cfg.seed} is not trained ({path} does not "
-            f"exist); train it first: python -m omcrl oracle --preset {cfg.preset} --seed {cfg.seed}"
+        hint = (
+            " (data.policy='oracle': the collect stage passes the oracle, omcrl.pipeline.stages.collect_stage)"
+            if cfg.data.policy == "oracle"
+            else ""
         )
-    return load_policy(path, "oracle", expect_kind="oracle").act
+        raise ConfigError(f"data.mix gives 'policy' weight {cfg.data.mix['policy']} but no policy was passed{hint}")
 
 
 def _open_existing(path: Path, cfg: Config) -> int:
@@ -288,12 +277,8 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
     ConfigError : image size mismatch with pretraining, or a policy share without a policy.
     DatasetError : the existing file is unreadable or was collected with another image size / frame stack.
     """
-    from omcrl.envs import make_vec_env
-    from omcrl.planners.apf import HybridAPF
 
     t_start = time.perf_counter()
-    if policy is None and cfg.data.policy == "oracle":
-        policy = oracle_policy(cfg)
     _check(cfg, policy)
     d = cfg.data
     path = dataset_path(cfg)

@@ -40,6 +40,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+import omcrl
 from omcrl.utils.io import current_umask
 
 FORMAT_VERSION = 1
@@ -151,7 +152,6 @@ class DatasetWriter:
 
     def _create(self, env_config: dict) -> None:
         """An empty valid file under a temporary name, renamed into place."""
-        import omcrl
 
         fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp")
         os.fchmod(fd, 0o666 & ~current_umask())  # the finished file gets the umask's permissions, not 0600

@@ -6,13 +6,14 @@ from typing import Any
 
 import numpy as np
 
+from omcrl.envs import make_env
+
 
 def record_observations(policy: Any, env_config: Any, n: int, seed: int = 0, scene: str = "box") -> list[dict]:
     """``n`` observations met while ``policy`` flies in ``scene`` (episodes from evaluation-range seeds).
 
     Returns a list of ``{"rgb": (L, 3, H, W) uint8, "state": (12,) float32}`` copies.
     """
-    from omcrl.envs import make_env
 
     env = make_env(scene, seed=seed, config=env_config)
     out: list[dict] = []

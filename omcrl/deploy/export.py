@@ -21,6 +21,10 @@ from typing import Any
 import torch
 from torch import nn
 
+from omcrl.config import ConfigError
+from omcrl.rl.policy import load_policy
+from omcrl.utils.io import atomic_write_bytes
+
 SPEC_KEY = "omcrl_spec"
 STATE_LAYOUT = ("vx", "vy", "vz", "wx", "wy", "wz", "roll", "pitch", "yaw", "goal_x", "goal_y", "goal_z")
 ACTION_LAYOUT = ("vx", "vy", "wz")
@@ -94,9 +98,6 @@ def export_onnx(policy: str | Path, out: str | Path | None = None, opset: int = 
     """
     import onnx
 
-    from omcrl.rl.policy import load_policy
-    from omcrl.utils.io import atomic_write_bytes
-
     path = resolve_policy(policy)
     pol = load_policy(path)
     kind = pol.agent.features.kind
@@ -155,7 +156,6 @@ def export_onnx(policy: str | Path, out: str | Path | None = None, opset: int = 
 
 def export_stage(cfg: Any, policy: str | None = None, out: str | None = None) -> Path:
     """CLI stage ``export``: ``python -m omcrl export --policy <run or final.pt> [--out FILE]``."""
-    from omcrl.config import ConfigError
 
     if policy is None:
         raise ConfigError("stage 'export' needs --policy <run folder or final.pt>")

@@ -35,6 +35,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from omcrl.deploy.camera import CameraView
+
 
 class Drone(Protocol):
     def takeoff(self) -> None: ...
@@ -277,8 +279,6 @@ class ControlLoop:
         if (w, h) != (cam.width, cam.height):
             cam = cam.scaled(w, h)
         if self._camera_view is None or self._camera_view.source != cam:
-            from omcrl.deploy.camera import CameraView
-
             self._camera_view = CameraView(cam, float(self.policy.spec.get("fov_deg", 82.6)), self.size)
         return np.ascontiguousarray(self._camera_view(frame).transpose(2, 0, 1))
 

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import EnvConfig
+from omcrl.envs import make_env
 
 
 class SimulatedDrone:
@@ -45,7 +46,6 @@ class SimulatedDrone:
         speed: float = 1.0,
         camera: Any = None,
     ) -> None:
-        from omcrl.envs import make_env
 
         cfg = dataclasses.replace(env_config, max_steps=10**6)
         self.cfg = cfg

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from omcrl.deploy.camera import TELLO
+
 
 class TelloDrone:
     """The :class:`~omcrl.deploy.loop.Drone` interface over a real ``djitellopy.Tello``.
@@ -137,7 +139,6 @@ class TelloVideo:
     Tello's intrinsics (:data:`omcrl.deploy.camera.TELLO`)."""
 
     def __init__(self, reader: Any, camera: Any = None) -> None:
-        from omcrl.deploy.camera import TELLO
 
         self.reader = reader
         # The camera the frames come from: the control loop maps them into the simulator's view through it

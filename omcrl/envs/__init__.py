@@ -1,6 +1,6 @@
 """PyBullet world: scene specs -> drone -> camera -> NavEnv (gymnasium) -> vector envs, wrappers.
 
-Importing this package registers a Gymnasium id for every scene of :mod:`omcrl.envs.scenes`
+Importing this package registers a Gymnasium id for every scene of :mod:`omcrl.scenes`
 (``omcrl/Box-v0``, ``omcrl/Furniture-v1``, ``omcrl/Furniture-v0``, ``omcrl/Barrier-v0``, ``omcrl/Tree-v0``):
 ``gymnasium.make("omcrl/Tree-v0", image_size=64)`` takes :class:`NavEnv`'s keyword arguments. The env classes
 load on first use, so the scene registry (which the config validates against) does not load PyBullet.
@@ -13,7 +13,7 @@ from typing import Any
 
 import gymnasium as _gym
 
-from omcrl.envs.scenes import PAPER_SUITE, SCENE_SPECS, SCENES, STRESS_SCENES, SceneSpec, scene_id, scene_spec
+from omcrl.scenes import PAPER_SUITE, SCENE_SPECS, SCENES, STRESS_SCENES, SceneSpec, scene_id, scene_spec
 
 GYM_IDS = {spec.id: spec.gym_id for spec in SCENE_SPECS.values()}
 for _scene, _id in GYM_IDS.items():

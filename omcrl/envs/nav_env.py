@@ -4,7 +4,7 @@ The drone flies at a fixed altitude and is commanded in its body frame with (vx,
 through a first-order velocity response with an acceleration limit (a Tello-like model). A forward camera
 (FOV 82.6°) renders RGB and linear depth with PyBullet's TinyRenderer in DIRECT mode, one physics client per
 env. Collisions, the nearest obstacle and the occupancy map come from the analytic geometry of the scene (see
-:mod:`omcrl.envs.geometry`), never from PyBullet contacts, so one step costs one render.
+:mod:`omcrl.scenes.geometry`), never from PyBullet contacts, so one step costs one render.
 
 Observation (dict)
 ------------------
@@ -35,11 +35,11 @@ import pybullet as pb
 from gymnasium import spaces
 
 from omcrl.config import ConfigError, EnvConfig, _check_value, show, validate_env
-from omcrl.envs.geometry import Geometry, Primitive
+from omcrl.envs.grid import OccupancyGrid, build_grid, components, shortest_path
 from omcrl.envs.render import load_egl, pybullet_renderer, resolve_renderer
-from omcrl.envs.scenes import SCENE_SPECS, decor, generate_scene, layout_to_primitives, scene_id, scene_spec
-from omcrl.envs.textures import texture_file
-from omcrl.planners.grid import OccupancyGrid, build_grid, components, shortest_path
+from omcrl.envs.textures import TEXTURE_KINDS, texture_file
+from omcrl.scenes import SCENE_SPECS, decor, generate_scene, layout_to_primitives, scene_id, scene_spec
+from omcrl.scenes.geometry import Geometry, Primitive
 
 GRAVITY = 9.81
 APPEARANCE_PARTS = ("all", "surroundings", "obstacles")
@@ -108,8 +108,6 @@ class Disturbance:
         if out.obstacle_colors not in (None, "random"):
             raise ConfigError(f"disturbance.obstacle_colors: got {out.obstacle_colors!r}, expected None or 'random'")
         if out.obstacle_texture is not None:
-            from omcrl.envs.textures import TEXTURE_KINDS
-
             if out.obstacle_texture not in TEXTURE_KINDS:
                 raise ConfigError(
                     f"disturbance.obstacle_texture: got {show(out.obstacle_texture)}, expected None or one of "
@@ -899,7 +897,7 @@ def make_env(
     """Build a :class:`NavEnv`.
 
     ``scene`` is a scene id (``furniture-v0``) or family (``furniture``: its latest version), see
-    :mod:`omcrl.envs.scenes`; ``image_size``/``frame_stack`` and other keywords are ``EnvConfig`` fields that
+    :mod:`omcrl.scenes`; ``image_size``/``frame_stack`` and other keywords are ``EnvConfig`` fields that
     override ``config`` (default 64 px, L = 3). ``scene=None`` takes the scene from ``config``.
     """
     if scene is None and config is not None:

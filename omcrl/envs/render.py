@@ -16,7 +16,7 @@ from dataclasses import asdict
 from typing import Any
 
 from omcrl.config import ConfigError
-from omcrl.envs.scenes import scene_key
+from omcrl.scenes import scene_key
 
 # PyBullet is imported inside the functions that render: resolving a renderer name for a run's identity must not
 # load it (importing it prints its build time, and the CLI reports config errors before any such line).
@@ -97,7 +97,7 @@ def pybullet_renderer(resolved: str) -> int:
 def env_identity(env_cfg: Any) -> dict:
     """The env config as it enters run and evaluation keys: ``renderer`` resolved, and left out when it is
     TinyRenderer (the renderer every run used before the field existed), so CPU runs keep their keys; the scene
-    as :func:`~omcrl.envs.scenes.scene_key` names it."""
+    as :func:`~omcrl.scenes.scene_key` names it."""
     d = asdict(env_cfg)
     d["scene"] = scene_key(d["scene"])  # a v0 scene keeps its bare name: runs from before versions keep their keys
     resolved = resolve_renderer(d.pop("renderer", "tiny"))

@@ -29,7 +29,7 @@ def geometry_stats(
 
     Parameters
     ----------
-    scene : a scene id or family (``omcrl.envs.scenes``); rows name its id.
+    scene : a scene id or family (``omcrl.scenes``); rows name its id.
     seeds : episode seeds; ``env.reset(seed=s)`` draws the layout, start and goal exactly as an evaluation
         episode with that seed does (Table I uses ``omcrl.eval.runner.eval_seeds``).
     config : env settings (arena, altitude, drone radius, grid resolution); default ``EnvConfig()``.

@@ -4,6 +4,7 @@
 ``<run_root>/runs`` plus Hybrid APF in all evaluation scenes, tables under ``<run_root>/tables``.
 """
 
+from omcrl.agent import start_episode
 from omcrl.eval.metrics import (
     GLOSSARY,
     METRICS,
@@ -13,7 +14,7 @@ from omcrl.eval.metrics import (
     summarize,
     summary_table,
 )
-from omcrl.eval.runner import EvalPool, eval_seeds, evaluate, start_episode
+from omcrl.eval.runner import EvalPool, eval_seeds, evaluate
 from omcrl.eval.stage import EvalResult, evaluate_methods, find_policies, run, to_markdown, write_tables
 from omcrl.eval.stats import aggregate, compare_sr, mean_ci
 from omcrl.eval.table1 import Table1Result, evaluate_grid, paper_table1, write_table1

@@ -11,8 +11,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from omcrl.envs.scenes import is_unseen
-from omcrl.eval.stats import aggregate
+from omcrl.eval.stage import to_markdown
+from omcrl.eval.stats import aggregate, compare_sr
+from omcrl.eval.table1 import _latex, _markdown, table1_frames
+from omcrl.scenes import is_unseen
 from omcrl.utils.io import atomic_write_text
 
 PAPER_TABLES = {"sequential": "table2", "decay": "table3"}
@@ -27,7 +29,6 @@ def ablation_table(episodes: pd.DataFrame, reps: int = 2000) -> pd.DataFrame:
 
 def write_ablation(episodes: pd.DataFrame, directory: str | Path, grid: str, reps: int = 2000) -> dict[str, Path]:
     """Write the ablation table of ``grid`` (and its paper-table copy); returns the paths by suffix."""
-    from omcrl.eval.table1 import _latex, _markdown, table1_frames
 
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
@@ -54,7 +55,7 @@ def write_ablation(episodes: pd.DataFrame, directory: str | Path, grid: str, rep
 
 
 # The paper's six ablation findings (VI-C) as orderings "a > b" in SR between variants (labels of
-# :data:`omcrl.sweep.GRIDS`), checked in every evaluation scene, as the paper reports ablations there.
+# :data:`omcrl.pipeline.grids.GRIDS`), checked in every evaluation scene, as the paper reports ablations there.
 ABLATION_CLAIMS: tuple[tuple[str, str, str, str], ...] = (
     *(("1 masking: rho = 0.5 is best", "mask-prob", "rho=0.5", f"rho={r}") for r in (0.1, 0.3, 0.7, 0.9)),
     ("2 sequential input does not help CURL", "sequential", "CURL", "CURL-cons"),
@@ -87,7 +88,6 @@ def ablation_findings(
     points with its 95 % two-stage bootstrap CI, and ``holds`` (CI above 0), ``reversed`` (below) or
     ``undecided``.
     """
-    from omcrl.eval.stats import compare_sr
 
     rows = []
     for finding, grid, a, b in ABLATION_CLAIMS:
@@ -130,7 +130,6 @@ def write_findings(
     s = findings_summary(f)
     paths = {"csv": d / "ablation_findings.csv", "md": d / "ablation_findings.md"}
     atomic_write_text(paths["csv"], f.to_csv(index=False))
-    from omcrl.eval.stage import to_markdown
 
     ci = [f"{r.diff:+.1f} [{r.lo:+.1f}, {r.hi:+.1f}]" for r in f.itertuples()]
     detail = f.assign(**{"SR a − b (pp) [95 % CI]": ci})[
@@ -153,7 +152,7 @@ ZERO_SHOT_TARGET = 50.0
 def remedy_verdicts(
     episodes: pd.DataFrame, reference: str = "default", target: float = ZERO_SHOT_TARGET, reps: int = 2000
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """How each remedy of a ``remedy-*`` sweep (:data:`omcrl.sweep.REMEDY_VARIANTS`) changes the zero-shot SR.
+    """How each remedy of a ``remedy-*`` sweep (:data:`omcrl.pipeline.sweep.REMEDY_VARIANTS`) changes the zero-shot SR.
 
     Parameters
     ----------
@@ -171,7 +170,6 @@ def remedy_verdicts(
     or ``not met``, and ``seeds meeting it``: ``k/n``, the training seeds whose own SR reaches the target in
     every unseen scene (with two or three seeds a wide CI can reach the target while no single seed does).
     """
-    from omcrl.eval.stats import compare_sr
 
     ep = episodes.drop(columns=["method"], errors="ignore").rename(columns={"label": "method"})
     if reference not in set(ep["method"]):
@@ -210,7 +208,6 @@ def write_remedies(
     episodes: pd.DataFrame, directory: str | Path, grid: str, reps: int = 2000
 ) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, Path]]:
     """:func:`remedy_verdicts` written as ``remedy_<grid>.csv`` (every check) and ``remedy_<grid>.md``."""
-    from omcrl.eval.stage import to_markdown
 
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
@@ -255,7 +252,6 @@ def precision_table(episodes: pd.DataFrame, reps: int = 2000) -> pd.DataFrame:
     (bf16 − fp32 in percentage points, 95 % two-stage bootstrap CI of the difference), ``resolved`` (the CI
     excludes 0).
     """
-    from omcrl.eval.stats import compare_sr
 
     ep = episodes.drop(columns=["method"], errors="ignore").rename(columns={"label": "method"})
     agg = aggregate(ep, ("method", "scene"), reps=reps)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import inspect
 import os
 from collections.abc import Callable
 from typing import Any
@@ -10,34 +9,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from omcrl.agent import start_episode
 from omcrl.eval.metrics import REQUIRED
 from omcrl.utils.progress import Progress
-from omcrl.utils.runtime import exit_with_parent, set_threads
+from omcrl.utils.runtime import cpu_count, exit_with_parent, set_threads
 
 # Per-episode fields kept from ``info["metrics"]``: what summarize() needs plus where the episode came from.
 METRIC_FIELDS = (*REQUIRED, "out_of_arena", "scene", "seed")
-
-
-def start_episode(agent: Any, info: dict) -> None:
-    """Tell a policy or planner that a new episode starts, handing over the reset ``info`` if it takes it.
-
-    ``agent.reset(info)`` when its ``reset`` accepts a positional argument (e.g. :class:`omcrl.planners.HybridAPF`,
-    which needs the episode's ``pose``, ``goal`` and ``path``), ``agent.reset()`` when it takes none (stateless
-    policies), nothing when there is no ``reset``. Shared by :func:`evaluate` and the planner guide of the RL
-    trainers, so a planner behaves the same in evaluation and as an NPE guide.
-    """
-    reset = getattr(agent, "reset", None)
-    if reset is None:
-        return
-    try:
-        params = inspect.signature(reset).parameters.values()
-    except (TypeError, ValueError):  # builtins without a signature: call without the info
-        params = []
-    P = inspect.Parameter
-    if any(p.kind in (P.POSITIONAL_ONLY, P.POSITIONAL_OR_KEYWORD, P.VAR_POSITIONAL) for p in params):
-        reset(info)
-    else:
-        reset()
 
 
 def eval_seeds(episodes: int, seed: int, seed_offset: int) -> list[int]:
@@ -142,7 +120,11 @@ def _worker_envs(scene: str, make_env: Callable[..., Any] | None, env_kwargs: di
 
 def _make(scene: str, make_env: Callable[..., Any] | None, env_kwargs: dict, seed: int) -> Any:
     if make_env is None:
-        from omcrl.envs import make_env
+        # PyBullet loads in the worker that flies, not with omcrl.eval: the tables, the summary and the
+        # notebooks read results through this package, and PyBullet would add ~1.8 s to each of them.
+        from omcrl.envs.nav_env import make_env as make_scene_env
+
+        make_env = make_scene_env
     return make_env(scene, seed=seed, **env_kwargs)
 
 
@@ -245,8 +227,6 @@ class EvalPool:
     """
 
     def __init__(self, workers: int = 0) -> None:
-        from omcrl.utils.runtime import cpu_count
-
         self.workers = int(workers) or cpu_count()
         self._ex: Any = None
 

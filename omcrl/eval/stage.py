@@ -27,10 +27,15 @@ from typing import Any
 
 import pandas as pd
 
+import omcrl.planners.apf as apf
 from omcrl.config import Config, config_hash
-from omcrl.envs.scenes import scene_id, scene_key
+from omcrl.envs.render import env_identity
 from omcrl.eval.metrics import format_table, summary_table
 from omcrl.eval.runner import EvalPool, evaluate
+from omcrl.planners import HybridAPF, LocalAPF, PerceptiveHybridAPF
+from omcrl.rl import load_policy
+from omcrl.runs import find_runs
+from omcrl.scenes import scene_id, scene_key
 from omcrl.utils.io import atomic_write_text, file_digest
 
 HYBRID_APF = "HybridAPF"
@@ -66,7 +71,6 @@ def find_policies(cfg: Config) -> dict[str, Path]:
     The label is the method name; when one method has runs of several configurations, each is labelled
     ``<method>-<key>``.
     """
-    from omcrl.runs import find_runs
 
     runs = [r for r in find_runs(cfg.run_root, "rl") if r["seed"] == cfg.seed and (r["dir"] / "final.pt").exists()]
     count: dict[str, int] = {}
@@ -80,7 +84,6 @@ def find_policies(cfg: Config) -> dict[str, Path]:
 def planner_for(name: str, env_config: Any = None) -> Any:
     """A fresh planner for a planner method name (``hybrid-apf``, ``hybrid-apf-perceptive``, ``local-apf``;
     ``HybridAPF``)."""
-    from omcrl.planners import HybridAPF, LocalAPF, PerceptiveHybridAPF
 
     cls = {
         HYBRID_APF: HybridAPF,
@@ -93,11 +96,9 @@ def planner_for(name: str, env_config: Any = None) -> Any:
 
 def _load(method: str, source: Any) -> tuple[Any, str]:
     """A policy object and a cache key for ``source``: a checkpoint path, a planner name or a policy."""
-    from omcrl.rl import load_policy
 
     if isinstance(source, str) and source in PLANNERS:
         # Planners are code, not files: their cache key is the digest of the module that implements them.
-        import omcrl.planners.apf as apf
 
         return planner_for(source), f"{source}:{file_digest(Path(apf.__file__))}"
     if isinstance(source, (str, Path)):
@@ -217,7 +218,6 @@ def evaluate_methods(
     """
     scenes = [scene_id(s) for s in (scenes if scenes is not None else cfg.eval.scenes)]
     episodes = int(episodes if episodes is not None else cfg.eval.episodes)
-    from omcrl.envs.render import env_identity  # here: importing omcrl.envs loads PyBullet
 
     env_key = env_identity(cfg.env)
     env_key.pop("scene")

@@ -27,11 +27,12 @@ import numpy as np
 import pandas as pd
 
 from omcrl.config import Config
-from omcrl.envs.scenes import scene_id, scene_label, scene_spec
 from omcrl.eval.metrics import METRICS
 from omcrl.eval.runner import EvalPool
 from omcrl.eval.stage import evaluate_methods
 from omcrl.eval.stats import aggregate, compare_sr
+from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path, get_method
+from omcrl.scenes import scene_id, scene_label, scene_spec
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import track
 
@@ -66,7 +67,6 @@ def method_sources(cfg: Config, methods: Sequence[str], seeds: Sequence[int]) ->
 
     Planners are deterministic and untrained: they appear once, under the first seed.
     """
-    from omcrl.rl.methods import final_policy_path, get_method
 
     found, missing = {}, []
     for m in methods:
@@ -96,7 +96,6 @@ def evaluate_grid(
 
     Returns the episodes (one row each; ``method``, ``train_seed``, ``scene`` ...) and the runs not found.
     """
-    from omcrl.rl.methods import TABLE1_METHODS
 
     methods = list(methods or TABLE1_METHODS)
     seeds = list(seeds if seeds is not None else cfg.seeds)
@@ -140,7 +139,6 @@ def table1_frames(table: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     learned, non-privileged method: a planner that is not privileged (the perceptive Hybrid APF) takes most bolds,
     and without a second mark the best learned policy would not stand out.
     """
-    from omcrl.rl.methods import METHODS
 
     methods = list(dict.fromkeys(table.index.get_level_values("method")))
     scenes = list(dict.fromkeys(table.index.get_level_values("scene")))
@@ -225,7 +223,7 @@ def _latex(wide: pd.DataFrame, labels: dict[str, str]) -> str:
 def vs_paper(table: pd.DataFrame) -> pd.DataFrame:
     """Long table: method, scene, metric, paper (reported), kit (mean), kit_lo, kit_hi — where the paper has a value.
 
-    ``scene`` is the kit's scene that stands for the paper's (:attr:`~omcrl.envs.scenes.SceneSpec.paper_scene`:
+    ``scene`` is the kit's scene that stands for the paper's (:attr:`~omcrl.scenes.SceneSpec.paper_scene`:
     ``furniture-v1`` for the paper's furniture); stress tests have no paper value."""
     paper = paper_table1().set_index(["method", "scene"])
     # The kit's scene that stands for each of the paper's (furniture-v1 for "furniture"; a stress test for none).
@@ -261,7 +259,6 @@ def write_table1(
     reps: int = 2000,
 ) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, Path]]:
     """Aggregate ``episodes`` and write Table I's files; returns (aggregate table, significance, paths)."""
-    from omcrl.rl.methods import METHODS
 
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
@@ -320,7 +317,6 @@ def run(cfg: Config, *, progress: bool = True) -> Table1Result:
     """
     t0 = time.perf_counter()
     episodes, missing = evaluate_grid(cfg, progress=progress)
-    from omcrl.rl.methods import METHODS, TABLE1_METHODS
 
     learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
     if episodes.empty or not set(episodes["method"]) & set(learned):

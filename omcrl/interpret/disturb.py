@@ -25,7 +25,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from omcrl.config import Config, ConfigError, EnvConfig, config_hash
+from omcrl.config import Config, ConfigError, EnvConfig, config_hash, validate_env
+from omcrl.eval.runner import EvalPool, evaluate
+from omcrl.eval.stage import _read_cache, _write_cache
+from omcrl.eval.stats import mean_ci
+from omcrl.rl.methods import final_policy_path, get_method
+from omcrl.rl.policy import CheckpointError, load_policy
+from omcrl.utils.io import file_digest
 
 # A room of 7 m x 7 m with six crates: the size of a motion-capture lab where a Tello flies.
 ROOM = {"arena_half": 3.5, "n_obstacles": 6, "goal_distance": (3.0, 5.5), "goal_radius": 0.5}
@@ -51,7 +57,6 @@ SEED_OFFSET = 3_000_000
 
 def room_config(env: EnvConfig) -> EnvConfig:
     """``env`` with the room's arena, obstacle count, goal distances and 0.5 m success radius (step limit kept)."""
-    from omcrl.config import validate_env
 
     out = copy.deepcopy(env)
     for k, v in ROOM.items():
@@ -69,8 +74,6 @@ def condition(name: str, seed: int = 0) -> dict:
 
 def encoder_policy(cfg: Config, method: str) -> Any:
     """The finished policy of a method with a camera encoder at ``cfg.seed``; clear errors otherwise."""
-    from omcrl.rl.methods import final_policy_path, get_method
-    from omcrl.rl.policy import CheckpointError, load_policy
 
     spec = get_method(method)
     if spec.features not in ("frozen", "pixel"):
@@ -101,9 +104,6 @@ def disturbance_episodes(
     ``<run_root>/interpret/disturbance/<method>/seed<k>/<condition>-<key>.csv``, keyed by the policy file, the room's
     env config, the condition and the episode seeds.
     """
-    from omcrl.eval.runner import EvalPool, evaluate
-    from omcrl.eval.stage import _read_cache, _write_cache
-    from omcrl.utils.io import file_digest
 
     episodes = int(episodes if episodes is not None else cfg.eval.episodes)
     dists = {c: condition(c, cfg.seed) for c in conditions}
@@ -151,7 +151,6 @@ def disturbance_table(episodes_df: pd.DataFrame, reps: int = 2000, seed: int = 0
 
     Returns columns ``method, condition, SR, lo, hi, episodes, paper_SR``.
     """
-    from omcrl.eval.stats import mean_ci
 
     rows = []
     rng = np.random.default_rng(seed)

@@ -38,7 +38,17 @@ import numpy as np
 import pandas as pd
 
 from omcrl.config import Config
-from omcrl.envs.scenes import PAPER_SUITE, SCENE_SPECS, scene_spec
+from omcrl.envs.stats import geometry_stats
+from omcrl.eval.runner import eval_seeds
+from omcrl.eval.stage import evaluate_methods
+from omcrl.eval.stats import aggregate
+from omcrl.interpret.shift import encode, mmd_rbf, pilot_frames
+from omcrl.interpret.transfer import PILOT_SEED, pilot_episodes
+from omcrl.models.artifact import random_encoder
+from omcrl.rl.methods import encoder_config
+from omcrl.scenes import PAPER_SUITE, SCENE_SPECS, scene_spec
+from omcrl.utils.io import atomic_write_text
+from omcrl.utils.progress import track
 
 REFERENCE = "box"
 FLOOR = "box, other layouts"
@@ -90,11 +100,8 @@ def js_divergence(p: np.ndarray, q: np.ndarray) -> float:
 
 def gradient_samples(cfg: Config, episodes: int | None = None, *, progress: bool = False) -> dict[str, np.ndarray]:
     """Pilot RGB stacks (N, 3L, H, W) uint8 per setting: the box reference (twice the episodes, its own seeds),
-    "box, other layouts", and every scene of :data:`~omcrl.envs.scenes.SCENE_SPECS` but box; the settings
+    "box, other layouts", and every scene of :data:`~omcrl.scenes.SCENE_SPECS` but box; the settings
     other than the reference fly the same seeds (so furniture-v0 and v1 share their layouts)."""
-    from omcrl.interpret.shift import pilot_frames
-    from omcrl.interpret.transfer import PILOT_SEED, pilot_episodes
-    from omcrl.utils.progress import track
 
     n = int(episodes if episodes is not None else pilot_episodes(cfg))
     settings = [(REFERENCE, "box-v0"), (FLOOR, "box-v0")]
@@ -119,7 +126,6 @@ def perceptual_table(samples: Mapping[str, np.ndarray], encoders: Mapping[int, A
     DataFrame, one row per setting other than the reference: ``setting, frames, pixel_mmd, colour_js`` and
     ``random_mmd_<init>`` per encoder, ``random_mmd`` (their mean), ``random_mmd_min``, ``random_mmd_max``.
     """
-    from omcrl.interpret.shift import encode, mmd_rbf
 
     ref = samples[REFERENCE]
     ref_px, ref_hist = pixel_features(ref), colour_histogram(ref)
@@ -143,10 +149,6 @@ def navigation_table(cfg: Config, scenes: Sequence[str], *, progress: bool = Fal
     """Per scene, on Table I's evaluation layouts: ``blocked_pct`` (mean), ``detour`` (mean shortest path /
     straight line), ``bent_pct`` (% of layouts with detour > 1.02) and SR / CR (%) with 95 % CIs of each planner of
     :data:`PLANNERS` (evaluations cached as Table I's)."""
-    from omcrl.envs.stats import geometry_stats
-    from omcrl.eval.runner import eval_seeds
-    from omcrl.eval.stage import evaluate_methods
-    from omcrl.eval.stats import aggregate
 
     seeds = eval_seeds(cfg.eval.episodes, 0, cfg.eval.seed_offset)
     geo = pd.concat([geometry_stats(s, seeds, cfg.env) for s in scenes], ignore_index=True)
@@ -229,9 +231,6 @@ def run(
     """CLI stage ``gradient``: the tables of the module docstring under ``<run_root>/tables``; needs nothing
     trained. ``episodes``: pilot episodes per setting (default a quarter of ``cfg.eval.episodes``, at least 2);
     ``inits``: seeds of the random encoders (the student's shape at this preset)."""
-    from omcrl.models.artifact import random_encoder
-    from omcrl.rl.methods import encoder_config
-    from omcrl.utils.io import atomic_write_text
 
     t0 = time.perf_counter()
     samples = gradient_samples(cfg, episodes, progress=progress)

@@ -24,6 +24,10 @@ import numpy as np
 import pandas as pd
 import torch
 
+from omcrl.envs import make_env
+from omcrl.planners import HybridAPF
+from omcrl.pretrain.probe import TARGETS, fit_probes, probe_targets, split_episodes
+
 SATURATION = 0.99
 
 
@@ -69,8 +73,6 @@ def pilot_samples(
     "mask": (N, H, W) bool (with ``masks``), "privileged": (N, 6) float32 and "depth": (N, H, W) float32 in m
     (with ``privileged``)}``.
     """
-    from omcrl.envs import make_env
-    from omcrl.planners import HybridAPF
 
     env = make_env(scene, seed=seed, config=env_config, disturbance=disturbance)
     pilot = HybridAPF(env.cfg).bind(env)
@@ -238,8 +240,6 @@ def probe_across(
     setting (the reference's held-out episodes first). R² below 0 means worse than predicting the mean.
     """
     from sklearn.metrics import r2_score
-
-    from omcrl.pretrain.probe import TARGETS, fit_probes, probe_targets, split_episodes
 
     if reference not in samples:
         raise KeyError(f"probe_across: reference setting {reference!r} not in samples {sorted(samples)}")

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from omcrl.config import ConfigError
+from omcrl.interpret.shift import encode
 
 PERTURBATIONS = ("brightness", "hue", "mask")
 
@@ -97,7 +98,6 @@ def stability_table(
     Returns the table (one row per encoder and perturbation) and the features ``{encoder: {"clean": z,
     kind: z, ...}}`` (N, d) for :func:`tsne_embedding`.
     """
-    from omcrl.interpret.shift import encode
 
     disturbed = {k: perturb(stacks, k, seed) for k in kinds}
     rows, feats = [], {}

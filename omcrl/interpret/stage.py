@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from omcrl.config import Config
+from omcrl.eval.stage import to_markdown
 from omcrl.interpret.disturb import (
     CONDITIONS,
     ENCODER_METHODS,
@@ -30,6 +31,13 @@ from omcrl.interpret.disturb import (
     encoder_policy,
     room_config,
 )
+from omcrl.interpret.gradcam import center_crop, crop_side, mass_share, policy_cam
+from omcrl.interpret.shift import pilot_samples
+from omcrl.interpret.stability import stability_table
+from omcrl.models.artifact import load_encoder, random_encoder
+from omcrl.rl.methods import encoder_config, encoder_path, pretrain_command
+from omcrl.rl.policy import CheckpointError
+from omcrl.utils.io import atomic_write_text
 
 # Grad-CAM frames per condition (the issue asks for >= 200) and feature-stability frames.
 GRADCAM_EPISODES = 16
@@ -64,7 +72,6 @@ class InterpretResult:
 
 def room_frames(cfg: Config, cond: str, episodes: int, masks: bool = True, successful_only: bool = False) -> dict:
     """Scripted-pilot frames in the room under a condition (same layouts for every condition)."""
-    from omcrl.interpret.shift import pilot_samples
 
     return pilot_samples(
         "box",
@@ -91,7 +98,6 @@ def gradcam_table(
     Returns the table (``method, condition, share, obstacle_fraction, lift, frames``) and a few example frames
     with their maps per condition for the figure.
     """
-    from omcrl.interpret.gradcam import center_crop, crop_side, mass_share, policy_cam
 
     policies = {m: encoder_policy(cfg, m) for m in methods}
     rows, examples = [], {}
@@ -109,9 +115,6 @@ def gradcam_table(
 
 def encoders_for_stability(cfg: Config, methods: Sequence[str] = ("ours", "curl")) -> dict[str, Any]:
     """``{name: frozen encoder}``: the pretrained encoders of ``methods`` and a random encoder of the same shape."""
-    from omcrl.models.artifact import load_encoder, random_encoder
-    from omcrl.rl.methods import encoder_config, encoder_path, pretrain_command
-    from omcrl.rl.policy import CheckpointError
 
     out = {}
     for m in methods:
@@ -140,9 +143,6 @@ def run(
     episodes per condition give the Grad-CAM frames (every second step: about 20 frames per episode in the
     room); ``stability_episodes`` give the frames of successful flights for feature stability and t-SNE.
     """
-    from omcrl.eval.stage import to_markdown
-    from omcrl.interpret.stability import stability_table
-    from omcrl.utils.io import atomic_write_text
 
     gradcam_methods = list(gradcam_methods if gradcam_methods is not None else methods)
     for m in dict.fromkeys([*methods, *gradcam_methods]):

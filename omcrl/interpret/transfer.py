@@ -34,6 +34,17 @@ import numpy as np
 import pandas as pd
 
 from omcrl.config import Config
+from omcrl.envs.stats import geometry_stats, geometry_summary
+from omcrl.eval.runner import eval_seeds
+from omcrl.eval.stage import evaluate_methods, to_markdown
+from omcrl.eval.stats import aggregate
+from omcrl.interpret.shift import encode, pilot_samples, probe_across, shift_table, with_fixed_features
+from omcrl.interpret.stage import encoders_for_stability
+from omcrl.rl import load_policy
+from omcrl.rl.methods import final_policy_path
+from omcrl.rl.policy import CheckpointError
+from omcrl.utils.io import atomic_write_text
+from omcrl.utils.progress import track
 
 PILOT_SEED = 5_000_000
 # (setting, layout scene, disturbance): what the shift and probe tables compare with box. "box, other layouts"
@@ -112,8 +123,6 @@ def setting_samples(
     """:func:`omcrl.interpret.shift.pilot_samples` (with the probe's privileged targets) of every setting in
     :data:`SETTINGS`. Box and "box, other layouts" fly different seeds; every other setting flies the seeds of
     "box, other layouts", so the two look-swapped settings share their geometry with a scene of their own."""
-    from omcrl.interpret.shift import pilot_samples
-    from omcrl.utils.progress import track
 
     n = int(episodes if episodes is not None else pilot_episodes(cfg))
     out = {}
@@ -128,9 +137,6 @@ def appearance_table(
 ) -> pd.DataFrame:
     """SR/CR/NE of ``method`` for every (layout, look, part) of :data:`SWAPS`, over ``seeds`` (default
     ``cfg.seeds``), on Table I's evaluation episodes, with 95 % two-stage bootstrap CIs."""
-    from omcrl.eval.stage import evaluate_methods
-    from omcrl.eval.stats import aggregate
-    from omcrl.utils.progress import track
 
     frames = []
     seeds = list(seeds if seeds is not None else cfg.seeds)
@@ -155,10 +161,6 @@ def blind_table(
 ) -> pd.DataFrame:
     """SR of ``method`` with vision and with its features fixed at the mean feature of ``reference`` (box pilot
     samples: ``{"rgb": (N, 3L, H, W) uint8}``), per evaluation scene, over ``seeds`` (default ``cfg.seeds``)."""
-    from omcrl.eval.stage import evaluate_methods
-    from omcrl.eval.stats import aggregate
-    from omcrl.interpret.shift import encode, with_fixed_features
-    from omcrl.rl import load_policy
 
     frames = []
     for s in seeds if seeds is not None else cfg.seeds:
@@ -176,7 +178,6 @@ def blind_table(
 def encoders(cfg: Config, methods: Sequence[str] = ("ours", "curl")) -> dict[str, Any]:
     """The frozen encoders of ``methods`` at ``cfg.seed`` and a random one of ``methods[0]``'s shape.
     A missing one raises :class:`~omcrl.rl.policy.CheckpointError` naming the command that makes it."""
-    from omcrl.interpret.stage import encoders_for_stability
 
     return encoders_for_stability(cfg, methods)
 
@@ -193,9 +194,6 @@ def run(
     Every input (the ``ours`` runs at ``cfg.seeds``, the encoders of ``methods`` at ``cfg.seed``) is found before
     any episode runs. ``episodes``: pilot episodes per setting (default :func:`pilot_episodes`).
     """
-    from omcrl.eval.stage import to_markdown
-    from omcrl.interpret.shift import probe_across, shift_table
-    from omcrl.utils.io import atomic_write_text
 
     for s in cfg.seeds:
         for m in ("ours", "oracle"):
@@ -232,8 +230,6 @@ def layout_stats(cfg: Config) -> pd.DataFrame:
     """:func:`omcrl.envs.stats.geometry_stats` of the layouts Table I flies: in every scene of ``cfg.eval.scenes``,
     the ``cfg.eval.episodes`` episode seeds from ``cfg.eval.seed_offset`` that
     :func:`omcrl.eval.stage.evaluate_methods` gives every training seed alike (one row per scene and layout)."""
-    from omcrl.envs.stats import geometry_stats
-    from omcrl.eval.runner import eval_seeds
 
     seeds = eval_seeds(cfg.eval.episodes, 0, cfg.eval.seed_offset)  # evaluate_methods' seeds, for every cfg.seed
     return pd.concat([geometry_stats(sc, seeds, cfg.env) for sc in cfg.eval.scenes], ignore_index=True)
@@ -242,7 +238,6 @@ def layout_stats(cfg: Config) -> pd.DataFrame:
 def geometry_table(cfg: Config, stats: pd.DataFrame | None = None) -> pd.DataFrame:
     """:func:`omcrl.envs.stats.geometry_summary` of Table I's evaluation layouts (``stats``: :func:`layout_stats`,
     computed when not given); one row per scene."""
-    from omcrl.envs.stats import geometry_summary
 
     return geometry_summary(layout_stats(cfg) if stats is None else stats)
 
@@ -270,7 +265,6 @@ def by_detour(
     DataFrame, one row per non-empty group, columns method, scene, detour (bin label), layouts (% of the
     scene's episodes in the bin), episodes, SR, SR_lo, SR_hi, CR (percent).
     """
-    from omcrl.eval.stats import aggregate
 
     keys = pd.MultiIndex.from_arrays([episodes["scene"], episodes["eval_seed"]])
     missing = ~keys.isin(detour.index)
@@ -300,7 +294,6 @@ def detour_table(
     """:func:`by_detour` of ``methods`` in every scene of ``cfg.eval.scenes`` over ``seeds`` (default
     ``cfg.seeds``), on Table I's evaluation episodes (cached evaluations are read, not flown again); ``stats``:
     :func:`layout_stats`, computed when not given."""
-    from omcrl.eval.stage import evaluate_methods
 
     frames = []
     for s in seeds if seeds is not None else cfg.seeds:
@@ -315,8 +308,6 @@ def detour_table(
 
 
 def _policy(cfg: Config, method: str) -> Path:
-    from omcrl.rl.methods import final_policy_path
-    from omcrl.rl.policy import CheckpointError
 
     path = final_policy_path(cfg, method)
     if path is None:

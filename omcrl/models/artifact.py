@@ -17,6 +17,7 @@ from typing import Any
 import torch
 from torch import nn
 
+import omcrl
 from omcrl.models.encoder import PixelEncoder, Projection
 from omcrl.runs import verify_artifact
 from omcrl.utils.io import atomic_save_torch, load_torch
@@ -31,7 +32,6 @@ class EncoderError(ValueError):
 
 def encoder_meta(cfg: Any, dataset_fingerprint: str = "") -> dict:
     """JSON-able description of the encoder built from ``cfg`` (an :class:`omcrl.config.Config`)."""
-    import omcrl
 
     p = cfg.pretrain
     return {

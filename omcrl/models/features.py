@@ -30,6 +30,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from omcrl.models.artifact import encoder_from_artifact, load_encoder
+from omcrl.models.encoder import DepthEncoder, PixelEncoder
+
 
 class CheckpointError(RuntimeError):
     """A checkpoint (policy, oracle or encoder) is missing, unreadable or does not fit the environment."""
@@ -60,7 +63,6 @@ def space_shapes(space: Any) -> dict[str, list[int]]:
 
 def load_frozen_encoder(path: str | Path, image_size: int, frame_stack: int) -> nn.Module:
     """Load a pretrained frozen encoder, turning every failure into a CheckpointError naming the file."""
-    from omcrl.models.artifact import load_encoder
 
     p = Path(path)
     if not p.exists():
@@ -227,7 +229,6 @@ class PixelFeatures(FeatureExtractor):
 
     def __init__(self, frame_stack: int, image_size: int, crop: int, feature_dim: int) -> None:
         super().__init__()
-        from omcrl.models.encoder import PixelEncoder
 
         self.frame_stack, self.image_size, self.crop = int(frame_stack), int(image_size), int(crop)
         self.feature_dim = int(feature_dim)
@@ -279,7 +280,6 @@ def make_student_features(encoder_path: str | Path, obs_space: Any) -> StudentFe
 
 def make_oracle_features(obs_space: Any, feature_dim: int, far: float) -> OracleFeatures:
     """Fresh trainable depth encoder sized for the env's depth stacks."""
-    from omcrl.models.encoder import DepthEncoder
 
     shapes = space_shapes(obs_space)
     for key in ("depth", "state", "privileged"):
@@ -302,7 +302,6 @@ def make_pixel_features(obs_space: Any, crop: int, feature_dim: int) -> PixelFea
 
 
 def _oracle_from_spec(spec: dict) -> OracleFeatures:
-    from omcrl.models.encoder import DepthEncoder
 
     kw = spec["encoder_kwargs"]
     return OracleFeatures(DepthEncoder(**kw), spec["depth_dim"], kw)
@@ -310,8 +309,6 @@ def _oracle_from_spec(spec: dict) -> OracleFeatures:
 
 def _student_from_spec(spec: dict) -> StudentFeatures:
     if "encoder_artifact" in spec:  # embedded in the policy file: self-contained, no path to resolve
-        from omcrl.models.artifact import encoder_from_artifact
-
         try:
             enc = encoder_from_artifact(
                 spec["encoder_artifact"], spec["encoder_path"] + " (embedded)", spec["image_size"], spec["frame_stack"]

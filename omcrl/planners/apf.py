@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import EnvConfig
-from omcrl.planners.grid import OccupancyGrid, shortest_path
+from omcrl.envs.grid import OccupancyGrid, shortest_path
 
 
 def edge_mask(grid: OccupancyGrid, clearance: float) -> np.ndarray:

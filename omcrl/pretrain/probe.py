@@ -17,11 +17,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from sklearn.linear_model import Ridge
-from sklearn.metrics import r2_score
-from sklearn.model_selection import GridSearchCV, GroupKFold
-from sklearn.pipeline import make_pipeline
-from sklearn.preprocessing import StandardScaler
 
 from omcrl.data.dataset import DatasetError, TrajectoryDataset
 
@@ -80,6 +75,13 @@ def fit_probes(x: np.ndarray, y: np.ndarray, groups: np.ndarray, alpha: float | 
     ``alpha`` None chooses the penalty per target from :data:`ALPHAS` by cross-validation grouped by ``groups``
     (episode ids), when there are at least 3 groups; else ``alpha`` (default 1.0) is used as is.
     """
+    # scikit-learn loads here, not with the module: importing it costs ~1 s, which every CLI start and every
+    # import of omcrl.rl (whose method specs name pretraining runs) would otherwise pay.
+    from sklearn.linear_model import Ridge
+    from sklearn.model_selection import GridSearchCV, GroupKFold
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
     models = []
     for i in range(y.shape[1]):
         model = make_pipeline(StandardScaler(), Ridge(alpha=alpha if alpha is not None else 1.0))
@@ -136,5 +138,7 @@ def probe(
     x_tr, y_tr, g_tr = _collect(encoder, dataset, train_eps, n_samples - n_test, rng, batch_size)
     x_te, y_te, _ = _collect(encoder, dataset, test_eps, n_test, rng, batch_size)
     models = fit_probes(x_tr, y_tr, g_tr, alpha)
+    from sklearn.metrics import r2_score
+
     out = {t: float(r2_score(y_te[:, i], m.predict(x_te))) for i, (t, m) in enumerate(zip(TARGETS, models))}
     return {**out, "n_train": len(x_tr), "n_test": len(x_te)}

@@ -29,10 +29,10 @@ import torch
 from omcrl.config import Config, PretrainConfig, config_hash, drop_neutral, save_config
 from omcrl.data.dataset import DatasetError, open_dataset
 from omcrl.data.sampler import SequenceSampler
-from omcrl.envs.scenes import scene_key
 from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
 from omcrl.runs import ArtifactMismatch, Run, make_run, verify_artifact
+from omcrl.scenes import scene_key
 from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
 from omcrl.utils.precision import section_precision
 from omcrl.utils.progress import Progress

@@ -1,12 +1,13 @@
 """Downstream RL: the rollout runner, PPO with an optional guide-KL term, α schedules, and the methods of the
 paper's comparison (oracle, ours, ours-noOT, ppo, curl, curl-phi, npe, npe-ot; paper IV-C, V-C).
 
-``train_method(cfg, "curl")`` trains one named method (:mod:`omcrl.rl.methods`); the lower-level trainers
-(``train_oracle``, ``train_student``, ``train_pixel``, ``train_ppo``) take explicit inputs.
+The methods are specs (:mod:`omcrl.rl.methods`); ``omcrl.pipeline.train_method(cfg, "curl")`` trains one by
+name, finding its encoder and oracle. The trainers here (``train_oracle``, ``train_student``, ``train_pixel``,
+``train_ppo``) take explicit inputs.
 """
 
 from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_at, alpha_from_config, info_at, obs_at
-from omcrl.rl.methods import METHODS, MethodSpec, get_method, train_method
+from omcrl.rl.methods import METHODS, MethodSpec, get_method
 from omcrl.rl.policy import CheckpointError, Policy, load_policy
 from omcrl.rl.ppo import (
     PPO,
@@ -55,7 +56,6 @@ __all__ = [
     "ppo_loss",
     "ppo_update",
     "train",
-    "train_method",
     "train_oracle",
     "train_pixel",
     "train_ppo",

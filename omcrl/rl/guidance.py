@@ -21,7 +21,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from omcrl.eval.runner import start_episode
+from omcrl.agent import start_episode
 from omcrl.rl.ppo import ActorCritic
 from omcrl.utils.runtime import to_device
 
@@ -130,7 +130,7 @@ class PlannerGuide:
     planners : one planner per env (each keeps its own per-episode state), or a zero-argument factory called
         ``n_envs`` times. A planner has ``act(obs, info) -> action (A,)``; when its env starts a new episode
         its ``reset`` is called with that env's reset info (which carries ``pose``, ``goal`` and ``path``; see
-        :func:`omcrl.eval.runner.start_episode`). Planners are not bound to the envs here (vector-env workers
+        :func:`omcrl.agent.start_episode`). Planners are not bound to the envs here (vector-env workers
         live in other processes), so HybridAPF follows the env's shortest path from the reset info.
     std : the fixed standard deviation (config ``rl.guide_std``), same for every action dim.
     n_envs : number of envs (needed with a factory).

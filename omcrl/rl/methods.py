@@ -1,9 +1,10 @@
-"""The methods of the paper's comparison (Table I, V-C) as named recipes over the trainers.
+"""The methods of the paper's comparison (Table I, V-C): what each one is and where its runs live.
 
 Each method is a :class:`MethodSpec`: which features its policy sees (privileged depth, a frozen pretrained
 encoder, or a pixel encoder trained end to end), which encoder pretraining it needs, and which guide pulls it
-early through the decaying KL term. ``train_method(cfg, name)`` trains one at ``cfg.seed`` (or skips it when
-its run is finished, or resumes it), with the same env-step budget, PPO settings and seed for every method.
+early through the decaying KL term. This module answers identity questions only (a method's encoder, its
+oracle, the ``final.pt`` of its finished run); training one is :func:`omcrl.pipeline.recipes.train_method`,
+with the same env-step budget, PPO settings and seed for every method.
 
 | method | features | encoder | guide |
 | --- | --- | --- | --- |
@@ -28,9 +29,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from omcrl import planners, pretrain
 from omcrl.config import Config, ConfigError
-from omcrl.rl.policy import CheckpointError
-from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, train_pixel, train_student
+from omcrl.rl.train import oracle_run, policy_run
 
 # Planner guides: name -> (class in omcrl.planners, the factory name that enters a run's identity). "apf" keeps
 # the name its runs had before the non-expert guide existed, so expert-guided runs keep their keys.
@@ -91,7 +92,7 @@ METHODS: dict[str, MethodSpec] = {
                    description="A* on the true map + potential field on the true nearest obstacle"),
         MethodSpec("hybrid-apf-perceptive", "Hybrid APF (perceptive)", "planner",
                    description="A* on the map seen by the depth camera + potential field on sensed obstacles"),
-        # Ablation variants (VI-C; grids in omcrl.sweep).
+        # Ablation variants (VI-C; grids in omcrl.pipeline.grids).
         MethodSpec("ours-noPhi", "Ours w/o phi", "frozen", {"method": "omc", "use_projection": False},
                    guide="oracle", ablation=True, description="ablation: OMC encoder without projection phi"),
         MethodSpec("ours-dualT", "Ours-dualT", "frozen", {"method": "omc", "dual_transformer": True},
@@ -127,7 +128,6 @@ def encoder_config(cfg: Config, method: str | MethodSpec) -> Config:
 
 def encoder_path(cfg: Config, method: str | MethodSpec) -> Path:
     """Where ``method``'s frozen encoder for ``cfg`` (and ``cfg.seed``) is written by pretraining."""
-    from omcrl import pretrain
 
     return pretrain.encoder_path(encoder_config(cfg, method))
 
@@ -138,67 +138,17 @@ def pretrain_command(cfg: Config, method: str | MethodSpec) -> str:
     return f"python -m omcrl pretrain --method {spec.name} --preset {cfg.preset} --seed {cfg.seed}"
 
 
-def pretrain_method(cfg: Config, method: str, *, progress: bool = True) -> Any:
-    """Pretrain (or find) the frozen encoder of ``method`` at ``cfg.seed``; returns the PretrainResult."""
-    from omcrl import pretrain
-
-    return pretrain.run(encoder_config(cfg, method), progress=progress)
-
-
 def oracle_path(cfg: Config) -> Path:
-    """The oracle's ``final.pt`` for ``cfg`` (``cfg.seed``): where ``train_method(cfg, "oracle")`` writes it."""
+    """The oracle's ``final.pt`` for ``cfg`` (``cfg.seed``): where ``omcrl.pipeline.train_method(cfg, "oracle")`` writes
+    it."""
     return oracle_run(cfg).dir / "final.pt"
 
 
-def train_method(
-    cfg: Config,
-    method: str,
-    *,
-    progress: bool = True,
-    overwrite: bool = False,
-    make_env: Callable[[int], Any] | None = None,
-    oracle_cfg: Config | None = None,
-) -> Result:
-    """Train one learned method of the comparison at ``cfg.seed`` (skip if finished, resume if interrupted).
-
-    Prerequisites are found, not trained: a frozen encoder must have been pretrained
-    (:func:`pretrain_method`) and a method guided by the oracle needs the oracle's run finished: the oracle of
-    ``oracle_cfg`` when given (an ablation that changes the student's α schedule keeps the comparison's oracle),
-    else of ``cfg``. A missing one
-    raises :class:`CheckpointError` naming the file and the command that makes it, before anything is trained.
-    """
-    spec = get_method(method)
-    if not spec.learned:
-        raise ConfigError(f"method {method!r} is a planner: it is not trained (evaluate it directly)")
-    if spec.features == "oracle":
-        return train_oracle(cfg, name=spec.name, make_env=make_env, overwrite=overwrite, progress=progress)
-    oracle = oracle_path(oracle_cfg or cfg) if spec.guide == "oracle" else None
-    enc = encoder_path(cfg, spec) if spec.features == "frozen" else None
-    # Every missing prerequisite at once, with its command (not one now and the next after 30 minutes).
-    needs = [
-        (oracle, "oracle checkpoint", f"python -m omcrl train --method oracle --preset {cfg.preset} --seed {cfg.seed}"),
-        (enc, f"{spec.name} encoder", pretrain_command(cfg, spec) if enc is not None else ""),
-    ]
-    missing = [(p, what, cmd) for p, what, cmd in needs if p is not None and not p.exists()]
-    if missing:
-        raise CheckpointError(
-            "; ".join(f"{what} {p} does not exist" for p, what, _ in missing)
-            + "; run first: "
-            + " && ".join(cmd for _, _, cmd in missing)
-        )
-    planner = _planner_factory(cfg, spec.guide)
-    common = {"name": spec.name, "planner_factory": planner, "make_env": make_env, "overwrite": overwrite}
-    if enc is not None:
-        return train_student(cfg, enc, oracle, progress=progress, **common)
-    return train_pixel(cfg, oracle, progress=progress, **common)
-
-
-def _planner_factory(cfg: Config, guide: str | None) -> Callable[[], Any] | None:
+def planner_factory(cfg: Config, guide: str | None) -> Callable[[], Any] | None:
     """A zero-argument factory of ``guide``'s planner (its ``__name__`` enters the run's identity), or None
-    when the guide is not a planner."""
+    when the guide is not a planner (``"oracle"``, None)."""
     if guide not in PLANNER_GUIDES:
         return None
-    from omcrl import planners
 
     cls = getattr(planners, PLANNER_GUIDES[guide][0])
 
@@ -212,8 +162,8 @@ def _planner_factory(cfg: Config, guide: str | None) -> Callable[[], Any] | None
 def final_policy_path(cfg: Config, method: str, oracle_cfg: Config | None = None) -> Path | None:
     """``final.pt`` of a learned method's finished run at ``cfg.seed``, or None when it is not there.
 
-    The run is derived from the current config and upstream artifacts exactly as :func:`train_method` derives
-    it, so only a run of this very configuration is found.
+    The run is derived from the current config and upstream artifacts exactly as
+    :func:`omcrl.pipeline.recipes.train_method` derives it, so only a run of this very configuration is found.
     """
     spec = get_method(method)
     if spec.features == "oracle":
@@ -223,7 +173,7 @@ def final_policy_path(cfg: Config, method: str, oracle_cfg: Config | None = None
     enc = encoder_path(cfg, spec) if spec.features == "frozen" else None
     if (oracle is not None and not oracle.exists()) or (enc is not None and not enc.exists()):
         return None
-    planner = _planner_factory(cfg, spec.guide)
+    planner = planner_factory(cfg, spec.guide)
     p = policy_run(cfg, spec.name, enc, oracle, planner).dir / "final.pt"
     return p if p.exists() else None
 
@@ -237,31 +187,3 @@ def training_runs(cfg: Config, methods: list[str] | None = None, seeds: list[int
             if p is not None:
                 out.setdefault(m, {})[s] = p.parent
     return out
-
-
-# ---------------------------------------------------------------- CLI stages
-def train_stage(cfg: Config, method: str | None = None, *, progress: bool = True) -> Result:
-    """CLI stage ``train``: ``python -m omcrl train --method <name> --preset P [--seed k]``."""
-    if method is None:
-        learned = [m for m, s in METHODS.items() if s.learned]
-        raise ConfigError(f"stage 'train' needs --method, one of {learned}")
-    return train_method(cfg, method, progress=progress)
-
-
-def oracle_stage(cfg: Config, *, progress: bool = True) -> Result:
-    """CLI stage ``oracle``: the same as ``train --method oracle``."""
-    return train_method(cfg, "oracle", progress=progress)
-
-
-def student_stage(cfg: Config, *, progress: bool = True) -> Result:
-    """CLI stage ``student``: ``ours`` (``ours-noOT`` with ``rl.alpha_schedule=none``)."""
-    return train_method(cfg, "ours-noOT" if cfg.rl.alpha_schedule == "none" else "ours", progress=progress)
-
-
-def pretrain_stage(cfg: Config, method: str | None = None, *, progress: bool = True) -> Any:
-    """CLI stage ``pretrain``: the encoder of ``--method`` (ours, curl, curl-phi, ...), else ``cfg.pretrain``."""
-    if method is None:
-        from omcrl import pretrain
-
-        return pretrain.run(cfg, progress=progress)
-    return pretrain_method(cfg, method, progress=progress)

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from omcrl.models.actor_critic import ActorCritic
+from omcrl.models.artifact import encoder_artifact
 from omcrl.models.features import (
     CheckpointError,
     build_features,
@@ -88,8 +89,6 @@ def policy_payload(agent: ActorCritic, obs_shapes: dict, step: int, meta: dict |
         "meta": dict(meta or {}),
     }
     if agent.features.kind == "student":
-        from omcrl.models.artifact import encoder_artifact
-
         payload["encoder"] = encoder_artifact(agent.features.encoder)
     return payload
 

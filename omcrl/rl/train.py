@@ -32,8 +32,11 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import Config, save_config
+from omcrl.envs import make_vec_env
+from omcrl.envs.render import env_identity
 from omcrl.models.actor_critic import ActorCritic
 from omcrl.models.features import FeatureExtractor, IdentityFeatures
+from omcrl.planners import HybridAPF
 from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_from_config
 from omcrl.rl.policy import (
     CheckpointError,
@@ -47,7 +50,16 @@ from omcrl.rl.policy import (
 )
 from omcrl.rl.ppo import PPO, ExtraLoss, NonFiniteLossError
 from omcrl.rl.rollout import Runner
-from omcrl.runs import MetricsLog, Run, RunConfigMismatch, make_run, rng_state, set_rng_state, verify_artifact
+from omcrl.runs import (
+    MetricsLog,
+    Run,
+    RunConfigMismatch,
+    make_run,
+    read_metrics,
+    rng_state,
+    set_rng_state,
+    verify_artifact,
+)
 from omcrl.utils.io import atomic_save_torch, file_digest, load_torch
 from omcrl.utils.precision import section_precision
 from omcrl.utils.progress import Progress
@@ -115,7 +127,6 @@ class Result:
         return load_policy(self.final_path)
 
     def metrics(self) -> Any:
-        from omcrl.runs import read_metrics
 
         return read_metrics(self.metrics_path)
 
@@ -146,7 +157,6 @@ def rl_identity(cfg: Config, guide: str | None, **extra: Any) -> dict:
         rl["alpha_schedule"] = "none"
     elif guide != "planner":
         rl.pop("guide_std")
-    from omcrl.envs.render import env_identity  # here: importing omcrl.envs loads PyBullet
 
     return {"rl": rl, "env": env_identity(cfg.env), **extra}
 
@@ -326,7 +336,6 @@ def train(
 # ---------------------------------------------------------------- trainers
 def _default_make_env(cfg: Config) -> Callable[[int], Any]:
     def make(seed: int) -> Any:
-        from omcrl.envs import make_vec_env
 
         return make_vec_env(cfg.env.scene, cfg.rl.n_envs, seed=seed, config=cfg.env)
 
@@ -383,7 +392,6 @@ def train_oracle(
     def make_guide(env: Any) -> Guide | None:
         if not guided:
             return None
-        from omcrl.planners import HybridAPF
 
         return PlannerGuide(lambda: HybridAPF(cfg.env), cfg.rl.guide_std, n_envs=env.num_envs)
 

@@ -25,6 +25,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from omcrl.utils.errors import ConfigError
+from omcrl.utils.runtime import resolve_device
+
 PRECISIONS = ("fp32", "bf16", "auto")
 CPU_BF16_FLAGS = ("avx512_bf16", "amx_bf16")
 
@@ -60,8 +63,6 @@ def native_bf16(device: Any = "cpu") -> tuple[bool, str]:
 
 def resolve_precision(name: str, device: Any = "cpu") -> str:
     """``fp32`` or ``bf16`` for a config value (``auto``: :func:`native_bf16` decides) on ``device``."""
-    from omcrl.config import ConfigError
-
     if name not in PRECISIONS:
         raise ConfigError(f"precision: got {name!r}, allowed values are {list(PRECISIONS)}")
     if name == "auto":
@@ -76,7 +77,6 @@ def section_precision(section: Any) -> str:
     jobs for GPU nodes."""
     if section.precision != "auto":
         return resolve_precision(section.precision)
-    from omcrl.utils.runtime import resolve_device
 
     return resolve_precision(section.precision, resolve_device(section.device))
 

@@ -9,7 +9,7 @@ its text goes depends on where the code runs:
 - **in a terminal** (stderr is a TTY): a tqdm bar;
 - **elsewhere** (a log file, CI, a pipe): a status line on stderr every ``log_interval`` seconds;
 - and, in every case, when the environment variable ``OMCRL_STATUS_FILE`` names a file, the same status line
-  is appended to it every ``status_interval`` seconds. The notebook runner (:mod:`omcrl.notebooks`) sets it and
+  is appended to it every ``status_interval`` seconds. The notebook runner (:mod:`omcrl.pipeline.notebooks`) sets it and
   prints the file's new lines on the console, so ``./reproduce.sh --quick`` is never silent for long.
 
 A status line reads ``pretrain/omc seed0 | 600/1500 it (40%) | loss 2.91 acc 0.13 | 12m03s elapsed, ~18m05s

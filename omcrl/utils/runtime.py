@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import os
+import platform
 import random
+import sys
 import threading
 import time
 from typing import Any
 
 import numpy as np
+
+from omcrl.utils.errors import ConfigError
 
 
 def cpu_count() -> int:
@@ -74,8 +78,6 @@ def resolve_device(name: str) -> Any:
     """
     import torch
 
-    from omcrl.config import ConfigError
-
     if name not in DEVICES:
         raise ConfigError(f"device: got {name!r}, allowed values are {list(DEVICES)}")
     if name == "auto":
@@ -99,3 +101,20 @@ def to_device(tree: Any, device: Any) -> Any:
             return tree.pin_memory().to(device, non_blocking=True)
         return tree.to(device)
     return tree
+
+
+def machine_info() -> dict[str, Any]:
+    """What the numbers depend on: CPU count, threads, Python and torch versions."""
+    info: dict[str, Any] = {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+    }
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        info["torch"] = torch.__version__
+        info["torch_threads"] = torch.get_num_threads()
+        info["cuda"] = bool(torch.cuda.is_available())
+    return info

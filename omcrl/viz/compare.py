@@ -15,16 +15,17 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from omcrl.envs.scenes import PAPER_SUITE
+from omcrl.rl.methods import METHODS
 from omcrl.runs import metric_series
+from omcrl.scenes import PAPER_SUITE
 from omcrl.viz import steps_axis
 from omcrl.viz.pretrain import smooth
+from omcrl.viz.rl import TRAJECTORY_KEY, plot_trajectories
 
 CURVE_METRICS = (("episodic_return", "episodic reward"), ("success_rate", "training success rate"))
 
 
 def _labels() -> dict[str, str]:
-    from omcrl.rl.methods import METHODS
 
     return {m: s.label for m, s in METHODS.items()}
 
@@ -152,7 +153,6 @@ def plot_trajectory_grid(
     env_config: Any = None,
 ) -> plt.Figure:
     """Fig. 6: every method's path from the same start to the same goal, one panel per scene, on the map."""
-    from omcrl.viz.rl import TRAJECTORY_KEY, plot_trajectories
 
     labels = _labels()
     seed = train_seed if train_seed is not None else int(episodes["train_seed"].min())

@@ -11,6 +11,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.collections import LineCollection
 
+from omcrl.viz.scenes import draw_map, scene_snapshot
+
 
 def plot_disturbance(table: pd.DataFrame) -> plt.Figure:
     """SR (%) with 95 % CI per condition (groups) and method (bars); the paper's real-world SR as black ticks."""
@@ -40,7 +42,6 @@ def plot_speed_trajectories(
 ) -> plt.Figure:
     """Fig. 12: one episode (``eval_seed``; default the first one every method finished) per method (rows) and
     condition (columns) on the room's top-down map, the path coloured by speed (m/s)."""
-    from omcrl.viz.scenes import draw_map, scene_snapshot
 
     methods = list(methods or dict.fromkeys(episodes.method))
     conds = list(dict.fromkeys(episodes.condition))

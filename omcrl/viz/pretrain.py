@@ -8,11 +8,12 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
+from omcrl.runs import metric_series
+
 
 def read_metrics(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``metrics.csv`` (or its run folder) → ``{metric: (steps (n,), values float64 (n,))}``; the kit's one
     reader, :func:`omcrl.runs.metric_series`, under the name the plotting code uses."""
-    from omcrl.runs import metric_series
 
     return metric_series(path)
 

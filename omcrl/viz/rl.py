@@ -14,9 +14,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from omcrl.envs.scenes import scene_id
+from omcrl.scenes import scene_id
 from omcrl.viz import method_color, steps_axis
 from omcrl.viz.pretrain import final_value, read_metrics, smooth
+from omcrl.viz.scenes import draw_map, scene_snapshot
 
 # (panel title, metrics drawn in it); several metrics in one panel are told apart by line style.
 ORACLE_PANELS: tuple[tuple[str, tuple[str, ...]], ...] = (
@@ -167,8 +168,6 @@ def plot_trajectories(
     else:
         fig = ax.figure
     if env_config is not None and len(rows):
-        from omcrl.viz.scenes import draw_map, scene_snapshot
-
         draw_map(ax, scene_snapshot(scene, int(rows.eval_seed.iloc[0]), env_config, image_size=32))
     for _, r in rows.iterrows():
         xy = np.asarray(r["trajectory"], float)

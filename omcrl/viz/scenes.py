@@ -9,7 +9,8 @@ import numpy as np
 
 from omcrl.config import EnvConfig
 from omcrl.envs import make_env
-from omcrl.envs.scenes import SCENE_SPECS, families, scene_label, scene_spec
+from omcrl.interpret.gradient import gradient_order, order_verdicts
+from omcrl.scenes import SCENE_SPECS, families, scene_label, scene_spec
 
 
 def scene_snapshot(scene: str, seed: int, env_config: EnvConfig | None = None, image_size: int = 128) -> dict[str, Any]:
@@ -92,7 +93,6 @@ def plot_gradient(table: Any) -> plt.Figure:
     """The scenes' gradient (:func:`omcrl.interpret.gradient.run`'s table): one panel per measure of the shift from
     box, one bar per setting in the table's order (the box floor, the paper's scenes, then the stress test), with
     the random encoders' min–max as error bars; the title of each panel says whether the paper's order holds."""
-    from omcrl.interpret.gradient import gradient_order, order_verdicts
 
     verdict = order_verdicts(table).set_index("measure").holds
     panels = (

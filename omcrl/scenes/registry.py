@@ -19,7 +19,7 @@ A bare family name (``"furniture"``) means its latest version, as in Gymnasium. 
 their generator and random stream, so a seed gives the same geometry in every version of a family. In run and
 cache identities a v0 scene keeps its bare name (:func:`scene_key`), so runs from before versions keep their keys.
 
-A scene is a list of :class:`~omcrl.envs.geometry.Primitive`; decor (floor, walls beyond the arena, ceiling,
+A scene is a list of :class:`~omcrl.scenes.geometry.Primitive`; decor (floor, walls beyond the arena, ceiling,
 sky) is ``visual_only``. Generators place structures by rejection sampling with a spacing margin so that the
 drone can pass between most of them; reachability of start and goal is checked later on the occupancy grid.
 """
@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from omcrl.envs.geometry import Primitive
+from omcrl.scenes.geometry import Primitive
 
 Generator = Callable[[np.random.Generator, float, int], list[Primitive]]
 

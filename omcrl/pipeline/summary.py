@@ -17,7 +17,11 @@ from typing import Any
 import pandas as pd
 
 from omcrl.config import Config
+from omcrl.eval.ablation import findings_summary
 from omcrl.eval.metrics import glossary_markdown
+from omcrl.utils.io import atomic_write_text
+from omcrl.utils.progress import format_duration
+from omcrl.utils.runtime import machine_info
 
 SMOKE_NOTE = (
     "**Smoke preset: these numbers only check the plumbing.** Every learned method trained a few hundred env "
@@ -62,7 +66,7 @@ def _read_json(path: Path) -> dict | None:
 def _commit() -> str:
     """``<short sha>`` of the checkout the running ``omcrl`` code comes from (not of the results folder, which
     ``OMCRL_ROOT`` may put elsewhere), ``+ local changes`` when dirty; ``unknown`` outside git."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     try:
         sha = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
@@ -81,8 +85,6 @@ def _commit() -> str:
 
 def _machine() -> str:
     import platform
-
-    from omcrl.bench import machine_info
 
     info = machine_info()
     import psutil
@@ -218,8 +220,6 @@ def summary_text(cfg: Config) -> str:
 
 
 def _duration(s: float) -> str:
-    from omcrl.utils.progress import format_duration
-
     return format_duration(float(s))
 
 
@@ -356,8 +356,6 @@ def _section_interpret(d: dict, tables: Path) -> list[str]:
 def _section_ablations(d: dict, tables: Path) -> list[str]:
     import pandas as pd
 
-    from omcrl.eval.ablation import findings_summary
-
     verdicts = findings_summary(pd.read_csv(tables / "ablation_findings.csv"))
     if verdicts.empty:
         out = ["None of the paper's ablation grids has run (a smoke grid checks the machinery only).", ""]
@@ -453,8 +451,6 @@ SECTIONS = (
 
 def write_summary(cfg: Config) -> Path:
     """Write ``results/<preset>/summary.md`` (atomically) and return its path."""
-    from omcrl.utils.io import atomic_write_text
-
     path = cfg.run_root / "summary.md"
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, summary_text(cfg))

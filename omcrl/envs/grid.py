@@ -12,14 +12,12 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-if TYPE_CHECKING:  # only for annotations: importing omcrl.envs here would be circular
-    from omcrl.envs.geometry import Geometry
+from omcrl.scenes.geometry import Geometry
 
 _SQ2 = math.sqrt(2.0)
 

@@ -11,7 +11,7 @@ interpreter running this code (see :func:`resolve_kernel`), so the notebooks see
 
 Example
 -------
->>> from omcrl.notebooks import NOTEBOOKS, run_chain
+>>> from omcrl.pipeline.notebooks import NOTEBOOKS, run_chain
 >>> run_chain("smoke")                      # doctest: +SKIP
 """
 
@@ -32,10 +32,13 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+from omcrl.config import PRESETS, ConfigError, load_config, resolve_path
+from omcrl.pipeline.summary import write_summary
+from omcrl.utils.io import atomic_write_text
 from omcrl.utils.memory import PeakRSS
 from omcrl.utils.progress import STATUS_FILE_ENV, format_duration
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
+REPO_ROOT = Path(__file__).resolve().parents[2]
 NOTEBOOK_DIR = REPO_ROOT / "notebooks"
 NATIVE_KERNEL = "python3"
 PRIVATE_KERNEL = "omcrl-python"
@@ -127,7 +130,9 @@ def check_notebook(path: str | Path) -> list[str]:
     problems = []
     for i, c in enumerate(nb.cells):
         if c.cell_type == "code" and (c.get("outputs") or c.get("execution_count") is not None):
-            problems.append(f"cell {i} has outputs or an execution count (run: python -m omcrl.notebooks strip {path})")
+            problems.append(
+                f"cell {i} has outputs or an execution count (run: python -m omcrl.pipeline.notebooks strip {path})"
+            )
     cells = parameters_cells(nb)
     if len(cells) != 1:
         problems.append(f"expected exactly one cell tagged 'parameters', found {len(cells)}")
@@ -156,8 +161,6 @@ def strip_outputs(path: str | Path) -> bool:
         after += "\n"  # as nbformat.write does
     if after == before:
         return False
-    from omcrl.utils.io import atomic_write_text
-
     atomic_write_text(p, after)
     return True
 
@@ -277,14 +280,10 @@ def run_notebook(
     import papermill as pm
     from papermill.exceptions import PapermillExecutionError
 
-    from omcrl.config import PRESETS, ConfigError
-
     if preset not in PRESETS:
         raise ConfigError(f"preset: got {preset!r}, allowed values are {list(PRESETS)}")
     src = notebook_path(name_or_path)
     name = src.stem
-    from omcrl.config import resolve_path
-
     workdir = Path(cwd) if cwd is not None else REPO_ROOT
     root = Path(results_dir)
     if not root.is_absolute():
@@ -424,8 +423,6 @@ def _record_wall_time(executed_dir: Path, name: str, wall_s: float) -> None:
 
 def _record(path: Path, name: str, value: float) -> None:
     """Set ``name`` to ``value`` in the JSON object at ``path`` (atomically; an unreadable file starts anew)."""
-    from omcrl.utils.io import atomic_write_text
-
     try:
         d = json.loads(path.read_text()) if path.exists() else {}
     except (OSError, ValueError):
@@ -436,8 +433,6 @@ def _record(path: Path, name: str, value: float) -> None:
 
 def overrides_from_config(cfg: Any) -> list[str]:
     """``"section.field=value"`` for every field of ``cfg`` that differs from its preset's defaults."""
-    from omcrl.config import load_config
-
     base = load_config(cfg.preset).to_dict()
 
     def diff(a: dict, b: dict, prefix: str) -> Iterator[str]:
@@ -482,9 +477,7 @@ def select_notebooks(only: Sequence[str] | None = None, skip: Sequence[str] | No
 
 def run(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[str] | None = None) -> None:
     """CLI stage ``notebooks``: run the chain for ``cfg.preset`` (all notebooks, or ``only`` / without ``skip``),
-    passing on every non-default field, then write and print the summary (:mod:`omcrl.summary`)."""
-    from omcrl.summary import write_summary
-
+    passing on every non-default field, then write and print the summary (:mod:`omcrl.pipeline.summary`)."""
     chain = select_notebooks(only, skip)
     overrides = [o for o in overrides_from_config(cfg) if not o.startswith("results_dir=")]
     run_chain(cfg.preset, names=chain, results_dir=cfg.results_root, overrides=overrides)
@@ -494,10 +487,10 @@ def run(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[str] | None 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m omcrl.notebooks --strip|--check [FILES]``: clean or check committed notebooks."""
+    """``python -m omcrl.pipeline.notebooks strip|check|list [FILES]``: clean, check or list the notebooks."""
     import argparse
 
-    ap = argparse.ArgumentParser(prog="python -m omcrl.notebooks", description=main.__doc__)
+    ap = argparse.ArgumentParser(prog="python -m omcrl.pipeline.notebooks", description=main.__doc__)
     ap.add_argument("action", choices=("strip", "check", "list"))
     ap.add_argument("files", nargs="*", help="default: every notebooks/NN_*.ipynb")
     a = ap.parse_args(argv)

@@ -1,0 +1,452 @@
+"""Sweeps: named grids of (method, overrides) × seeds, run in-process or as Ray tasks (paper VI-C ablations).
+
+A grid (:mod:`omcrl.pipeline.grids`) is a list of variants; :func:`omcrl.pipeline.plan.expand` turns it, for
+every seed, into jobs with dependencies (collect, pretrain, train, evaluate). Each job is the stage's
+ordinary entry point (``pretrain_method``, ``train_method``, ``evaluate_methods``) with the registry's cache,
+so a finished job is skipped and a killed one resumes: re-running a sweep after a crash finishes only what is
+missing.
+
+Backends (:func:`run_sweep`):
+
+- ``local``: the jobs one at a time in this process, in dependency order.
+- ``ray``: every job a Ray task. With no address, Ray starts embedded on this machine with one CPU per core.
+  With an address (``auto``, ``ray://host:port``, or a head's ``host:port``), the jobs go to that cluster. A
+  job asks Ray for as many CPUs as it keeps busy (a trainer: one per env; pretraining: its threads;
+  evaluation: its workers), so two jobs never share a core.
+
+Every job writes its output to ``<run_root>/sweeps/<grid>/logs/<job>.log``. A failed job is reported with its
+error and log path; jobs that need it are skipped, and the others run on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+import traceback
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from omcrl.config import Config, ConfigError, load_config
+from omcrl.eval.ablation import ablation_table, write_ablation, write_precision, write_remedies
+from omcrl.eval.stage import evaluate_methods
+from omcrl.pipeline.grids import ABLATION_GRIDS, DEFAULT_VARIANT, GRIDS, REMEDY_GRIDS, grid_variants
+from omcrl.pipeline.plan import (
+    Job,
+    base_overrides,
+    describe_plan,
+    expand,
+    job_config,
+    job_cpus,
+    job_gpus,
+    measured_rates,
+    work_rows,
+)
+from omcrl.pipeline.recipes import pretrain_method, train_method
+from omcrl.pipeline.stages import collect_stage, oracle_policy
+from omcrl.rl.methods import final_policy_path
+from omcrl.utils.io import atomic_write_text
+from omcrl.utils.progress import Progress
+from omcrl.utils.runtime import cpu_count
+
+
+@dataclass
+class SweepResult:
+    """What a sweep did: jobs, their status (``done | skipped | failed | blocked``), errors, evaluation rows."""
+
+    grid: str
+    jobs: list[Job]
+    status: dict[str, str]
+    errors: dict[str, str] = field(default_factory=dict)
+    logs: dict[str, Path] = field(default_factory=dict)
+    episodes: pd.DataFrame = field(default_factory=pd.DataFrame)
+    wall_s: float = 0.0
+    seconds: dict[str, float] = field(default_factory=dict)  # job id -> wall time of this invocation (s)
+
+    @property
+    def failed(self) -> list[Job]:
+        return [j for j in self.jobs if self.status.get(j.id) == "failed"]
+
+    def counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for s in self.status.values():
+            out[s] = out.get(s, 0) + 1
+        return out
+
+    def __repr__(self) -> str:
+        lines = [f"sweep {self.grid}: {len(self.jobs)} jobs in {self.wall_s:.0f} s, {self.counts()}"]
+        for j in self.failed:
+            lines.append(
+                f"FAILED {j.kind} {j.method} seed {j.seed}: {self.errors.get(j.id)} (log: {self.logs.get(j.id)})"
+            )
+        return "\n".join(lines)
+
+
+def run_job(preset_cfg: dict, job: Job, log_path: str) -> dict:
+    """Run one job (any backend) with its output in ``log_path``; returns ``{"status", "seconds", "rows"}``.
+
+    ``preset_cfg`` is ``{"preset", "overrides"}`` of the sweep's base config (plain data: it travels to Ray workers).
+    Raises whatever the stage raises (the caller records it).
+    """
+    Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    with open(log_path, "a", encoding="utf-8") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+        print(f"[sweep] {job.kind} {job.method} seed {job.seed} {list(job.overrides)} ({job.id})", flush=True)
+        base = load_config(preset_cfg["preset"], overrides=preset_cfg["overrides"])
+        cfg = job_config(base, job.overrides, job.seed)
+        oracle_cfg = None if job.oracle_overrides is None else job_config(base, job.oracle_overrides, job.seed)
+        if cfg.eval.workers == 0 and job.kind == "evaluate":
+            cfg.eval.workers = job_cpus(cfg, job)
+        rows: list[dict] = []
+        skipped = False
+        if job.kind == "collect":
+            # The oracle that flies the policy share is the variant's teacher (without student-only overrides).
+            flyer = oracle_policy(oracle_cfg) if oracle_cfg is not None and cfg.data.policy == "oracle" else None
+            skipped = bool(collect_stage(cfg, flyer, progress=False).skipped)
+        elif job.kind == "pretrain":
+            skipped = bool(pretrain_method(cfg, job.method, progress=False).skipped)
+        elif job.kind == "train":
+            skipped = bool(train_method(cfg, job.method, progress=False, oracle_cfg=oracle_cfg).skipped)
+        else:
+            path = final_policy_path(cfg, job.method, oracle_cfg)
+            if path is None:
+                raise FileNotFoundError(f"{job.method} seed {job.seed}: no finished run to evaluate")
+            counts: dict[str, int] = {}
+            df = evaluate_methods(cfg, {job.method: path}, stats=counts)
+            # Read back whole from the cache: a skip, so jobs.csv keeps the time the evaluation took when it ran.
+            skipped = counts.get("evaluated", 0) == 0
+            df = df.drop(columns=["trajectory"], errors="ignore").assign(
+                label=job.label, overrides=" ".join(job.overrides)
+            )
+            rows = json.loads(df.to_json(orient="records"))
+        print(f"[sweep] finished in {time.perf_counter() - t0:.1f} s{' (cached)' if skipped else ''}", flush=True)
+    return {"status": "skipped" if skipped else "done", "seconds": time.perf_counter() - t0, "rows": rows}
+
+
+def run_sweep(
+    cfg: Config,
+    grid: str,
+    seeds: Sequence[int] | None = None,
+    *,
+    backend: str = "ray",
+    address: str | None = None,
+    num_cpus: int | None = None,
+    progress: bool = True,
+) -> SweepResult:
+    """Run ``grid`` at ``seeds`` (default ``cfg.seeds``) on ``backend`` (``ray`` or ``local``).
+
+    ``address``: a Ray cluster to use (``auto``, ``ray://host:port`` or ``host:port``); None starts Ray embedded with
+    ``num_cpus`` CPUs (default one per core). Returns a :class:`SweepResult`; evaluation rows are in
+    ``result.episodes`` with the variant's ``label``.
+    """
+    if backend not in ("ray", "local"):
+        raise ConfigError(f"sweep backend: got {backend!r}, expected 'ray' or 'local'")
+    jobs = expand(cfg, grid, seeds)
+    logs_dir = cfg.run_root / "sweeps" / grid / "logs"
+    base = {"preset": cfg.preset, "overrides": base_overrides(cfg)}
+    res = SweepResult(grid, jobs, {}, logs={j.id: logs_dir / j.log_name for j in jobs})
+    t0 = time.perf_counter()
+    rows: list[dict] = []
+    bar = Progress(len(jobs), f"sweep/{grid}", unit="job", enabled=progress)
+
+    def finish(job: Job, out: dict | None, err: str | None) -> None:
+        if err is not None:
+            res.status[job.id], res.errors[job.id] = "failed", err
+        else:
+            res.status[job.id] = out["status"]
+            res.seconds[job.id] = float(out["seconds"])
+            rows.extend(out["rows"])
+            # After every job, not at the end: a killed driver loses no measured time.
+            _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
+        bar.update(1, **_postfix(res, running))
+
+    running: set[str] = set()
+    if backend == "local":
+        for job in jobs:
+            if any(res.status.get(d) in ("failed", "blocked") for d in job.deps):
+                res.status[job.id] = "blocked"
+                bar.update(1, **_postfix(res, running))
+                continue
+            try:
+                out = run_job(base, job, str(res.logs[job.id]))
+                finish(job, out, None)
+            except Exception as e:
+                finish(job, None, _error(e, res.logs[job.id]))
+    else:
+        _run_ray(cfg, jobs, base, res, finish, running, bar, address, num_cpus)
+    bar.close()
+    res.wall_s = time.perf_counter() - t0
+    res.episodes = pd.DataFrame(rows)
+    _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
+    return res
+
+
+def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
+    """Keep each job's measured wall time in ``jobs.csv`` beside the sweep's logs.
+
+    A job that was cached this time keeps the time it took when it really ran, so re-runs do not erase what was
+    measured. :func:`measured_rates` reads these files.
+    """
+    plan = {r.id: r for r in work_rows(cfg, res.jobs)}
+    old = pd.read_csv(path) if path.exists() else pd.DataFrame(columns=["id"])
+    kept = {r["id"]: r for r in old.to_dict("records")}
+    for j in res.jobs:
+        st = res.status.get(j.id)
+        if st == "done" or (st == "skipped" and j.id not in kept):
+            w = plan[j.id]
+            kept[j.id] = {"id": j.id, "kind": j.kind, "method": j.method, "seed": j.seed, "status": st,
+                          "seconds": round(res.seconds.get(j.id, float("nan")), 2), "rate_key": w.rate_key,
+                          "work": w.work}  # fmt: skip
+    atomic_write_text(path, pd.DataFrame(list(kept.values())).to_csv(index=False))
+
+
+def _postfix(res: SweepResult, running: set[str]) -> dict[str, Any]:
+    # Jobs handed to Ray wait there until their CPUs are free, so "submitted" counts running and queued jobs.
+    c = res.counts()
+    return {"done": c.get("done", 0) + c.get("skipped", 0), "submitted": len(running), "failed": c.get("failed", 0)}
+
+
+def _error(e: BaseException, log: Path) -> str:
+    with contextlib.suppress(OSError):
+        with open(log, "a", encoding="utf-8") as f:
+            f.write("".join(traceback.format_exception(e)))
+    return f"{type(e).__name__}: {e}"
+
+
+def _run_ray(
+    cfg: Config,
+    jobs: list[Job],
+    base: dict,
+    res: SweepResult,
+    finish: Any,
+    running: set[str],
+    bar: Any,
+    address: str | None,
+    num_cpus: int | None,
+) -> None:
+    import ray
+
+    started_here = not ray.is_initialized()
+    if started_here:
+        if address is None:
+            ray.init(num_cpus=num_cpus or cpu_count(), include_dashboard=False, log_to_driver=False)
+        else:
+            connect_ray(address)
+    try:
+        check_shared_results(cfg, base)
+        capacity = largest_node_cpus()
+        # A task lost with its node (a system failure) is retried twice; a job that raised is not (Ray retries
+        # application errors only with retry_exceptions, off here): a deterministic error fails once, with its log.
+        remote = ray.remote(max_retries=2)(run_job)
+        cluster_gpus = int(ray.cluster_resources().get("GPU", 0))
+        pending: dict[Any, Job] = {}
+        todo = list(jobs)
+        while todo or pending:
+            for job in list(todo):
+                st = [res.status.get(d) for d in job.deps]
+                if any(s in ("failed", "blocked") for s in st):
+                    todo.remove(job)
+                    res.status[job.id] = "blocked"
+                    bar.update(1, **_postfix(res, running))
+                elif all(s in ("done", "skipped") for s in st):
+                    todo.remove(job)
+                    jcfg = job_config(cfg, job.overrides, job.seed)
+                    need, gpus = min(job_cpus(jcfg, job), capacity), job_gpus(jcfg, job)
+                    if gpus > cluster_gpus:
+                        raise ClusterError(
+                            f"sweep: job {job.kind} {job.method} seed {job.seed} asks for {gpus} GPU ({job.kind} "
+                            f"device=cuda) and {need} CPUs, but the cluster has {cluster_gpus} GPUs: it could never "
+                            "run; add a GPU node, or set rl.device / pretrain.device to auto or cpu"
+                        )
+                    ref = remote.options(num_cpus=need, num_gpus=gpus).remote(base, job, str(res.logs[job.id]))
+                    pending[ref] = job
+                    running.add(job.id)
+            if not pending:
+                continue
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                job = pending.pop(ref)
+                running.discard(job.id)
+                try:
+                    finish(job, ray.get(ref), None)
+                except Exception as e:
+                    cause = getattr(e, "cause", None) or e
+                    finish(job, None, _error(cause, res.logs[job.id]))
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+class ClusterError(RuntimeError):
+    """A Ray cluster cannot be reached or used; the message says what to fix."""
+
+
+def connect_ray(address: str, timeout_s: float = 5.0) -> None:
+    """``ray.init(address=...)``, failing within ``timeout_s`` with the fix instead of hanging on Ray's retries.
+
+    ``host:port`` and ``ray://host:port`` are probed with a TCP connect first (nothing listening: one line at
+    once); an authentication refusal names ``RAY_AUTH_MODE`` and the token (Ray ≥ 2.60 turns token auth on for
+    ``ray start``).
+    """
+    import socket
+
+    import ray
+
+    target = address.removeprefix("ray://")
+    if address != "auto" and ":" in target:
+        host, _, port = target.rpartition(":")
+        try:
+            with socket.create_connection((host, int(port)), timeout=timeout_s):
+                pass
+        except (OSError, ValueError) as e:
+            raise ClusterError(
+                f"sweep --address {address}: nothing answers at {host}:{port} within {timeout_s:g} s ({e}); start "
+                "the head with `ray start --head --port PORT` on that machine, or check the address"
+            ) from None
+    try:
+        ray.init(address=address, log_to_driver=False)
+    except Exception as e:
+        text = f"{type(e).__name__}: {' '.join(str(e).split())[:200]}"
+        if "auth" in text.lower() or "token" in text.lower():
+            raise ClusterError(
+                f"sweep --address {address}: the cluster refused authentication ({text}); Ray 2.60's `ray start` "
+                "enables token auth: export RAY_AUTH_MODE=token and the cluster's token (see docs/cluster.md) "
+                "before running the sweep"
+            ) from None
+        raise ClusterError(f"sweep --address {address}: cannot join the cluster ({text})") from None
+
+
+def _sees(base: dict, name: str) -> tuple[str, bool]:
+    """On a node: where this node's jobs would keep results, and whether the driver's marker ``name`` is there."""
+    cfg = load_config(base["preset"], overrides=base["overrides"])
+    path = cfg.run_root / "sweeps" / name
+    return str(path), path.exists()
+
+
+def check_shared_results(cfg: Config, base: dict, timeout_s: float = 120.0) -> None:
+    """On a cluster of more than one node, refuse to start unless every node's jobs see the driver's results
+    folder: a job reads its inputs (encoders, oracles, data, caches) from, and writes its run to, the results
+    folder as its node resolves it (``results_dir``, ``OMCRL_ROOT``). The driver writes a marker file; a task
+    pinned to each node looks for it. One node (an embedded Ray, or a head alone) needs no check."""
+    import uuid
+
+    import ray
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    nodes = [n for n in ray.nodes() if n.get("Alive")]
+    if len(nodes) < 2:
+        return
+    name = f".shared-check-{uuid.uuid4().hex[:12]}"
+    marker = cfg.run_root / "sweeps" / name
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    marker.write_text("written by the sweep's driver\n")
+    try:
+        sees = ray.remote(num_cpus=0, max_retries=0)(_sees)
+        refs = [
+            sees.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote(base, name)
+            for n in nodes
+        ]
+        answers = ray.get(refs, timeout=timeout_s)
+    finally:
+        marker.unlink(missing_ok=True)
+    blind = [f"{n.get('NodeManagerAddress', '?')} (looks in {path})" for n, (path, ok) in zip(nodes, answers) if not ok]
+    if blind:
+        raise ClusterError(
+            f"sweep: {len(blind)} of {len(nodes)} nodes do not see the driver's results folder {cfg.run_root}: "
+            + "; ".join(blind)
+            + ". Jobs read and write runs there, so every node needs the same folder: mount a shared filesystem at "
+            "the same path (or point OMCRL_ROOT / results_dir at it) on every node; see docs/cluster.md"
+        )
+
+
+def largest_node_cpus() -> int:
+    """CPUs of the largest live node: a job asking more can never be scheduled, whatever the cluster's total."""
+    import ray
+
+    cpus = [n.get("Resources", {}).get("CPU", 0) for n in ray.nodes() if n.get("Alive")]
+    return max(1, int(max(cpus, default=1)))
+
+
+def sweep_stage(
+    cfg: Config,
+    grid: str | None = None,
+    *,
+    seeds: Sequence[int] | None = None,
+    progress: bool = True,
+    plan: bool = False,
+    rates: str | None = None,
+    **kw: Any,
+) -> str:
+    """CLI stage ``sweep``: ``python -m omcrl sweep <grid|all> --preset P [--seeds 0,1,2] [--address A]
+    [--backend B]``; writes each grid's table (:func:`run_ablations`) and returns its account. ``--plan`` prints
+    the jobs and their cost (rates from ``--rates FILE.json``, else from this preset's finished sweeps) and runs
+    nothing."""
+    if grid is None:
+        raise ConfigError(f"stage 'sweep' needs a grid name, one of {[*GRIDS, 'all']}")
+    grids = list(ABLATION_GRIDS) if grid == "all" else [grid]
+    for g in grids:
+        grid_variants(g)
+    if plan:
+        if rates is not None:
+            r = json.loads(Path(rates).read_text(encoding="utf-8"))
+            if not isinstance(r, dict) or not all(isinstance(v, int | float) and v > 0 for v in r.values()):
+                raise ConfigError(f"--rates {rates}: expected a JSON object of positive rates per rate_key, got {r!r}")
+        else:
+            m = measured_rates(cfg)
+            r = dict(zip(m["rate_key"], m["rate"], strict=True)) or None
+        return describe_plan(cfg, grids, seeds, r)
+    out = run_ablations(cfg, grids, seeds, progress=progress, **kw)
+    text = "\n".join(repr(v["result"]) for v in out.values())
+    bad = {g: v["result"].counts() for g, v in out.items() if set(v["result"].status.values()) & {"failed", "blocked"}}
+    if bad:
+        # Scripts must see it: the tables were written with the variants that finished, but the exit status is not 0.
+        print(text)
+        raise SweepFailed(
+            "sweep: jobs failed or were blocked ("
+            + "; ".join(f"{g}: {c.get('failed', 0)} failed, {c.get('blocked', 0)} blocked" for g, c in bad.items())
+            + "); the tables leave those variants out; the logs above name each failure. Re-run the same command to "
+            "finish only what is missing"
+        )
+    return text
+
+
+class SweepFailed(RuntimeError):
+    """Some jobs of a sweep failed or were blocked by a failed dependency (the rest finished)."""
+
+
+def run_ablations(
+    cfg: Config,
+    grids: Sequence[str],
+    seeds: Sequence[int] | None = None,
+    *,
+    backend: str = "ray",
+    address: str | None = None,
+    num_cpus: int | None = None,
+    progress: bool = True,
+) -> dict[str, dict[str, Any]]:
+    """Run each grid (:func:`run_sweep`) and write its table (:func:`omcrl.eval.ablation.write_ablation`; a
+    remedy grid also its verdicts, :func:`omcrl.eval.ablation.write_remedies`).
+
+    Returns ``{grid: {"result": SweepResult, "table": aggregate table, "paths": written files}}``; a grid whose
+    evaluations all failed has an empty table and no files.
+    """
+    for g in grids:
+        grid_variants(g)  # every name checked before the first job runs
+    out: dict[str, dict[str, Any]] = {}
+    for g in grids:
+        res = run_sweep(cfg, g, seeds, backend=backend, address=address, num_cpus=num_cpus, progress=progress)
+        if len(res.episodes):
+            table = ablation_table(res.episodes)
+            paths = write_ablation(res.episodes, cfg.run_root / "tables", g)
+            if g in REMEDY_GRIDS and DEFAULT_VARIANT.label in set(res.episodes["label"]):
+                paths.update(write_remedies(res.episodes, cfg.run_root / "tables", g)[2])
+            if g == "precision":
+                paths.update(write_precision(res.episodes, cfg.run_root / "tables")[1])
+        else:
+            table, paths = pd.DataFrame(), {}
+        out[g] = {"result": res, "table": table, "paths": paths}
+    return out
