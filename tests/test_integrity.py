@@ -9,7 +9,9 @@ import sys
 import textwrap
 import time
 
+import numpy as np
 import psutil
+import pytest
 
 # A parent that opens an evaluation pool, starts slow episodes in its workers, prints their PIDs and waits.
 _PARENT = textwrap.dedent(
@@ -135,6 +137,106 @@ def test_a_dataset_locked_by_a_writer_is_reported_as_locked_not_corrupt(tmp_path
         r = subprocess.run([sys.executable, "-c", code], cwd=repo_root, capture_output=True, text=True, timeout=120)
     assert r.returncode != 0
     assert f"dataset {path} is locked by another process" in r.stderr and "corrupt" not in r.stderr
+
+
+def _episode(rng, image_size: int = 16, steps: int = 5) -> dict:
+    return {
+        "rgb": rng.integers(0, 255, (steps, 3, image_size, image_size), dtype=np.uint8),
+        "depth": rng.random((steps, image_size, image_size), dtype=np.float32),
+        "state": np.zeros((steps, 12), np.float32),
+        "privileged": np.zeros((steps, 6), np.float32),
+        "action": np.zeros((steps, 3), np.float32),
+        "reward": np.zeros(steps, np.float32),
+        "done": np.eye(1, steps, steps - 1, dtype=bool)[0],
+        "scene": "box-v0",
+        "seed": 0,
+        "source": "pilot",
+    }
+
+
+def test_a_writer_that_crashes_inside_hdf5_is_one_error_and_the_file_stays_appendable(tmp_path):
+    """Collection's HDF5 writer runs in its own process: a segfault there (what a full disk inside HDF5 caused in
+    the collector itself) is one DatasetError naming the file; the complete episodes stay readable and a new
+    writer appends after them."""
+    from omcrl.data.dataset import DatasetError, WriterProcess, open_dataset
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "box.h5"
+    with pytest.raises(DatasetError) as err, WriterProcess(path, 16, 2, {"scene": "box-v0"}) as w:
+        assert w.add_episode(**_episode(rng)) == 0 and w.add_episode(**_episode(rng)) == 1
+        os.kill(w.pid, signal.SIGSEGV)
+        w.add_episode(**_episode(rng))
+    msg = str(err.value)
+    assert "\n" not in msg and f"dataset {path}: the writer process died (signal 11)" in msg
+    assert "keeps its 2 complete episodes" in msg
+    with open_dataset(path) as ds:
+        assert len(ds) == 2
+    with WriterProcess(path, 16, 2, {"scene": "box-v0"}) as w:
+        assert not w.created and w.add_episode(**_episode(rng)) == 2
+    with open_dataset(path) as ds:
+        assert len(ds) == 3
+
+
+def test_a_writer_process_reports_bad_episodes_and_bad_files_as_the_writer_does(tmp_path):
+    from omcrl.data.dataset import DatasetError, WriterProcess
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "box.h5"
+    with WriterProcess(path, 16, 2, {}) as w:
+        bad = _episode(rng) | {"state": np.zeros((5, 11), np.float32)}
+        with pytest.raises(ValueError, match=r"episode field 'state': got shape \(5, 11\), expected \(5, 12\)"):
+            w.add_episode(**bad)
+    with pytest.raises(DatasetError, match=r"cannot append, field 'image_size' is 16 in the file but the writer"):
+        WriterProcess(path, 32, 2, {})
+
+
+def _tmpfs(path, size: str):
+    path.mkdir(exist_ok=True)
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.decode().strip() or r.returncode}); needs root")
+
+
+def test_collect_on_a_disk_that_fills_exits_with_one_line_and_appends_after(tmp_path, repo_root):
+    """A real full disk (a 3 MiB tmpfs) during `python -m omcrl collect`: exit 1, one line naming the file, no
+    segfault; the dataset keeps its complete episodes, and after the disk grows a rerun appends to it."""
+    from omcrl.data.dataset import open_dataset
+
+    disk = tmp_path / "disk"
+    _tmpfs(disk, "3m")
+    try:
+        data = disk / "box.h5"
+        args = [
+            sys.executable,
+            "-m",
+            "omcrl",
+            "collect",
+            "--preset",
+            "smoke",
+            "--set",
+            f"data.file={data}",
+            "--set",
+            f"results_dir={tmp_path}/results",
+            "--set",
+            "data.episodes=40",
+            "--set",
+            "data.n_envs=1",
+        ]
+        r = subprocess.run(args, cwd=repo_root, capture_output=True, text=True, timeout=600)
+        assert r.returncode == 1, r.stderr[-2000:]
+        err = [ln for ln in r.stderr.splitlines() if ln.startswith("error")]
+        assert len(err) == 1 and f"dataset {data}: the disk is full" in err[0], r.stderr[-2000:]
+        assert "Segmentation" not in r.stderr and "Exception ignored" not in r.stderr
+        with open_dataset(data) as ds:
+            kept = len(ds)
+        assert 0 < kept < 40
+        subprocess.run(["mount", "-o", "remount,size=64m", str(disk)], check=True)
+        r = subprocess.run(args, cwd=repo_root, capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr[-2000:]
+        with open_dataset(data) as ds:
+            assert len(ds) == 40
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
 
 
 def _garble(path, n: int = 64) -> None:

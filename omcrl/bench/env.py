@@ -23,11 +23,13 @@ from collections.abc import Sequence
 
 import gymnasium as gym
 import numpy as np
-import pybullet as pb
 
 from omcrl.bench import parser, write_results
 from omcrl.envs import make_env, make_vec_env
 from omcrl.envs.vec import env_factory
+from omcrl.utils.quiet import import_quietly
+
+pb = import_quietly("pybullet")
 
 
 def _walk(rng: np.random.Generator, n: int) -> np.ndarray:

@@ -9,6 +9,7 @@ from omcrl.data.dataset import (
     DatasetWriter,
     EpisodeBuffer,
     TrajectoryDataset,
+    WriterProcess,
     open_dataset,
 )
 from omcrl.data.sampler import SequenceSampler
@@ -20,5 +21,6 @@ __all__ = [
     "EpisodeBuffer",
     "SequenceSampler",
     "TrajectoryDataset",
+    "WriterProcess",
     "open_dataset",
 ]

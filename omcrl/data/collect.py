@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import Config, ConfigError
-from omcrl.data.dataset import SOURCES, DatasetError, DatasetWriter, EpisodeBuffer, open_dataset
+from omcrl.data.dataset import SOURCES, DatasetError, EpisodeBuffer, WriterProcess, open_dataset
 from omcrl.envs import make_vec_env
 from omcrl.envs.render import resolve_renderer
 from omcrl.planners.apf import HybridAPF
@@ -327,7 +327,7 @@ def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> 
     try:
         meta = dataclasses.asdict(env_cfg) | {"renderer": resolve_renderer(env_cfg.renderer)}
         meta |= {"look": d.look} if d.look != "own" else {}
-        with DatasetWriter(path, cfg.env.image_size, cfg.env.frame_stack, meta) as w:
+        with WriterProcess(path, cfg.env.image_size, cfg.env.frame_stack, meta) as w:
             obs, infos = vec.reset(seed=env_seed)
             # One per-env info dict per vector step, shared by start() and act(): the planner recognises the
             # reset info it started from and does not plan the episode twice.

@@ -31,7 +31,6 @@ from typing import Any
 import cv2
 import gymnasium as gym
 import numpy as np
-import pybullet as pb
 from gymnasium import spaces
 
 from omcrl.config import ConfigError, EnvConfig, _check_value, show, validate_env
@@ -40,6 +39,9 @@ from omcrl.envs.render import load_egl, pybullet_renderer, resolve_renderer
 from omcrl.envs.textures import TEXTURE_KINDS, texture_file
 from omcrl.scenes import SCENE_SPECS, decor, generate_scene, layout_to_primitives, scene_id, scene_spec
 from omcrl.scenes.geometry import Geometry, Primitive
+from omcrl.utils.quiet import import_quietly
+
+pb = import_quietly("pybullet")  # without the build-time line PyBullet prints on stderr
 
 GRAVITY = 9.81
 APPEARANCE_PARTS = ("all", "surroundings", "obstacles")

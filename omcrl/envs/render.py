@@ -17,9 +17,10 @@ from typing import Any
 
 from omcrl.config import ConfigError
 from omcrl.scenes import scene_key
+from omcrl.utils.quiet import import_quietly
 
-# PyBullet is imported inside the functions that render: resolving a renderer name for a run's identity must not
-# load it (importing it prints its build time, and the CLI reports config errors before any such line).
+# PyBullet is imported inside the functions that render: resolving a renderer name for a run's identity needs
+# none of it.
 
 RENDERERS = ("auto", "tiny", "egl")
 
@@ -39,7 +40,7 @@ def _egl_plugin_file() -> str:
 
 def load_egl(client: int) -> int:
     """Load the EGL renderer plugin into ``client``; returns the plugin id, raises RendererError otherwise."""
-    import pybullet as pb
+    pb = import_quietly("pybullet")
 
     plugin = pb.loadPlugin(_egl_plugin_file(), "_eglRendererPlugin", physicsClientId=client)
     if plugin < 0:
@@ -62,7 +63,7 @@ def _cuda_present() -> bool:
 @functools.cache
 def _egl_works() -> bool:
     """Whether a fresh DIRECT client loads the EGL plugin and renders one frame (checked once per process)."""
-    import pybullet as pb
+    pb = import_quietly("pybullet")
 
     cid = pb.connect(pb.DIRECT)
     try:
@@ -89,7 +90,7 @@ def resolve_renderer(name: str) -> str:
 
 def pybullet_renderer(resolved: str) -> int:
     """The ``getCameraImage`` renderer flag for a resolved renderer name."""
-    import pybullet as pb
+    pb = import_quietly("pybullet")
 
     return pb.ER_BULLET_HARDWARE_OPENGL if resolved == "egl" else pb.ER_TINY_RENDERER
 

@@ -52,6 +52,8 @@ from omcrl.rl.methods import final_policy_path
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import cpu_count
+from omcrl.viz import save_figure
+from omcrl.viz.compare import plot_learning_curves
 
 
 @dataclass
@@ -418,6 +420,20 @@ class SweepFailed(RuntimeError):
     """Some jobs of a sweep failed or were blocked by a failed dependency (the rest finished)."""
 
 
+def variant_runs(cfg: Config, res: SweepResult) -> dict[str, dict[int, Path]]:
+    """``{variant label: {seed: run folder}}`` of a sweep's finished trainings, as the evaluation jobs find them
+    (for learning curves)."""
+    out: dict[str, dict[int, Path]] = {}
+    for j in res.jobs:
+        if j.kind != "evaluate":
+            continue
+        oracle_cfg = None if j.oracle_overrides is None else job_config(cfg, j.oracle_overrides, j.seed)
+        path = final_policy_path(job_config(cfg, j.overrides, j.seed), j.method, oracle_cfg)
+        if path is not None:
+            out.setdefault(j.label, {})[j.seed] = path.parent
+    return out
+
+
 def run_ablations(
     cfg: Config,
     grids: Sequence[str],
@@ -446,6 +462,9 @@ def run_ablations(
                 paths.update(write_remedies(res.episodes, cfg.run_root / "tables", g)[2])
             if g == "precision":
                 paths.update(write_precision(res.episodes, cfg.run_root / "tables")[1])
+                # Training curves of each precision, mean over seeds with their CI (the issue's "training curves").
+                fig = plot_learning_curves(variant_runs(cfg, res))
+                paths["curves"] = save_figure(fig, cfg.run_root / "figures", "precision_curves")
         else:
             table, paths = pd.DataFrame(), {}
         out[g] = {"result": res, "table": table, "paths": paths}
