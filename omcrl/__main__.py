@@ -54,7 +54,7 @@ def _methods_help(stage: str = "train") -> str:
     ``pretrain``."""
     from omcrl.rl.methods import METHODS
 
-    keep = (lambda s: s.features == "frozen") if stage == "pretrain" else (lambda s: s.learned)
+    keep = (lambda s: s.recipe.pretrained) if stage == "pretrain" else (lambda s: s.learned)
     return "\n".join(f"  {n:<22} {s.description}" for n, s in METHODS.items() if keep(s))
 
 

@@ -133,3 +133,49 @@ def test_light_modules_stay_free_of_torch(module):
     code = f"import sys, {module}; print(sorted(m for m in ('torch', 'pybullet') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]", f"{module} loads {out.strip()}"
+
+
+def test_a_new_method_kind_is_one_recipe_class_and_one_registry_row(tmp_path, monkeypatch):
+    """Worked example (docs/extending.md): a student on a *random*, untrained frozen encoder — the control that
+    asks whether pretraining matters. One Recipe subclass and one MethodSpec row; then the kit's ordinary entry
+    points train it, find its run, fly it and evaluate it, with no other file touched."""
+    import omcrl.rl.methods as M
+    from omcrl.config import load_config
+    from omcrl.eval.stage import evaluate_methods
+    from omcrl.models import random_encoder, save_encoder
+    from omcrl.pipeline import train_method
+    from omcrl.rl.train import policy_run, train_student
+
+    class RandomEncoderRecipe(M.Recipe):
+        kind = "random-frozen"
+        camera = True
+
+        def encoder(self, cfg):
+            path = cfg.run_root / "encoders" / f"random-seed{cfg.seed}.pt"
+            if not path.exists():
+                enc = random_encoder(cfg, seed=cfg.seed)
+                save_encoder(path, enc.f, enc.phi, cfg)
+            return path
+
+        def run(self, cfg, spec, oracle_cfg=None):
+            return policy_run(cfg, spec.name, self.encoder(cfg))
+
+        def fit(self, cfg, spec, needs, common):
+            return train_student(cfg, self.encoder(cfg), None, **common)
+
+    monkeypatch.setattr(M, "RECIPES", dict(M.RECIPES))  # the registries as they were after the test
+    monkeypatch.setattr(M, "METHODS", dict(M.METHODS))
+    M.register_recipe(RandomEncoderRecipe())
+    M.register_method(M.MethodSpec("random-enc", "Random encoder", "random-frozen", ablation=True))
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", "rl.total_steps=128", "eval.episodes=2"])
+    result = train_method(cfg, "random-enc", progress=False)
+    path = M.final_policy_path(cfg, "random-enc")
+    assert path == result.final_path and path.exists()
+    assert train_method(cfg, "random-enc", progress=False).skipped  # the registry finds the finished run
+    agent = M.get_method("random-enc").recipe.make_agent(cfg, M.get_method("random-enc"))
+    assert agent.act is not None
+    episodes = evaluate_methods(cfg, {"random-enc": path}, ["box"])
+    assert len(episodes) == 2 and set(episodes["method"]) == {"random-enc"}
+    with pytest.raises(Exception, match="no recipe"):
+        M.register_method(M.MethodSpec("nope", "Nope", "no-such-kind"))

@@ -329,6 +329,20 @@ def _keep_complete(path: Path, n: int) -> None:
         raise DatasetError(f"dataset {path}: cannot recover its {n} complete episodes ({e})") from None
 
 
+class PipeStream:
+    """A pipe seen by numpy as a plain stream: ``np.lib.format`` reads and writes a real file with
+    ``fromfile``/``tofile``, which need a seekable file and fail on a pipe."""
+
+    def __init__(self, raw: Any) -> None:
+        self.raw = raw
+
+    def read(self, n: int = -1) -> bytes:
+        return self.raw.read(n)
+
+    def write(self, data: bytes) -> int:
+        return self.raw.write(data)
+
+
 class WriterProcess:
     """A :class:`DatasetWriter` in a process of its own, with the same interface (``add_episode``, ``close``,
     ``n_episodes``, ``created``, a context manager).
@@ -378,7 +392,11 @@ class WriterProcess:
         return self._proc.pid
 
     def _died(self, doing: str) -> DatasetError:
-        code = self._proc.wait(timeout=30)
+        try:
+            code = self._proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:  # alive but out of step with us: end it, the file keeps what it has
+            self._proc.kill()
+            code = self._proc.wait()
         how = f"signal {-code}" if code < 0 else f"exit code {code}"
         self._done = True
         return DatasetError(
@@ -390,7 +408,8 @@ class WriterProcess:
         try:
             self._proc.stdin.write(json.dumps(header).encode() + b"\n")
             for a in arrays:
-                np.lib.format.write_array(self._proc.stdin, np.ascontiguousarray(a), allow_pickle=False)
+                # Through PipeStream: numpy writes a real file with tofile(), which needs a seekable file.
+                np.lib.format.write_array(PipeStream(self._proc.stdin), np.ascontiguousarray(a), allow_pickle=False)
             self._proc.stdin.flush()
         except (BrokenPipeError, OSError):
             raise self._died(doing) from None

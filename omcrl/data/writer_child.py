@@ -10,22 +10,11 @@ from __future__ import annotations
 
 import json
 import sys
-from typing import Any
 
 import numpy as np
 
-from omcrl.data.dataset import DatasetError, DatasetWriter
+from omcrl.data.dataset import DatasetError, DatasetWriter, PipeStream
 from omcrl.utils.runtime import exit_with_parent
-
-
-class _Stream:
-    """A pipe seen as a plain stream: numpy reads a real file with ``fromfile``, which needs to seek."""
-
-    def __init__(self, raw: Any) -> None:
-        self.raw = raw
-
-    def read(self, n: int = -1) -> bytes:
-        return self.raw.read(n)
 
 
 def main(parent: int) -> int:
@@ -54,7 +43,7 @@ def main(parent: int) -> int:
             if msg["op"] == "close":
                 discard = bool(msg["discard"])
                 break
-            arrays = {k: np.lib.format.read_array(_Stream(inp), allow_pickle=False) for k in msg["fields"]}
+            arrays = {k: np.lib.format.read_array(PipeStream(inp), allow_pickle=False) for k in msg["fields"]}
             try:
                 idx = writer.add_episode(scene=msg["scene"], seed=msg["seed"], source=msg["source"], **arrays)
             except (DatasetError, ValueError) as e:

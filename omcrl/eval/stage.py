@@ -16,6 +16,7 @@ the episodes, so the notebooks and the CLI share results.
 
 from __future__ import annotations
 
+import inspect
 import json
 import time
 import warnings
@@ -27,20 +28,20 @@ from typing import Any
 
 import pandas as pd
 
-import omcrl.planners.apf as apf
+from omcrl import planners
 from omcrl.config import Config, config_hash
 from omcrl.envs.render import env_identity
 from omcrl.eval.metrics import format_table, summary_table
 from omcrl.eval.runner import EvalPool, evaluate
-from omcrl.planners import HybridAPF, LocalAPF, PerceptiveHybridAPF
 from omcrl.rl import load_policy
+from omcrl.rl.methods import PlannerRecipe
 from omcrl.runs import find_runs
 from omcrl.scenes import scene_id, scene_key
 from omcrl.utils.io import atomic_write_text, file_digest
 
 HYBRID_APF = "HybridAPF"
 # Planner methods evaluated by name (no checkpoint); see omcrl.rl.methods.
-PLANNERS = (HYBRID_APF, "hybrid-apf", "hybrid-apf-perceptive", "local-apf")
+PLANNERS = (HYBRID_APF, *PlannerRecipe.PLANNERS)
 
 
 @dataclass(repr=False)
@@ -83,24 +84,17 @@ def find_policies(cfg: Config) -> dict[str, Path]:
 
 def planner_for(name: str, env_config: Any = None) -> Any:
     """A fresh planner for a planner method name (``hybrid-apf``, ``hybrid-apf-perceptive``, ``local-apf``;
-    ``HybridAPF``)."""
-
-    cls = {
-        HYBRID_APF: HybridAPF,
-        "hybrid-apf": HybridAPF,
-        "hybrid-apf-perceptive": PerceptiveHybridAPF,
-        "local-apf": LocalAPF,
-    }[name]
-    return cls(env_config)
+    ``HybridAPF``), as :class:`~omcrl.rl.methods.PlannerRecipe` names them."""
+    return getattr(planners, PlannerRecipe.PLANNERS["hybrid-apf" if name == HYBRID_APF else name])(env_config)
 
 
 def _load(method: str, source: Any) -> tuple[Any, str]:
     """A policy object and a cache key for ``source``: a checkpoint path, a planner name or a policy."""
 
     if isinstance(source, str) and source in PLANNERS:
-        # Planners are code, not files: their cache key is the digest of the module that implements them.
-
-        return planner_for(source), f"{source}:{file_digest(Path(apf.__file__))}"
+        # Planners are code, not files: their cache key is the digest of the module that implements the class.
+        planner = planner_for(source)
+        return planner, f"{source}:{file_digest(Path(inspect.getfile(type(planner))))}"
     if isinstance(source, (str, Path)):
         return load_policy(source, name=method), file_digest(Path(source))
     # An object: only cached under its explicit checkpoint, if it names one.

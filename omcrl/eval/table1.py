@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from omcrl.config import Config
-from omcrl.eval.metrics import METRICS
+from omcrl.eval.metrics import GLOSSARY, METRICS
 from omcrl.eval.runner import EvalPool
 from omcrl.eval.stage import evaluate_methods
 from omcrl.eval.stats import aggregate, compare_sr
@@ -38,8 +38,8 @@ from omcrl.utils.progress import track
 
 PAPER_TABLE1 = Path(__file__).with_name("paper_table1.csv")
 # Direction of "better" per metric (for bold).
-HIGHER_IS_BETTER = {"NE": False, "OS": True, "SR": True, "SPL": True, "CR": False, "TTS": False}
-UNITS = {"NE": "m", "OS": "%", "SR": "%", "SPL": "0-1", "CR": "%", "TTS": "steps"}
+# Read from the one glossary (omcrl.eval.metrics.GLOSSARY): which way each metric is better.
+HIGHER_IS_BETTER = {m: GLOSSARY[m][3] == "higher" for m in METRICS}
 
 
 @dataclass(repr=False)

@@ -76,7 +76,7 @@ def encoder_policy(cfg: Config, method: str) -> Any:
     """The finished policy of a method with a camera encoder at ``cfg.seed``; clear errors otherwise."""
 
     spec = get_method(method)
-    if spec.features not in ("frozen", "pixel"):
+    if not spec.recipe.camera:
         raise ConfigError(
             f"method {method!r} has no camera encoder ({spec.features}); choose from {list(ENCODER_METHODS)}"
         )

@@ -126,7 +126,7 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
             co = job_config(cfg, oracle_ov, s)
             deps: list[str] = []
             oracle = Job(f"train:{oracle_run(co).dir}", "train", "oracle", s, oracle_ov)
-            if spec.features == "frozen":
+            if spec.recipe.pretrained:
                 # Data flown partly by the oracle (data.policy=oracle) waits for that oracle.
                 by_oracle = c.data.policy == "oracle"
                 col = add(
@@ -142,12 +142,11 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
                 )
                 enc_run = pretrain_run(encoder_config(c, spec))
                 deps.append(add(Job(f"pretrain:{enc_run.dir}", "pretrain", v.method, s, v.overrides, (col,))))
-            if spec.guide == "oracle" or spec.features == "oracle":
+            if spec.guide == "oracle" or spec.recipe.teacher:
                 deps.append(add(oracle))
-            if spec.features != "oracle":
+            if not spec.recipe.teacher:
                 ident = {"method": v.method, "rl": asdict(c.rl), "env": asdict(c.env), "deps": deps, "seed": s}
-                if spec.features == "pixel":
-                    ident["pixel"] = {"crop": c.pretrain.crop_to, "feature_dim": c.pretrain.feature_dim}
+                ident |= spec.recipe.job_identity(c)
                 tid = add(
                     Job(f"train:{v.method}:{config_hash(ident)}", "train", v.method, s, v.overrides, tuple(deps),
                         oracle_overrides=oracle_ov)

@@ -13,9 +13,9 @@ from typing import Any
 
 from omcrl import pretrain
 from omcrl.config import Config, ConfigError
-from omcrl.rl.methods import encoder_config, encoder_path, get_method, oracle_path, planner_factory, pretrain_command
+from omcrl.rl.methods import encoder_config, get_method
 from omcrl.rl.policy import CheckpointError
-from omcrl.rl.train import Result, train_oracle, train_pixel, train_student
+from omcrl.rl.train import Result
 
 
 def pretrain_method(cfg: Config, method: str, *, progress: bool = True) -> Any:
@@ -43,24 +43,14 @@ def train_method(
     spec = get_method(method)
     if not spec.learned:
         raise ConfigError(f"method {method!r} is a planner: it is not trained (evaluate it directly)")
-    if spec.features == "oracle":
-        return train_oracle(cfg, name=spec.name, make_env=make_env, overwrite=overwrite, progress=progress)
-    oracle = oracle_path(oracle_cfg or cfg) if spec.guide == "oracle" else None
-    enc = encoder_path(cfg, spec) if spec.features == "frozen" else None
     # Every missing prerequisite at once, with its command (not one now and the next after 30 minutes).
-    needs = [
-        (oracle, "oracle checkpoint", f"python -m omcrl train --method oracle --preset {cfg.preset} --seed {cfg.seed}"),
-        (enc, f"{spec.name} encoder", pretrain_command(cfg, spec) if enc is not None else ""),
-    ]
-    missing = [(p, what, cmd) for p, what, cmd in needs if p is not None and not p.exists()]
+    missing = [n for n in spec.recipe.needs(cfg, spec, oracle_cfg) if not n.path.exists()]
     if missing:
         raise CheckpointError(
-            "; ".join(f"{what} {p} does not exist" for p, what, _ in missing)
+            "; ".join(f"{n.what} {n.path} does not exist" for n in missing)
             + "; run first: "
-            + " && ".join(cmd for _, _, cmd in missing)
+            + " && ".join(n.command for n in missing)
         )
-    planner = planner_factory(cfg, spec.guide)
-    common = {"name": spec.name, "planner_factory": planner, "make_env": make_env, "overwrite": overwrite}
-    if enc is not None:
-        return train_student(cfg, enc, oracle, progress=progress, **common)
-    return train_pixel(cfg, oracle, progress=progress, **common)
+    return spec.recipe.train(
+        cfg, spec, oracle_cfg=oracle_cfg, make_env=make_env, overwrite=overwrite, progress=progress
+    )

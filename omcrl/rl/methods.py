@@ -27,11 +27,13 @@ import copy
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from omcrl import planners, pretrain
 from omcrl.config import Config, ConfigError
-from omcrl.rl.train import oracle_run, policy_run
+from omcrl.rl.policy import load_policy
+from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, train_pixel, train_student
+from omcrl.runs import Run
 
 # Planner guides: name -> (class in omcrl.planners, the factory name that enters a run's identity). "apf" keeps
 # the name its runs had before the non-expert guide existed, so expert-guided runs keep their keys.
@@ -46,7 +48,7 @@ class MethodSpec:
     ----------
     name : the kit's name (run folders, CLI ``--method``, table rows).
     label : the paper's name in tables and figures.
-    features : ``oracle`` | ``frozen`` | ``pixel`` | ``planner``.
+    features : the method's kind, a key of :data:`RECIPES`: ``oracle`` | ``frozen`` | ``pixel`` | ``planner``.
     encoder : pretraining overrides for a frozen encoder (``{"method": "curl", "use_projection": False}``).
     guide : ``oracle`` | a planner guide of :data:`PLANNER_GUIDES` (``local-apf``, ``apf``) | None
         (``oracle-config``: the oracle's own ``rl.oracle_guide``).
@@ -65,8 +67,13 @@ class MethodSpec:
     ablation: bool = False
 
     @property
+    def recipe(self) -> Recipe:
+        """How a method of this kind is trained and flown (:data:`RECIPES`, by ``features``)."""
+        return RECIPES[self.features]
+
+    @property
     def learned(self) -> bool:
-        return self.features != "planner"
+        return self.recipe.learned
 
 
 METHODS: dict[str, MethodSpec] = {
@@ -118,7 +125,7 @@ def get_method(name: str) -> MethodSpec:
 def encoder_config(cfg: Config, method: str | MethodSpec) -> Config:
     """``cfg`` with the pretraining overrides of ``method``'s frozen encoder applied (a copy)."""
     spec = get_method(method) if isinstance(method, str) else method
-    if spec.features != "frozen":
+    if not spec.recipe.pretrained:
         raise ConfigError(f"method {spec.name!r} has no pretrained encoder (features: {spec.features})")
     out = copy.deepcopy(cfg)
     for k, v in spec.encoder.items():
@@ -162,20 +169,13 @@ def planner_factory(cfg: Config, guide: str | None) -> Callable[[], Any] | None:
 def final_policy_path(cfg: Config, method: str, oracle_cfg: Config | None = None) -> Path | None:
     """``final.pt`` of a learned method's finished run at ``cfg.seed``, or None when it is not there.
 
-    The run is derived from the current config and upstream artifacts exactly as
-    :func:`omcrl.pipeline.recipes.train_method` derives it, so only a run of this very configuration is found.
+    The run is derived from the current config and upstream artifacts exactly as its recipe trains it
+    (:meth:`Recipe.run`), so only a run of this very configuration is found.
     """
     spec = get_method(method)
-    if spec.features == "oracle":
-        p = oracle_path(cfg)
-        return p if p.exists() else None
-    oracle = oracle_path(oracle_cfg or cfg) if spec.guide == "oracle" else None
-    enc = encoder_path(cfg, spec) if spec.features == "frozen" else None
-    if (oracle is not None and not oracle.exists()) or (enc is not None and not enc.exists()):
-        return None
-    planner = planner_factory(cfg, spec.guide)
-    p = policy_run(cfg, spec.name, enc, oracle, planner).dir / "final.pt"
-    return p if p.exists() else None
+    run = spec.recipe.run(cfg, spec, oracle_cfg)
+    p = None if run is None else run.dir / "final.pt"
+    return p if p is not None and p.exists() else None
 
 
 def training_runs(cfg: Config, methods: list[str] | None = None, seeds: list[int] | None = None) -> dict:
@@ -187,3 +187,179 @@ def training_runs(cfg: Config, methods: list[str] | None = None, seeds: list[int
             if p is not None:
                 out.setdefault(m, {})[s] = p.parent
     return out
+
+
+# ---------------------------------------------------------------- recipes: one per kind of method
+@dataclass(frozen=True)
+class Need:
+    """An upstream artifact a method needs before it trains: the file, what it is, and the command that makes it."""
+
+    path: Path
+    what: str
+    command: str
+
+
+class Recipe:
+    """How one kind of method (``MethodSpec.features``) is trained and flown; template methods in the manner of
+    gym-pybullet-drones, so a new kind is one subclass and one :func:`register_recipe` call.
+
+    Every question that depends on the kind is asked here: its prerequisites (:meth:`needs`), its run identity
+    (:meth:`run`), training (:meth:`train`), the agent it flies (:meth:`make_agent`) and what its training job adds
+    to a sweep's job identity (:meth:`job_identity`).
+    """
+
+    kind: ClassVar[str] = ""
+    learned: ClassVar[bool] = True  # trained (a run with ``final.pt``); a planner is not
+    pretrained: ClassVar[bool] = False  # flies a frozen encoder pretrained before it (a pretraining job first)
+    camera: ClassVar[bool] = False  # sees the camera through an encoder (Grad-CAM, disturbance tests)
+    teacher: ClassVar[bool] = False  # its run is the oracle that guided students need (one shared sweep job)
+
+    def needs(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> list[Need]:
+        """The upstream artifacts, whether present or not: the oracle when the guide is the oracle (that of
+        ``oracle_cfg`` when given: an ablation that changes the student's α schedule keeps the comparison's
+        oracle), and the frozen encoder of a pretrained kind."""
+        out = []
+        if spec.guide == "oracle":
+            c = oracle_cfg or cfg
+            cmd = f"python -m omcrl train --method oracle --preset {c.preset} --seed {c.seed}"
+            out.append(Need(oracle_path(c), "oracle checkpoint", cmd))
+        if self.pretrained:
+            out.append(Need(encoder_path(cfg, spec), f"{spec.name} encoder", pretrain_command(cfg, spec)))
+        return out
+
+    def _path(self, needs: list[Need], what: str) -> Path | None:
+        return next((n.path for n in needs if n.what == what), None)
+
+    def run(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> Run | None:
+        """The run this method trains into at ``cfg.seed``, or None while a prerequisite is missing (a policy's
+        run identity takes its upstream files' digests)."""
+        needs = self.needs(cfg, spec, oracle_cfg)
+        if any(not n.path.exists() for n in needs):
+            return None
+        enc = self._path(needs, f"{spec.name} encoder")
+        oracle = self._path(needs, "oracle checkpoint")
+        return policy_run(cfg, spec.name, enc, oracle, planner_factory(cfg, spec.guide))
+
+    def train(
+        self,
+        cfg: Config,
+        spec: MethodSpec,
+        *,
+        oracle_cfg: Config | None = None,
+        make_env: Callable[[int], Any] | None = None,
+        overwrite: bool = False,
+        progress: bool = True,
+    ) -> Result:
+        """Train (skip if finished, resume if interrupted); the prerequisites exist (checked by the caller)."""
+        common = {"name": spec.name, "make_env": make_env, "overwrite": overwrite, "progress": progress}
+        return self.fit(cfg, spec, self.needs(cfg, spec, oracle_cfg), common)
+
+    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
+        """The kind's trainer on its prerequisites; ``common``: ``name``, ``make_env``, ``overwrite``, ``progress``."""
+        raise NotImplementedError(f"{type(self).__name__} trains nothing")
+
+    def make_agent(self, cfg: Config, spec: MethodSpec, path: Path | None = None) -> Any:
+        """The agent this method flies (:class:`omcrl.agent.Agent`): its policy from ``path`` (default its finished
+        run's ``final.pt``)."""
+        path = path or final_policy_path(cfg, spec.name)
+        if path is None:
+            raise FileNotFoundError(f"no finished {spec.name} run for seed {cfg.seed}; train it first")
+        return load_policy(path, name=spec.name)
+
+    def job_identity(self, cfg: Config) -> dict:
+        """What a sweep's training job of this kind adds to its identity beyond the method's config."""
+        return {}
+
+
+class OracleRecipe(Recipe):
+    """The privileged teacher: PPO on depth and privileged state, its own run identity (:func:`oracle_run`)."""
+
+    kind = "oracle"
+    teacher = True
+
+    def run(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> Run | None:
+        return oracle_run(cfg)
+
+    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
+        return train_oracle(cfg, **common)
+
+    def make_agent(self, cfg: Config, spec: MethodSpec, path: Path | None = None) -> Any:
+        return load_policy(path or oracle_path(cfg), spec.name, expect_kind="oracle")
+
+
+class FrozenRecipe(Recipe):
+    """A student on a frozen pretrained encoder (ours, curl, ...): PPO on [f(rgb), state]."""
+
+    kind = "frozen"
+    pretrained = True
+    camera = True
+
+    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
+        enc, oracle = self._path(needs, f"{spec.name} encoder"), self._path(needs, "oracle checkpoint")
+        return train_student(cfg, enc, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
+
+
+class PixelRecipe(Recipe):
+    """A pixel encoder trained end to end with the policy (ppo, npe, npe-ot)."""
+
+    kind = "pixel"
+    camera = True
+
+    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
+        oracle = self._path(needs, "oracle checkpoint")
+        return train_pixel(cfg, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
+
+    def job_identity(self, cfg: Config) -> dict:
+        return {"pixel": {"crop": cfg.pretrain.crop_to, "feature_dim": cfg.pretrain.feature_dim}}
+
+
+class PlannerRecipe(Recipe):
+    """A classical planner (Hybrid APF, privileged or perceptive): nothing to train, nothing to find."""
+
+    kind = "planner"
+    learned = False
+    # method name -> class in omcrl.planners
+    PLANNERS: ClassVar[dict[str, str]] = {
+        "hybrid-apf": "HybridAPF",
+        "hybrid-apf-perceptive": "PerceptiveHybridAPF",
+        "local-apf": "LocalAPF",
+    }
+
+    def needs(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> list[Need]:
+        return []
+
+    def run(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> Run | None:
+        return None
+
+    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
+        raise ConfigError(f"method {spec.name!r} is a planner: it is not trained (evaluate it directly)")
+
+    def make_agent(self, cfg: Config, spec: MethodSpec, path: Path | None = None) -> Any:
+        return getattr(planners, self.PLANNERS[spec.name])(cfg.env)
+
+
+RECIPES: dict[str, Recipe] = {}
+
+
+def register_recipe(recipe: Recipe) -> Recipe:
+    """Add a kind of method: ``MethodSpec(features=recipe.kind)`` then trains and flies through ``recipe``."""
+    if not recipe.kind:
+        raise ValueError(f"{type(recipe).__name__}.kind is empty")
+    if recipe.kind in RECIPES and type(RECIPES[recipe.kind]) is not type(recipe):
+        raise ValueError(f"a recipe for kind {recipe.kind!r} exists already ({type(RECIPES[recipe.kind]).__name__})")
+    RECIPES[recipe.kind] = recipe
+    return recipe
+
+
+def register_method(spec: MethodSpec) -> MethodSpec:
+    """Add a method (one row of :data:`METHODS`); its ``features`` must name a registered recipe."""
+    if spec.features not in RECIPES:
+        raise ConfigError(f"method {spec.name!r}: features {spec.features!r} has no recipe; known: {list(RECIPES)}")
+    if spec.name in METHODS and METHODS[spec.name] != spec:
+        raise ValueError(f"method {spec.name!r} exists already with another spec")
+    METHODS[spec.name] = spec
+    return spec
+
+
+for _recipe in (OracleRecipe(), FrozenRecipe(), PixelRecipe(), PlannerRecipe()):
+    register_recipe(_recipe)
