@@ -31,6 +31,7 @@ STAGE_MODULES = {
     "test_table1",
     "test_interpret",
     "test_transfer",
+    "test_bench",
 }
 
 

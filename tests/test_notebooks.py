@@ -156,6 +156,26 @@ def test_chain_smoke(tmp_path):
     assert [p.stem for p in outs] == NOTEBOOKS
     for p in outs:
         assert p.is_file() and p.parent == tmp_path / "smoke" / "executed"
+        nb = nbformat.read(p, as_version=4)
+        errors = [o for c in nb.cells for o in c.get("outputs", []) if o.get("output_type") == "error"]
+        assert not errors, f"{p.name}: {errors[0].get('ename')}: {errors[0].get('evalue')}"
+    # What the chain is for: Table I over every method and scene of the suite, its figures and the summary.
+    import pandas as pd
+
+    from omcrl.config import load_config
+    from omcrl.rl.methods import TABLE1_METHODS
+
+    root = tmp_path / "smoke"
+    table = pd.read_csv(root / "tables" / "table1.csv")
+    scenes = load_config("smoke").eval.scenes
+    assert set(table["method"]) == set(TABLE1_METHODS) and set(table["scene"]) == set(scenes)
+    assert set(table["metric"]) == {"NE", "OS", "SR", "SPL", "CR", "TTS"} and table["episodes"].min() >= 1
+    sr = table[table.metric == "SR"]["mean"]
+    assert sr.between(0, 100).all()
+    figures = {f.stem for f in (root / "figures").glob("*.png")}
+    assert len(figures) >= 20 and all(f.stat().st_size > 5_000 for f in (root / "figures").glob("*.png"))
+    summary = (root / "summary.md").read_text()
+    assert "not run yet" not in summary and "| SR | success rate |" in summary
 
 
 def test_overrides_from_config_round_trip():

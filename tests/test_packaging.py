@@ -130,3 +130,21 @@ def test_presets_ship_with_the_package():
 def test_docs_and_readmes_exist(repo_root):
     for rel in ("docs/DEVIATIONS.md", "data/README.md", "results/README.md", "environment.yml"):
         assert (repo_root / rel).is_file(), rel
+
+
+def test_every_relative_link_in_the_docs_resolves(repo_root):
+    """Links between the README, docs/ and the repository's files (``[text](path)`` and ``[text](path#anchor)``)
+    point at files that exist; web links are not followed."""
+    import re
+
+    pages = [repo_root / "README.md", *sorted((repo_root / "docs").glob("*.md"))]
+    checked, broken = 0, []
+    for page in pages:
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+            if re.match(r"[a-z]+:", target) or target.startswith("#"):
+                continue
+            path = (page.parent / target.split("#")[0]).resolve()
+            checked += 1
+            if not path.exists():
+                broken.append(f"{page.relative_to(repo_root)} -> {target}")
+    assert checked >= 15 and broken == [], broken

@@ -18,7 +18,7 @@ import pandas as pd
 from omcrl.rl.methods import METHODS
 from omcrl.runs import metric_series
 from omcrl.scenes import PAPER_SUITE
-from omcrl.viz import steps_axis
+from omcrl.viz import method_color, steps_axis
 from omcrl.viz.pretrain import smooth
 from omcrl.viz.rl import TRAJECTORY_KEY, plot_trajectories
 
@@ -83,8 +83,10 @@ def plot_learning_curves(
                 continue
             style = "--" if method == "oracle" else "-"
             n = len(seeds)
-            ax.plot(x, y, style, color=f"C{i}", label=f"{labels.get(method, method)} ({n} seed{'s' if n > 1 else ''})")
-            ax.fill_between(x, lo, hi, color=f"C{i}", alpha=0.18, lw=0)
+            # The method's colour in every figure; lines that are not methods (a sweep's variants) take the cycle.
+            color = method_color(method) if method in METHODS or method in labels.values() else f"C{i}"
+            ax.plot(x, y, style, color=color, label=f"{labels.get(method, method)} ({n} seed{'s' if n > 1 else ''})")
+            ax.fill_between(x, lo, hi, color=color, alpha=0.18, lw=0)
         ax.set(xlabel="env steps", title=title)
         steps_axis(ax.xaxis)
         if metric == "success_rate":

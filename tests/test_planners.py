@@ -1,0 +1,79 @@
+"""Planners: the Hybrid APF (an expert on the true map) against NPE's non-expert guide, the local APF on the depth
+camera, on a course built to trap a potential field; and the planners as the method registry flies them."""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from omcrl.config import load_config
+from omcrl.envs import make_env
+from omcrl.eval.stage import _load, planner_for
+from omcrl.planners import HybridAPF, LocalAPF, PerceptiveHybridAPF
+from omcrl.rl.methods import METHODS, PlannerRecipe
+
+# A U-shaped pocket open towards the start, the goal behind its bottom wall: the straight line to the goal runs
+# into the pocket, where attraction and repulsion cancel (the classical local minimum of potential fields).
+POCKET = [
+    {"kind": "box", "position": (1.0, 0.0), "size": (0.15, 1.6, 1.5)},  # bottom of the U, across the goal line
+    {"kind": "box", "position": (0.0, 1.55), "size": (1.0, 0.15, 1.5)},  # its two arms, towards the start
+    {"kind": "box", "position": (0.0, -1.55), "size": (1.0, 0.15, 1.5)},
+]
+
+
+def _fly(planner, env, options) -> dict:
+    obs, info = env.reset(seed=0, options=options)
+    planner.reset(info)
+    while True:
+        obs, _r, term, trunc, info = env.step(planner.act(obs, info))
+        if term or trunc:
+            return info["metrics"]
+
+
+def test_the_expert_plans_around_a_pocket_the_local_field_gets_stuck_in():
+    env = make_env("box", seed=0, image_size=32, layout=POCKET)
+    # Off the pocket's symmetry axis: exactly on it, the Hybrid APF stalls too (its forces cancel; noted).
+    options = {"start": (-2.5, 0.3, 0.0), "goal": (3.5, 0.0)}
+    expert = _fly(HybridAPF(env.cfg).bind(env), env, options)
+    local = _fly(LocalAPF(env.cfg), env, options)
+    env.close()
+    assert expert["success"], expert
+    assert not local["success"], local  # no map, no memory: it never leaves the pocket
+    assert local["final_distance"] > 1.5 and not local["collision"]
+
+
+def test_every_planner_method_is_flown_by_its_recipe_and_cached_by_its_code():
+    cfg = load_config("smoke")
+    planners = {n: s for n, s in METHODS.items() if not s.learned}
+    assert set(planners) == {"hybrid-apf", "hybrid-apf-perceptive"}
+    kinds = {"hybrid-apf": HybridAPF, "hybrid-apf-perceptive": PerceptiveHybridAPF}
+    for name, spec in planners.items():
+        agent = spec.recipe.make_agent(cfg, spec)
+        assert type(agent) is kinds[name] and spec.recipe.run(cfg, spec) is None
+        with pytest.raises(Exception, match="is a planner: it is not trained"):
+            spec.recipe.train(cfg, spec)
+    assert type(planner_for("local-apf")) is LocalAPF and type(planner_for("HybridAPF")) is HybridAPF
+    assert set(PlannerRecipe.PLANNERS) >= set(planners)
+    # An evaluation of a planner is cached under the digest of the file that holds its class.
+    from omcrl.utils.io import file_digest
+
+    _, key = _load("hybrid-apf", "hybrid-apf")
+    assert key == f"hybrid-apf:{file_digest(Path(inspect.getfile(HybridAPF)))}"
+
+
+def test_local_apf_uses_only_what_the_camera_sees():
+    """The same pose and goal with an empty depth frame (nothing in sight) and with a wall just ahead: only the
+    sensed wall changes the command; the true map (``info['path']``) is never read."""
+    env = make_env("box", seed=0, image_size=32, layout=POCKET)
+    obs, info = env.reset(seed=0, options={"start": (0.3, 0.0, 0.0), "goal": (3.0, 0.0)})
+    planner = LocalAPF(env.cfg)
+    planner.reset(info)
+    near = planner.act(obs, {k: v for k, v in info.items() if k != "path"})
+    far_obs = dict(obs, depth=np.full_like(obs["depth"], env.cfg.far))
+    planner.reset(info)
+    clear = planner.act(far_obs, {k: v for k, v in info.items() if k != "path"})
+    env.close()
+    assert clear[0] > near[0]  # it slows (or backs off) only for the wall it sees
