@@ -3,6 +3,11 @@
 Collectors (scripted pilot, random exploration, policies) live in ``omcrl.data.collect`` (separate module).
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
 from omcrl.data.dataset import (
     FORMAT_VERSION,
     DatasetError,
@@ -12,7 +17,17 @@ from omcrl.data.dataset import (
     WriterProcess,
     open_dataset,
 )
-from omcrl.data.sampler import SequenceSampler
+
+_LAZY = {"SequenceSampler": "omcrl.data.sampler"}
+
+
+def __getattr__(name: str) -> Any:
+    # PEP 562: the sampler (PyTorch, ~1 s) loads on use, so the dataset writer's child process
+    # (omcrl.data.writer_child) and readers of datasets start without it.
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'omcrl.data' has no attribute {name!r}")
+
 
 __all__ = [
     "FORMAT_VERSION",
