@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import torch
@@ -275,6 +275,40 @@ def ppo_update(
     return {k: v / count for k, v in sums.items()}
 
 
+@dataclass(frozen=True)
+class PPOSettings:
+    """PPO's hyperparameters, stated once (the fields of :class:`omcrl.config.RLConfig` they are read from).
+
+    lr : initial learning rate (the trainer sets the current one per update; the paper decays it linearly).
+    epochs, minibatch : SGD passes over a rollout and minibatch size (transitions).
+    gamma, gae_lambda : discount and GAE λ.
+    clip, value_coef, entropy_coef, max_grad_norm : the usual PPO settings.
+    beta : the KL scale β of Eq. 9.
+    """
+
+    lr: float
+    epochs: int
+    minibatch: int
+    gamma: float
+    gae_lambda: float
+    clip: float
+    value_coef: float
+    entropy_coef: float
+    max_grad_norm: float
+    beta: float
+
+    @classmethod
+    def from_config(cls, rl: Any) -> PPOSettings:
+        """The settings of an :class:`omcrl.config.RLConfig` (same field names)."""
+        # Coerced as the fields say (int for counts, float for the rest): the settings are exact whatever the source.
+        return cls(**{f.name: (int if f.type == "int" else float)(getattr(rl, f.name)) for f in fields(cls)})
+
+    def sgd(self) -> dict[str, Any]:
+        """The keyword arguments of :func:`ppo_update` these settings give."""
+        keys = ("epochs", "minibatch", "beta", "clip", "value_coef", "entropy_coef", "max_grad_norm")
+        return {k: getattr(self, k) for k in keys}
+
+
 class PPO:
     """PPO with the guide-KL term as an algorithm object: it owns the optimiser; ``update`` returns metrics.
 
@@ -282,56 +316,20 @@ class PPO:
     ----------
     agent : the actor-critic; its trainable parameters (heads and any trainable feature encoder) are optimised
         with Adam (eps 1e-5).
-    lr : initial learning rate (the trainer sets the current one per update; the paper decays it linearly).
-    epochs, minibatch : SGD passes over a rollout and minibatch size (transitions).
-    gamma, gae_lambda : discount and GAE λ.
-    clip, value_coef, entropy_coef, max_grad_norm : the usual PPO settings.
-    beta : the KL scale β of Eq. 9.
+    settings : :class:`PPOSettings`.
     extra_losses : additional loss terms (:data:`ExtraLoss`) added to each minibatch's total.
     """
 
-    def __init__(
-        self,
-        agent: ActorCritic,
-        *,
-        lr: float,
-        epochs: int,
-        minibatch: int,
-        gamma: float,
-        gae_lambda: float,
-        clip: float,
-        value_coef: float,
-        entropy_coef: float,
-        max_grad_norm: float,
-        beta: float,
-        extra_losses: Sequence[ExtraLoss] = (),
-    ) -> None:
-        self.agent = agent
-        self.epochs, self.minibatch = int(epochs), int(minibatch)
-        self.gamma, self.gae_lambda = float(gamma), float(gae_lambda)
-        self.clip, self.value_coef, self.entropy_coef = float(clip), float(value_coef), float(entropy_coef)
-        self.max_grad_norm, self.beta = float(max_grad_norm), float(beta)
+    def __init__(self, agent: ActorCritic, settings: PPOSettings, extra_losses: Sequence[ExtraLoss] = ()) -> None:
+        self.agent, self.settings = agent, settings
         self.extra_losses = list(extra_losses)
         params = [p for p in agent.parameters() if p.requires_grad]
-        self.optimizer = torch.optim.Adam(params, lr=lr, eps=1e-5)
+        self.optimizer = torch.optim.Adam(params, lr=settings.lr, eps=1e-5)
 
     @classmethod
     def from_config(cls, agent: ActorCritic, rl: Any, extra_losses: Sequence[ExtraLoss] = ()) -> PPO:
         """Build from an :class:`omcrl.config.RLConfig`."""
-        return cls(
-            agent,
-            lr=rl.lr,
-            epochs=rl.epochs,
-            minibatch=rl.minibatch,
-            gamma=rl.gamma,
-            gae_lambda=rl.gae_lambda,
-            clip=rl.clip,
-            value_coef=rl.value_coef,
-            entropy_coef=rl.entropy_coef,
-            max_grad_norm=rl.max_grad_norm,
-            beta=rl.beta,
-            extra_losses=extra_losses,
-        )
+        return cls(agent, PPOSettings.from_config(rl), extra_losses)
 
     def set_lr(self, lr: float) -> None:
         for g in self.optimizer.param_groups:
@@ -348,8 +346,8 @@ class PPO:
             batch.next_values,
             batch.terminated,
             batch.ends,
-            self.gamma,
-            self.gae_lambda,
+            self.settings.gamma,
+            self.settings.gae_lambda,
         )
         batch.advantages, batch.returns = adv, ret
         self.agent.train()
@@ -357,16 +355,10 @@ class PPO:
             self.agent,
             self.optimizer,
             batch,
-            epochs=self.epochs,
-            minibatch=self.minibatch,
             alpha=alpha,
-            beta=self.beta,
-            clip=self.clip,
-            value_coef=self.value_coef,
-            entropy_coef=self.entropy_coef,
-            max_grad_norm=self.max_grad_norm,
             step=step,
             extra_losses=self.extra_losses,
+            **self.settings.sgd(),
         )
 
     def state_dict(self) -> dict:
