@@ -14,7 +14,12 @@ camera FOV, method and source checkpoint. The oracle cannot be exported: it need
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
+import tempfile
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -85,6 +90,21 @@ def resolve_policy(policy: str | Path) -> Path:
     return p
 
 
+@contextlib.contextmanager
+def _quiet_exporter() -> Iterator[None]:
+    """The exporter without its console noise: a warning per torchvision operator it cannot register (the kit
+    uses none) and a FutureWarning from its tree utilities; real export errors still raise."""
+    registration = logging.getLogger("torch.onnx._internal.exporter._registration")
+    level = registration.level
+    registration.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=FutureWarning, message=r".*LeafSpec.*")
+            yield
+    finally:
+        registration.setLevel(level)
+
+
 def export_onnx(policy: str | Path, out: str | Path | None = None, opset: int = 18) -> Path:
     """Export a trained visuomotor policy to one ONNX file; returns its path.
 
@@ -114,9 +134,7 @@ def export_onnx(policy: str | Path, out: str | Path | None = None, opset: int = 
     model = _Deployable(pol.agent).eval()
     rgb = torch.zeros(1, 3 * frame_stack, image_size, image_size, dtype=torch.uint8)
     state = torch.zeros(1, 12)
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp, torch.no_grad():
+    with tempfile.TemporaryDirectory() as tmp, torch.no_grad(), _quiet_exporter():
         # The torch.export-based exporter (the default since torch 2.9; the TorchScript one is deprecated).
         torch.onnx.export(
             model,
