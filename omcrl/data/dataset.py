@@ -419,9 +419,11 @@ class WriterProcess:
         if not line:
             raise self._died(doing)
         reply = json.loads(line)
+        if reply.get("error") == "ValueError":  # a refused episode (wrong shape): the writer stays usable
+            raise ValueError(reply["message"])
         if "error" in reply:
             self._done = True
-            raise (ValueError if reply["error"] == "ValueError" else DatasetError)(reply["message"])
+            raise DatasetError(reply["message"])
         return reply
 
     def add_episode(self, *, scene: str, seed: int, source: str, **arrays: np.ndarray) -> int:
@@ -432,11 +434,7 @@ class WriterProcess:
         names = list(arrays)
         header = {"op": "add", "scene": str(scene), "seed": int(seed), "source": str(source), "fields": names}
         self._send(header, doing, [np.asarray(arrays[k]) for k in names])
-        try:
-            idx = int(self._receive(doing)["index"])
-        except ValueError:
-            self._done = False  # a refused episode (wrong shape) leaves the writer usable, as DatasetWriter does
-            raise
+        idx = int(self._receive(doing)["index"])
         self.n_episodes = idx + 1
         return idx
 

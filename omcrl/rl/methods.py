@@ -192,8 +192,10 @@ def training_runs(cfg: Config, methods: list[str] | None = None, seeds: list[int
 # ---------------------------------------------------------------- recipes: one per kind of method
 @dataclass(frozen=True)
 class Need:
-    """An upstream artifact a method needs before it trains: the file, what it is, and the command that makes it."""
+    """An upstream artifact a method needs before it trains: its role (``oracle`` | ``encoder``), the file, what it
+    is (for messages), and the command that makes it."""
 
+    role: str
     path: Path
     what: str
     command: str
@@ -222,13 +224,13 @@ class Recipe:
         if spec.guide == "oracle":
             c = oracle_cfg or cfg
             cmd = f"python -m omcrl train --method oracle --preset {c.preset} --seed {c.seed}"
-            out.append(Need(oracle_path(c), "oracle checkpoint", cmd))
+            out.append(Need("oracle", oracle_path(c), "oracle checkpoint", cmd))
         if self.pretrained:
-            out.append(Need(encoder_path(cfg, spec), f"{spec.name} encoder", pretrain_command(cfg, spec)))
+            out.append(Need("encoder", encoder_path(cfg, spec), f"{spec.name} encoder", pretrain_command(cfg, spec)))
         return out
 
-    def _path(self, needs: list[Need], what: str) -> Path | None:
-        return next((n.path for n in needs if n.what == what), None)
+    def _path(self, needs: list[Need], role: str) -> Path | None:
+        return next((n.path for n in needs if n.role == role), None)
 
     def run(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> Run | None:
         """The run this method trains into at ``cfg.seed``, or None while a prerequisite is missing (a policy's
@@ -236,8 +238,8 @@ class Recipe:
         needs = self.needs(cfg, spec, oracle_cfg)
         if any(not n.path.exists() for n in needs):
             return None
-        enc = self._path(needs, f"{spec.name} encoder")
-        oracle = self._path(needs, "oracle checkpoint")
+        enc = self._path(needs, "encoder")
+        oracle = self._path(needs, "oracle")
         return policy_run(cfg, spec.name, enc, oracle, planner_factory(cfg, spec.guide))
 
     def train(
@@ -295,7 +297,7 @@ class FrozenRecipe(Recipe):
     camera = True
 
     def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
-        enc, oracle = self._path(needs, f"{spec.name} encoder"), self._path(needs, "oracle checkpoint")
+        enc, oracle = self._path(needs, "encoder"), self._path(needs, "oracle")
         return train_student(cfg, enc, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
 
 
@@ -306,7 +308,7 @@ class PixelRecipe(Recipe):
     camera = True
 
     def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
-        oracle = self._path(needs, "oracle checkpoint")
+        oracle = self._path(needs, "oracle")
         return train_pixel(cfg, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
 
     def job_identity(self, cfg: Config) -> dict:
