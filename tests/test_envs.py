@@ -435,3 +435,37 @@ def test_renderers_agree_on_size_and_depth_in_metres():
 def test_unknown_renderer_is_refused():
     with pytest.raises(ConfigError, match="renderer"):
         make_env("box", seed=0, renderer="vulkan")
+
+
+def test_a_subclass_changes_the_task_through_the_hooks():
+    """The task is in ``_reward`` / ``_terminated`` / ``_truncated`` / ``_metrics``: a subclass with a sparse reward
+    and no step limit flies the same dynamics and sees the same observations."""
+    from omcrl.envs.nav_env import NavEnv
+
+    class Sparse(NavEnv):
+        def _reward(self, d, success, crashed):
+            return float(success)
+
+        def _truncated(self, terminated):
+            return False
+
+        def _metrics(self, d, success, collided, out):
+            return {**super()._metrics(d, success, collided, out), "sparse": True}
+
+    kw = {"scene": "box-v0", "seed": 0, "image_size": 32, "max_steps": 5}
+    plain, sparse = NavEnv(**kw), Sparse(**kw)
+    try:
+        o1, _ = plain.reset(seed=3)
+        o2, _ = sparse.reset(seed=3)
+        a = np.array([0.2, 0.0, 0.1], np.float32)
+        for _ in range(5):
+            o1, r1, te1, tr1, i1 = plain.step(a)
+            o2, r2, te2, tr2, i2 = sparse.step(a)
+            np.testing.assert_array_equal(o1["rgb"], o2["rgb"])
+            np.testing.assert_array_equal(i1["pose"], i2["pose"])
+            assert r2 in (0.0, 1.0) and r1 != r2
+        assert tr1 and not tr2 and i1["metrics"]["steps"] == 5
+        assert "metrics" not in i2  # not truncated, so not ended
+    finally:
+        plain.close()
+        sparse.close()

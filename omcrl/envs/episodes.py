@@ -1,0 +1,232 @@
+"""Episode planning in ``NavEnv``: the layout, its collision and occupancy maps, a reachable start and goal.
+
+Pure computation drawn from the env's random generator (PyBullet is untouched), so the vector env can plan an
+env's next reset ahead while it waits for another (:meth:`EpisodePlanner.prefetch`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from omcrl.envs.dynamics import _wrap
+from omcrl.envs.grid import OccupancyGrid, build_grid, components, shortest_path
+from omcrl.scenes import generate_scene
+from omcrl.scenes.geometry import Geometry, Primitive
+
+
+@dataclass
+class _Plan:
+    """Everything a reset decides before touching PyBullet (see ``NavEnv._plan``)."""
+
+    episodes: int  # the env's episode count the plan was made at
+    rng_before: dict | None  # generator state before/after planning (set by prefetch)
+    rng_after: dict | None
+    layout_seed: int
+    key: Any  # identifies the layout (scene, seed) or the user layout
+    prims: list[Primitive]
+    geometry: Geometry
+    grid: OccupancyGrid
+    placed: tuple  # start (3,), goal (2,), path (K, 2), optimal length
+
+    def valid(self, episodes: int, rng: np.random.Generator) -> bool:
+        return episodes == self.episodes and rng.bit_generator.state == self.rng_before
+
+
+class EpisodePlanner:
+    """Layout, maps, start/goal and path of each episode of a :class:`omcrl.envs.nav_env.NavEnv` (a mixin)."""
+
+    def _maps(self, prims: list[Primitive]) -> tuple[Geometry, OccupancyGrid]:
+        """Collision geometry and occupancy grid of a layout (pure computation: no PyBullet)."""
+        c = self.cfg
+        geo = Geometry.from_primitives(prims)
+        return geo, build_grid(geo, c.arena_half, c.altitude, c.grid_resolution, c.drone_radius)
+
+    def _plan(self, reseed: bool, options: dict) -> _Plan:
+        """Layout, maps, start/goal and path of the next episode, drawn from ``self.np_random``.
+
+        Pure computation (PyBullet is untouched), so it can run ahead of the reset (:meth:`prefetch`).
+        ``reseed``: reset() got a seed, so the layout always follows from it.
+        """
+        c = self.cfg
+        rng = self.np_random
+        layout_seed, key = self._layout_seed, self._built_key
+        prims, geometry, grid = self._prims, self._geometry, self.grid
+        for attempt in range(50):
+            # A new layout every `layout_every` episodes (and after a layout with no valid start/goal pair);
+            # with a seed given to reset() the layout always follows from that seed.
+            if reseed or attempt > 0 or self._episodes % c.layout_every == 0 or layout_seed < 0:
+                layout_seed = int(rng.integers(2**31 - 1))
+            new_key = ("layout", id(self.layout)) if self.layout is not None else (self.scene, layout_seed)
+            if new_key != key:
+                prims = (
+                    self.layout
+                    if self.layout is not None
+                    else generate_scene(self.scene, layout_seed, c.arena_half, c.n_obstacles)
+                )
+                geometry, grid = self._maps(prims)
+                key = new_key
+            placed = self._place(options, grid, geometry)
+            if placed is not None:
+                return _Plan(self._episodes, None, None, layout_seed, key, prims, geometry, grid, placed)
+            if self.layout is not None:
+                raise ValueError(
+                    "could not find a reachable start/goal pair in the given layout within the "
+                    f"configured goal_distance {c.goal_distance} m"
+                )
+        raise RuntimeError(f"scene {self.scene!r}: no reachable start/goal found in 50 layouts")  # pragma: no cover
+
+    @property
+    def prefetched(self) -> bool:
+        """True when the next automatic reset has been planned ahead by :meth:`prefetch`."""
+        return self._prefetched is not None
+
+    def prefetch(self) -> bool:
+        """Plan the next automatic reset (``reset()`` without seed or options) now, while there is time.
+
+        The plan is exactly what that reset would compute: it is drawn from a snapshot of the env's random
+        generator, which is then put back, and the reset only adopts it when the generator and the episode
+        count are still where the plan started (anything else, e.g. a reset with a seed, discards it). The
+        vector env calls this while a process waits for another env's reset, which hides the planning
+        (~70% of a box-scene reset) behind that wait.
+
+        Returns
+        -------
+        bool : True when a plan was made (False before the first reset or when one is pending).
+        """
+        if not self._has_episode or self._prefetched is not None:
+            return False
+        rng = self.np_random
+        before = rng.bit_generator.state
+        plan = self._plan(reseed=False, options={})
+        plan.rng_before, plan.rng_after = before, rng.bit_generator.state
+        rng.bit_generator.state = before
+        self._prefetched = plan
+        return True
+
+    def _place(self, options: dict, grid: OccupancyGrid, geometry: Geometry) -> tuple | None:
+        """Start (x, y, yaw) and goal (x, y) from ``options`` or sampled free, reachable, at a distance in
+        ``goal_distance`` on the layout of ``grid``/``geometry``; also the any-angle shortest path. None when
+        this layout has no valid pair."""
+        c = self.cfg
+        clearance = c.drone_radius + 0.25
+        rng = self.np_random
+        if "start" in options:
+            start = self._check_point("start", options["start"], True, geometry)
+        else:
+            start = None
+        if "goal" in options:
+            goal = self._check_point("goal", options["goal"], False, geometry)
+        else:
+            goal = None
+        if start is not None and goal is not None:
+            path, length = shortest_path(grid, start[:2], goal)
+            if not math.isfinite(length):
+                raise ValueError(f"reset options: goal {tuple(goal)} is not reachable from start {tuple(start[:2])}")
+            return start, goal, path, length
+        labels = components(grid)
+        axis = grid.to_world(np.arange(grid.size))
+        # Cells too near the arena edge would make "leaving the arena" an instant failure.
+        inner = np.abs(axis) <= c.arena_half - 0.5
+        ok = (grid.dist > clearance) & (labels > 0) & inner[:, None] & inner[None, :]
+        lo, hi = c.goal_distance
+        for _ in range(20):
+            if start is not None or goal is not None:
+                anchor = start[:2] if start is not None else goal
+                aij = grid.to_cell(anchor)
+            else:
+                aij = _draw_cell(rng, ok, lambda: rng.integers(0, grid.size, (_DRAWS, 2)))
+                if aij is None:
+                    return None
+                anchor = grid.to_world(aij)
+            alab = labels[aij[0], aij[1]]
+
+            def around(anchor: np.ndarray = anchor) -> np.ndarray:
+                # Uniform in the annulus lo <= r <= hi (area-uniform radius), snapped to cells.
+                r = np.sqrt(rng.uniform(lo * lo, hi * hi, _DRAWS))
+                t = rng.uniform(0.0, 2.0 * math.pi, _DRAWS)
+                # Cells clipped onto the border are never allowed (arena margin), so clipping drops them.
+                return grid.to_cell(anchor + np.stack([r * np.cos(t), r * np.sin(t)], 1))
+
+            def fits(ij: np.ndarray, anchor: np.ndarray = anchor, alab: int = alab) -> np.ndarray:
+                d = np.linalg.norm(grid.to_world(ij) - anchor, axis=1)
+                return (labels[ij[:, 0], ij[:, 1]] == alab) & (d >= lo) & (d <= hi)
+
+            oij = _draw_cell(rng, ok, around, fits)
+            if oij is None:
+                if start is not None or goal is not None:
+                    return None
+                continue
+            other = grid.to_world(oij)
+            s_xy, g_xy = (other, goal) if goal is not None and start is None else (anchor, other)
+            path, length = shortest_path(grid, s_xy, g_xy)
+            if not math.isfinite(length):
+                continue
+            if start is not None:
+                yaw = start[2]
+            else:
+                toward = math.atan2(g_xy[1] - s_xy[1], g_xy[0] - s_xy[0])
+                yaw = toward + float(rng.uniform(-c.start_yaw_noise, c.start_yaw_noise))
+            return np.array([s_xy[0], s_xy[1], _wrap(yaw)]), np.asarray(g_xy, np.float64), path, length
+        return None
+
+    def _check_point(self, name: str, value: Any, with_yaw: bool, geometry: Geometry) -> np.ndarray:
+        try:
+            arr = np.asarray(value, dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            raise ValueError(f"reset options['{name}']: got {value!r}, expected numbers") from None
+        want = (2, 3) if with_yaw else (2,)
+        if arr.size not in want or not np.all(np.isfinite(arr)):
+            raise ValueError(
+                f"reset options['{name}']: got {value!r}, expected {'(x, y[, yaw])' if with_yaw else '(x, y)'}"
+                " with finite values in metres/radians"
+            )
+        a = self.cfg.arena_half
+        if np.any(np.abs(arr[:2]) > a):
+            raise ValueError(f"reset options['{name}']: {tuple(arr[:2])} lies outside the arena [-{a}, {a}]^2 m")
+        d = geometry.nearest(np.array([arr[0], arr[1], self.cfg.altitude]))[1]
+        if d <= self.cfg.drone_radius:
+            raise ValueError(
+                f"reset options['{name}']: {tuple(arr[:2])} is inside or within the drone radius "
+                f"({self.cfg.drone_radius} m) of an obstacle (clearance {d:.3f} m)"
+            )
+        if with_yaw and arr.size == 2:
+            arr = np.append(arr, 0.0)
+        return arr
+
+
+# Candidate cells per rejection-sampling draw in ``_place``.
+_DRAWS = 64
+
+
+def _draw_cell(
+    rng: np.random.Generator, ok: np.ndarray, propose: Any, fits: Any = None, rounds: int = 8
+) -> np.ndarray | None:
+    """First proposed cell that is ``ok`` (and ``fits``), by rejection sampling; else a uniform draw over all
+    such cells; None when there is none.
+
+    Rejection sampling from a uniform proposal is uniform over the accepted cells, like drawing from the full
+    candidate list, but costs tens of microseconds instead of milliseconds of whole-grid work per reset.
+
+    Parameters
+    ----------
+    ok : (G, G) bool, allowed cells.
+    propose : ``propose() -> (K, 2)`` int candidate cell indices (out-of-grid ones are dropped).
+    fits : optional ``fits(ij (K, 2) int) -> (K,) bool`` extra condition.
+    """
+    g = ok.shape[0]
+    for _ in range(rounds):
+        ij = np.asarray(propose())
+        ij = ij[np.all((ij >= 0) & (ij < g), axis=1)].astype(np.int64)
+        good = ok[ij[:, 0], ij[:, 1]]
+        if fits is not None and good.any():
+            good[good] = fits(ij[good])
+        if good.any():
+            return ij[int(np.argmax(good))]
+    ij = np.argwhere(ok)  # few allowed cells: fall back to the exhaustive list
+    if fits is not None and len(ij):
+        ij = ij[fits(ij)]
+    return ij[rng.integers(len(ij))] if len(ij) else None
