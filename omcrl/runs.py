@@ -1,4 +1,5 @@
-"""One home for runs: naming, identity keys, skip-if-finished / resume, metrics I/O and RNG state.
+"""One home for runs: naming, identity keys, skip-if-finished / resume, metrics I/O, the training lifecycle
+(:class:`TrainingLoop` with :class:`Callback` s) and RNG state.
 
 Every stage that trains something (pretraining, the oracle, each RL method) writes one *run*::
 
@@ -32,7 +33,8 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import Config, config_hash
-from omcrl.utils.io import atomic_write_text, file_digest
+from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest
+from omcrl.utils.progress import Progress
 
 RUN_FILE = "run.json"
 
@@ -334,11 +336,15 @@ class MetricsLog:
     """Append-only tidy ``metrics.csv`` (step, metric, value) plus TensorBoard events.
 
     Resuming at ``resume_step`` drops rows past it (they belong to work the checkpoint does not hold), so a
-    resumed run's file equals an uninterrupted one's. ``tensorboard=False`` writes the CSV only.
+    resumed run's file equals an uninterrupted one's. ``tensorboard=False`` writes the CSV only. Values are
+    written with ``digits`` significant digits (RL: 6), or every digit with ``digits=None`` (pretraining).
     """
 
-    def __init__(self, run_dir: str | Path, resume_step: int | None, tensorboard: bool = True) -> None:
+    def __init__(
+        self, run_dir: str | Path, resume_step: int | None, tensorboard: bool = True, digits: int | None = 6
+    ) -> None:
         run_dir = Path(run_dir)
+        self.digits = digits  # significant digits of the CSV values; None: every digit (repr)
         self.path = run_dir / "metrics.csv"
         if resume_step is None or not self.path.exists():
             atomic_write_text(self.path, "step,metric,value\n")
@@ -362,7 +368,7 @@ class MetricsLog:
             for k, v in values.items():
                 if v is None or (isinstance(v, float) and math.isnan(v)):
                     continue
-                w.writerow([step, k, f"{float(v):.6g}"])
+                w.writerow([step, k, repr(float(v)) if self.digits is None else f"{float(v):.{self.digits}g}"])
                 if self.tb is not None:
                     self.tb.add_scalar(k, float(v), step)
 
@@ -370,6 +376,118 @@ class MetricsLog:
         if self.tb is not None:
             self.tb.flush()
             self.tb.close()
+
+
+# ---------------------------------------------------------------- the training lifecycle
+class Callback:
+    """Hooks into a training run's lifecycle (:class:`TrainingLoop`), as Stable-Baselines3's callbacks are.
+
+    Override what you need; ``on_step`` returning False stops the run unfinished (its last checkpoint stays, so
+    the next call resumes from there).
+    """
+
+    def on_start(self, loop: TrainingLoop, step: int) -> None:
+        """Before the first step of this session (``step``: where it starts, > 0 when resumed)."""
+
+    def on_step(self, loop: TrainingLoop, step: int, metrics: dict[str, float]) -> bool:
+        """After each step, its metrics logged and any checkpoint written; False stops the run."""
+        return True
+
+    def on_checkpoint(self, loop: TrainingLoop, step: int, path: Path) -> None:
+        """After a checkpoint was written (atomically, its digest recorded in ``run.json``)."""
+
+    def on_end(self, loop: TrainingLoop, step: int, finished: bool) -> None:
+        """After the last step of this session (``finished``: the run reached its total)."""
+
+
+class StopAfter(Callback):
+    """Stop a run once it has reached ``step`` units (an interruption on purpose: tests, time-boxed sessions)."""
+
+    def __init__(self, step: int) -> None:
+        self.step = int(step)
+
+    def on_step(self, loop: TrainingLoop, step: int, metrics: dict[str, float]) -> bool:
+        return step < self.step
+
+
+class Trainer:
+    """What :class:`TrainingLoop` drives: one algorithm's run, set up (models built, a checkpoint loaded) by its
+    entry point. Subclasses implement :meth:`step` and :meth:`state`."""
+
+    def step(self) -> tuple[int, dict[str, float], dict[str, str]]:
+        """Advance by one unit of the loop (a pretraining iteration, a PPO rollout + update).
+
+        Returns
+        -------
+        (progress reached in the run's units, the metrics row to log, the progress bar's postfix)
+        """
+        raise NotImplementedError
+
+    def state(self, step: int) -> dict:
+        """Everything a resume needs at ``step`` (written to the checkpoint with ``weights_only``-safe values)."""
+        raise NotImplementedError
+
+
+@dataclass
+class TrainingLoop:
+    """The one training lifecycle of every trainer (pretraining and each RL method).
+
+    Around a :class:`Trainer` that its entry point has set up in a claimed run folder (:meth:`Run.claim`: locked,
+    ``run.json`` written, a finished run already skipped with its digest checked, a checkpoint loaded): the tidy
+    ``metrics.csv`` and TensorBoard events (:class:`MetricsLog`, rows past the resume point dropped), the
+    progress bar, periodic atomic checkpoints whose digests go to ``run.json``, and :class:`Callback` s. The entry
+    point then writes the final artifact and releases the run.
+
+    Attributes
+    ----------
+    run : the claimed run.
+    total : units of the whole run (pretraining iterations, env steps).
+    label, unit : the progress bar's description and unit.
+    checkpoint_path : the resumable state's file; ``checkpoint_every`` units between checkpoints (one is written
+        whenever progress crosses a multiple), and ``checkpoint_at_end`` also at the end (pretraining: the
+        encoder can be rebuilt from it).
+    digits : significant digits of metrics values (None: all).
+    """
+
+    run: Run
+    total: int
+    label: str
+    unit: str
+    checkpoint_path: Path
+    checkpoint_every: int
+    checkpoint_at_end: bool = False
+    progress: bool = True
+    digits: int | None = 6
+    callbacks: tuple[Callback, ...] = ()
+
+    def run_from(self, trainer: Trainer, start: int, resumed: bool) -> tuple[int, bool]:
+        """Drive ``trainer`` from ``start`` units (``resumed``: from a checkpoint) until ``total`` or a callback
+        stops it. Returns ``(units reached, finished)``."""
+        log = MetricsLog(self.run.dir, start if resumed else None, digits=self.digits)
+        bar = Progress(self.total, self.label, unit=self.unit, initial=start, enabled=self.progress)
+        step, finished = start, start >= self.total
+        try:
+            for cb in self.callbacks:
+                cb.on_start(self, step)
+            while step < self.total:
+                before = step
+                step, metrics, postfix = trainer.step()
+                log.log(step, metrics)
+                bar.update(step - before, **postfix)
+                crossed = step // self.checkpoint_every > before // self.checkpoint_every
+                if (crossed and step < self.total) or (self.checkpoint_at_end and step >= self.total):
+                    atomic_save_torch(trainer.state(step), self.checkpoint_path, self.run.checkpoint_recorder())
+                    for cb in self.callbacks:
+                        cb.on_checkpoint(self, step, self.checkpoint_path)
+                if not all([cb.on_step(self, step, metrics) for cb in self.callbacks]) and step < self.total:
+                    break
+            finished = step >= self.total
+        finally:
+            bar.close()
+            log.close()
+        for cb in self.callbacks:
+            cb.on_end(self, step, finished)
+        return step, finished
 
 
 # ---------------------------------------------------------------- RNG state

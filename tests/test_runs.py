@@ -98,3 +98,53 @@ def test_cli_method_stages(tmp_path, repo_root):
     assert "pretrain --method curl --preset smoke --seed 2" in r.stderr
     r = _cli("evaluate", "--method", "curl", "--preset", "smoke", cwd=repo_root)
     assert r.returncode == 2 and "--method applies" in r.stderr
+
+
+class _Recorder:
+    """A lifecycle callback that writes down what it sees (SB3-style hooks)."""
+
+    def __init__(self):
+        self.events = []
+
+    def on_start(self, loop, step):
+        self.events.append(("start", step))
+
+    def on_step(self, loop, step, metrics):
+        assert "loss" in metrics
+        self.events.append(("step", step))
+        return True
+
+    def on_checkpoint(self, loop, step, path):
+        assert path.exists()
+        self.events.append(("checkpoint", step))
+
+    def on_end(self, loop, step, finished):
+        self.events.append(("end", step, finished))
+
+
+def test_one_lifecycle_stops_on_a_callback_and_resumes_from_its_checkpoint(tmp_path):
+    """Every trainer runs in :class:`omcrl.runs.TrainingLoop`: callbacks see start, steps, checkpoints and the end;
+    StopAfter interrupts a run after its checkpoint, and the next call resumes there and finishes the run. (A
+    resumed RL run does not repeat the uninterrupted run's weights: its envs restart with a new seed, since an
+    episode in flight cannot be checkpointed; pretraining resumes bit for bit, tests/test_pretrain.py.)"""
+    from omcrl.pipeline.recipes import train_method
+    from omcrl.runs import Callback, StopAfter
+
+    assert issubclass(StopAfter, Callback)
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    rec = _Recorder()
+    cut = train_method(cfg, "ppo", progress=False, callbacks=(rec, StopAfter(384)))
+    assert cut.steps == 384 and not (cut.run_dir / "final.pt").exists() and cut.final_path.name == "checkpoint.pt"
+    assert rec.events == [("start", 0), ("step", 128), ("checkpoint", 256), ("step", 256), ("step", 384),
+                          ("end", 384, False)]  # fmt: skip
+    ckpt = torch.load(cut.final_path, weights_only=True)
+    assert ckpt["step"] == 256 and ckpt["update"] == 2
+    rec2 = _Recorder()
+    done = train_method(cfg, "ppo", progress=False, callbacks=(rec2,))
+    assert rec2.events[0] == ("start", 256) and rec2.events[-1] == ("end", 512, True)
+    assert done.steps == 512 and (done.run_dir / "final.pt").exists() and not (done.run_dir / "checkpoint.pt").exists()
+    rows = read_metrics(done.run_dir)
+    assert sorted(set(rows["step"])) == [128, 256, 384, 512] and rows.groupby("step").size().nunique() == 1
+    # Finished: a third call skips it, and the callbacks are not run.
+    rec3 = _Recorder()
+    assert train_method(cfg, "ppo", progress=False, callbacks=(rec3,)).skipped and rec3.events == []

@@ -31,6 +31,7 @@ def train_method(
     overwrite: bool = False,
     make_env: Callable[[int], Any] | None = None,
     oracle_cfg: Config | None = None,
+    callbacks: tuple[Any, ...] = (),
 ) -> Result:
     """Train one learned method of the comparison at ``cfg.seed`` (skip if finished, resume if interrupted).
 
@@ -39,6 +40,7 @@ def train_method(
     ``oracle_cfg`` when given (an ablation that changes the student's α schedule keeps the comparison's oracle),
     else of ``cfg``. A missing one
     raises :class:`CheckpointError` naming the file and the command that makes it, before anything is trained.
+    ``callbacks``: :class:`omcrl.runs.Callback` s of the training lifecycle (e.g. :class:`omcrl.runs.StopAfter`).
     """
     spec = get_method(method)
     if not spec.learned:
@@ -52,5 +54,5 @@ def train_method(
             + " && ".join(n.command for n in missing)
         )
     return spec.recipe.train(
-        cfg, spec, oracle_cfg=oracle_cfg, make_env=make_env, overwrite=overwrite, progress=progress
+        cfg, spec, oracle_cfg=oracle_cfg, make_env=make_env, overwrite=overwrite, progress=progress, callbacks=callbacks
     )

@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import io
 import json
 import logging
 import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -31,11 +31,10 @@ from omcrl.data.dataset import DatasetError, open_dataset
 from omcrl.data.sampler import SequenceSampler
 from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
-from omcrl.runs import ArtifactMismatch, Run, make_run, verify_artifact
+from omcrl.runs import ArtifactMismatch, Run, StopAfter, Trainer, TrainingLoop, make_run, verify_artifact
 from omcrl.scenes import scene_key
-from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
+from omcrl.utils.io import atomic_write_text, file_digest, load_torch
 from omcrl.utils.precision import section_precision
-from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import resolve_device, set_threads
 
 log = logging.getLogger(__name__)
@@ -158,19 +157,56 @@ def _hashes(cfg: Config, fingerprint: str) -> tuple[str, str]:
     return config_hash(base), config_hash(compat)
 
 
-def _write_metrics(path: Path, rows: list[tuple[int, str, float]]) -> None:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(("step", "metric", "value"))
-    w.writerows((s, m, repr(float(v))) for s, m, v in rows)
-    atomic_write_text(path, buf.getvalue())
-
-
 def _read_metrics(path: Path, upto: int) -> list[tuple[int, str, float]]:
     if not path.exists():
         return []
     with path.open() as fh:
         return [(int(r["step"]), r["metric"], float(r["value"])) for r in csv.DictReader(fh) if int(r["step"]) <= upto]
+
+
+class _Iterations(Trainer):
+    """Pretraining as a :class:`omcrl.runs.Trainer`: one step is one iteration (a batch of sequences for OMC,
+    of stack pairs for CURL), its metrics the loss terms and learning rates."""
+
+    def __init__(self, p: Any, learner: Any, opt: Any, sampler: Any, gen: Any, start: int, compat: str) -> None:
+        self.p, self.learner, self.opt, self.sampler, self.gen = p, learner, opt, sampler, gen
+        self.it, self.compat = start, compat
+        # CURL sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
+        self.n_pairs = p.batch_size * p.seq_len
+        self.stride = p.cons_stride if p.method == "curl_cons" else 0
+        self.loss_val = float("nan")
+
+    def step(self) -> tuple[int, dict[str, float], dict[str, str]]:
+        p, learner, opt = self.p, self.learner, self.opt
+        self.it = it = self.it + 1
+        lrs = {"lr_encoder": p.lr_encoder}
+        for g in opt.param_groups:
+            if g["name"] == "transformer":
+                g["lr"] = lrs["lr_transformer"] = p.lr_transformer * transformer_lr_factor(it, p.warmup_steps)
+        if p.method == "omc":
+            seq = self.sampler.sample_sequences()
+            pool = self.sampler.sample_stacks(p.batch_size)
+            loss, metrics = learner.omc_loss(seq, self.gen, pool)
+        else:
+            anchor, positive = self.sampler.sample_pairs(self.n_pairs, stride=self.stride)
+            loss, metrics = learner.curl_loss(anchor, positive)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        learner.momentum_update()
+        self.loss_val = metrics["loss"]
+        return it, {**metrics, **lrs}, {"loss": f"{self.loss_val:.3f}", "acc": f"{metrics['accuracy']:.2f}"}
+
+    def state(self, step: int) -> dict:
+        return {
+            "step": step,
+            "compat": self.compat,
+            "learner": self.learner.state_dict(),
+            "optim": self.opt.state_dict(),
+            "sampler_rng": json.dumps(self.sampler.rng.bit_generator.state),
+            "mask_rng": self.gen.get_state(),
+            "torch_rng": torch.get_rng_state(),
+        }
 
 
 def run(
@@ -284,68 +320,28 @@ def run(
                 log.info("pretrain %s: resuming from iteration %d", name, start)
             else:
                 log.warning("pretrain %s: checkpoint in %s is from a different config; starting over", name, out)
-        # CURL sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
-        n_pairs = p.batch_size * p.seq_len
-        stride = p.cons_stride if p.method == "curl_cons" else 0
-
-        def checkpoint(step: int) -> None:
-            atomic_save_torch(
-                {
-                    "step": step,
-                    "compat": compat_hash,
-                    "learner": learner.state_dict(),
-                    "optim": opt.state_dict(),
-                    "sampler_rng": json.dumps(sampler.rng.bit_generator.state),
-                    "mask_rng": gen.get_state(),
-                    "torch_rng": torch.get_rng_state(),
-                },
-                ck_path,
-                run_rec.checkpoint_recorder(),
-            )
-            _write_metrics(metrics_path, rows)
-
+        trainer = _Iterations(p, learner, opt, sampler, gen, start, compat_hash)
         learner.train()
-        bar = Progress(p.iterations, f"pretrain/{name} seed{cfg.seed}", unit="it", initial=start, enabled=progress)
-        # TensorBoard events as for RL (``tensorboard --logdir results/<preset>/runs``); a resume drops the events
-        # past the checkpoint, as metrics.csv does.
-        from torch.utils.tensorboard import SummaryWriter
-
-        tb = SummaryWriter(str(out / "tb"), purge_step=start + 1 if start else None)
-        loss_val = float("nan")
-        for it in range(start + 1, p.iterations + 1):
-            lrs = {"lr_encoder": p.lr_encoder}
-            for g in opt.param_groups:
-                if g["name"] == "transformer":
-                    g["lr"] = lrs["lr_transformer"] = p.lr_transformer * transformer_lr_factor(it, p.warmup_steps)
-            if p.method == "omc":
-                seq = sampler.sample_sequences()
-                pool = sampler.sample_stacks(p.batch_size)
-                loss, metrics = learner.omc_loss(seq, gen, pool)
-            else:
-                anchor, positive = sampler.sample_pairs(n_pairs, stride=stride)
-                loss, metrics = learner.curl_loss(anchor, positive)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            learner.momentum_update()
-            loss_val = metrics["loss"]
-            rows.extend((it, k, v) for k, v in {**metrics, **lrs}.items())
-            for k, v in {**metrics, **lrs}.items():
-                tb.add_scalar(k, v, it)
-            bar.update(1, loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
-            if it % p.checkpoint_every == 0 or it == p.iterations:
-                checkpoint(it)
-            if stop_after is not None and it >= stop_after and it < p.iterations:
-                bar.close()
-                tb.close()
-                ds.close()
-                return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp)
-        bar.close()
-        tb.close()
+        loop = TrainingLoop(
+            run_rec,
+            p.iterations,
+            f"pretrain/{name} seed{cfg.seed}",
+            "it",
+            ck_path,
+            p.checkpoint_every,
+            checkpoint_at_end=True,  # the encoder can be rebuilt from the final checkpoint
+            progress=progress,
+            digits=None,
+            callbacks=() if stop_after is None else (StopAfter(stop_after),),
+        )
+        it, finished = loop.run_from(trainer, start, resumed=start > 0)
+        loss_val = trainer.loss_val
+        if not finished:
+            ds.close()
+            return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp)
         if start >= p.iterations:  # resumed from a final checkpoint whose artifact was not written
             loss_val = next((v for s, m, v in reversed(rows) if m == "loss"), float("nan"))
         save_encoder(enc_path, learner.f, learner.phi, cfg, fp)
-        _write_metrics(metrics_path, rows)
         atomic_write_text(
             done_path,
             json.dumps(

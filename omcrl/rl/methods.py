@@ -24,7 +24,7 @@ with the same env-step budget, PPO settings and seed for every method.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -251,13 +251,17 @@ class Recipe:
         make_env: Callable[[int], Any] | None = None,
         overwrite: bool = False,
         progress: bool = True,
+        callbacks: Sequence[Any] = (),
     ) -> Result:
-        """Train (skip if finished, resume if interrupted); the prerequisites exist (checked by the caller)."""
-        common = {"name": spec.name, "make_env": make_env, "overwrite": overwrite, "progress": progress}
+        """Train (skip if finished, resume if interrupted); the prerequisites exist (checked by the caller).
+        ``callbacks``: :class:`omcrl.runs.Callback` s of the training lifecycle."""
+        common = {"name": spec.name, "make_env": make_env, "overwrite": overwrite, "progress": progress,
+                  "callbacks": tuple(callbacks)}  # fmt: skip
         return self.fit(cfg, spec, self.needs(cfg, spec, oracle_cfg), common)
 
     def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
-        """The kind's trainer on its prerequisites; ``common``: ``name``, ``make_env``, ``overwrite``, ``progress``."""
+        """The kind's trainer on its prerequisites; ``common``: ``name``, ``make_env``, ``overwrite``, ``progress``,
+        ``callbacks``."""
         raise NotImplementedError(f"{type(self).__name__} trains nothing")
 
     def make_agent(self, cfg: Config, spec: MethodSpec, path: Path | None = None) -> Any:

@@ -6,8 +6,6 @@ A policy is ``features -> heads`` (:mod:`omcrl.models.features`, :mod:`omcrl.mod
 rollout runner (:mod:`omcrl.rl.rollout`) fills a :class:`Rollout`; :class:`PPO` owns the optimiser and turns a
 rollout into an update with ``update(batch, alpha=..., step=...) -> dict[str, float]`` of metrics (the trainer
 sets the learning rate before each update with ``set_lr``).
-Extra losses (an auxiliary objective of a baseline) plug in as ``extra_losses``: callables
-``(agent, minibatch) -> (loss tensor, metrics dict)`` added to the total.
 
 Action bounds: the policy samples an *unbounded* Gaussian action; the rollout sends ``clip(a, -1, 1)`` to the
 env and stores the unclipped sample, whose log-probability is used in the ratio (the usual PPO practice; the
@@ -23,7 +21,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -193,10 +190,6 @@ def ppo_loss(
     return LossParts(total, rl, policy_loss, value_loss, entropy, kl, extras)
 
 
-# An extra loss term: (agent, minibatch) -> (scalar loss with grad, metrics); see PPO.
-ExtraLoss = Callable[[ActorCritic, dict], tuple[torch.Tensor, dict]]
-
-
 class NonFiniteLossError(FloatingPointError):
     """A loss became NaN/inf; the message names the env step and which loss."""
 
@@ -215,11 +208,9 @@ def ppo_update(
     entropy_coef: float,
     max_grad_norm: float,
     step: int = 0,
-    extra_losses: Sequence[ExtraLoss] = (),
 ) -> dict[str, float]:
     """Run ``epochs`` passes of minibatch SGD on one rollout; return mean loss statistics.
 
-    ``extra_losses`` are added to each minibatch's total (their metrics are averaged like the others).
     Raises :class:`NonFiniteLossError` before any parameter update with a non-finite loss is applied.
     """
     # One transfer of the whole batch to the networks' device (a no-op on the CPU).
@@ -241,10 +232,6 @@ def ppo_update(
             for k in ("actions", "log_probs", "advantages", "returns", "guide_mean", "guide_std"):
                 mb[k] = None if data[k] is None else data[k][idx]
             parts = ppo_loss(agent, mb, alpha, beta, clip, value_coef, entropy_coef)
-            for extra in extra_losses:
-                loss, metrics = extra(agent, mb)
-                parts.total = parts.total + loss
-                parts.extras.update(metrics)
             for name in ("policy", "value", "entropy", "kl", "total"):
                 if not torch.isfinite(getattr(parts, name)):
                     raise NonFiniteLossError(
@@ -317,19 +304,17 @@ class PPO:
     agent : the actor-critic; its trainable parameters (heads and any trainable feature encoder) are optimised
         with Adam (eps 1e-5).
     settings : :class:`PPOSettings`.
-    extra_losses : additional loss terms (:data:`ExtraLoss`) added to each minibatch's total.
     """
 
-    def __init__(self, agent: ActorCritic, settings: PPOSettings, extra_losses: Sequence[ExtraLoss] = ()) -> None:
+    def __init__(self, agent: ActorCritic, settings: PPOSettings) -> None:
         self.agent, self.settings = agent, settings
-        self.extra_losses = list(extra_losses)
         params = [p for p in agent.parameters() if p.requires_grad]
         self.optimizer = torch.optim.Adam(params, lr=settings.lr, eps=1e-5)
 
     @classmethod
-    def from_config(cls, agent: ActorCritic, rl: Any, extra_losses: Sequence[ExtraLoss] = ()) -> PPO:
+    def from_config(cls, agent: ActorCritic, rl: Any) -> PPO:
         """Build from an :class:`omcrl.config.RLConfig`."""
-        return cls(agent, PPOSettings.from_config(rl), extra_losses)
+        return cls(agent, PPOSettings.from_config(rl))
 
     def set_lr(self, lr: float) -> None:
         for g in self.optimizer.param_groups:
@@ -357,7 +342,6 @@ class PPO:
             batch,
             alpha=alpha,
             step=step,
-            extra_losses=self.extra_losses,
             **self.settings.sgd(),
         )
 

@@ -48,12 +48,14 @@ from omcrl.rl.policy import (
     policy_payload,
     space_shapes,
 )
-from omcrl.rl.ppo import PPO, ExtraLoss, NonFiniteLossError
+from omcrl.rl.ppo import PPO, NonFiniteLossError
 from omcrl.rl.rollout import Runner
 from omcrl.runs import (
-    MetricsLog,
+    Callback,
     Run,
     RunConfigMismatch,
+    Trainer,
+    TrainingLoop,
     make_run,
     read_metrics,
     rng_state,
@@ -62,7 +64,6 @@ from omcrl.runs import (
 )
 from omcrl.utils.io import atomic_save_torch, file_digest, load_torch
 from omcrl.utils.precision import section_precision
-from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import cpu_count, resolve_device, seed_everything, set_threads
 
 __all__ = [
@@ -166,6 +167,95 @@ def rl_run(cfg: Config, method: str, identity: dict) -> Run:
     return make_run(cfg, "rl", method, identity)
 
 
+class _Updates(Trainer):
+    """PPO as a :class:`omcrl.runs.Trainer`: one step is a rollout of ``buffer_size`` env steps and the update on
+    it (α and the learning rate follow their schedules); its metrics the update's, the schedule, speed and the
+    episodes that ended."""
+
+    def __init__(
+        self,
+        rl: Any,
+        run: Run,
+        agent: ActorCritic,
+        algo: PPO,
+        runner: Runner,
+        guide: Any,
+        step: int,
+        update: int,
+        resumes: int,
+        update_threads: int,
+        rollout_threads: int,
+    ) -> None:
+        self.rl, self.run, self.agent, self.algo, self.runner, self.guide = rl, run, agent, algo, runner, guide
+        self.step_, self.update, self.resumes = step, update, resumes
+        self.update_threads, self.rollout_threads = update_threads, rollout_threads
+        self.length, self.per_update, self.n_updates, self.final_step = rollout_geometry(rl)
+        self.recent: deque = deque(maxlen=50)
+        self.alpha = self.lr = 0.0
+
+    def step(self) -> tuple[int, dict[str, float], dict[str, str]]:
+        rl, runner, algo, agent = self.rl, self.runner, self.algo, self.agent
+        step = self.step_
+        alpha = self.alpha = alpha_from_config(step, rl) if self.guide is not None else 0.0
+        lr = self.lr = rl.lr * max(0.0, 1.0 - step / max(self.final_step, 1))  # linear decay to 0 over the run
+        algo.set_lr(lr)
+        t0 = time.perf_counter()
+        n_done = len(runner.episodes)
+        agent.eval()
+        rollout = runner.collect(self.length, rl.horizon, use_guide=alpha > 0.0)
+        t_rollout = time.perf_counter() - t0
+        # The env workers sleep during the update, so the learner may use their cores (the rollout's
+        # batch-of-n_envs forwards do not gain from threads and would contend with the renderers).
+        set_threads(self.update_threads)
+        try:
+            stats = algo.update(rollout, alpha=alpha, step=step)
+        except NonFiniteLossError as e:
+            ckpt = self.run.dir / "checkpoint.pt"
+            where = f"last good checkpoint: {ckpt}" if ckpt.exists() else "no checkpoint was written"
+            raise NonFiniteLossError(f"{self.run.method} seed {self.run.seed}: {e}; {where}") from None
+        finally:
+            set_threads(self.rollout_threads)
+        self.step_ = step = step + self.per_update
+        self.update += 1
+        dt = time.perf_counter() - t0
+        eps = runner.episodes[n_done:]
+        self.recent.extend(eps)
+        row = {
+            **stats,
+            "alpha": alpha,
+            "lr": lr,
+            "steps_per_s": self.per_update / max(dt, 1e-9),
+            "rollout_s": t_rollout,
+            "update_s": dt - t_rollout,
+        }
+        if eps:
+            row["episodic_return"] = float(np.mean([e["return"] for e in eps]))
+            row["episode_length"] = float(np.mean([e["length"] for e in eps]))
+            succ = [float(e["success"]) for e in eps if "success" in e]
+            if succ:
+                row["success_rate"] = float(np.mean(succ))
+        recent = self.recent
+        rs = [float(e["success"]) for e in recent if "success" in e]
+        postfix = {
+            "sr": f"{np.mean(rs):.2f}" if rs else "-",  # over the last 50 episodes
+            "ret": f"{np.mean([e['return'] for e in recent]):.2f}" if recent else "-",
+            "steps_per_s": f"{row['steps_per_s']:.0f}",
+        }
+        return step, row, postfix
+
+    def state(self, step: int) -> dict:
+        return {
+            "model": self.agent.state_dict(),
+            "optimizer": self.algo.state_dict()["optimizer"],
+            "step": step,
+            "update": self.update,
+            "rng": rng_state(),
+            "resumes": self.resumes,
+            "schedule": {"alpha": self.alpha, "lr": self.lr},
+            "key": self.run.key,
+        }
+
+
 def train(
     cfg: Config,
     *,
@@ -176,8 +266,8 @@ def train(
     overwrite: bool = False,
     progress: bool = True,
     layer_norm: bool = True,
-    extra_losses: Sequence[ExtraLoss] = (),
     meta: dict | None = None,
+    callbacks: Sequence[Callback] = (),
 ) -> Result:
     """Train (or resume, or skip) one PPO run; the single implementation behind every trainer.
 
@@ -192,8 +282,9 @@ def train(
     make_guide : ``env -> guide or None``; None (or ``alpha_schedule == 'none'``) trains without the KL term.
     overwrite : delete a run folder of a different identity instead of raising RunConfigMismatch.
     layer_norm : LayerNorm on the actor/critic inputs (paper V-D); see :class:`ActorCritic`.
-    extra_losses : additional loss terms for :class:`~omcrl.rl.ppo.PPO`.
     meta : plain values stored in the policy file's ``meta``.
+    callbacks : :class:`omcrl.runs.Callback` s of the training lifecycle (:class:`omcrl.runs.TrainingLoop`); one
+        that stops the run early leaves its last checkpoint, and the result's ``final_path`` is that checkpoint.
     """
     rl = cfg.rl
     rollout_threads = set_threads(rl.num_threads)
@@ -225,14 +316,13 @@ def train(
     length, per_update, n_updates, final_step = rollout_geometry(rl)
     resumes = 0 if ckpt is None else ckpt["resumes"] + 1
     env = make_env(cfg.seed * 1000 + 100 * resumes)
-    writer = None
     try:
         obs_space = env.single_observation_space
         features = build_features(obs_space)
         act_dim = int(np.prod(env.single_action_space.shape))
         agent = ActorCritic(features, act_dim, rl.hidden, rl.init_log_std, layer_norm=layer_norm).to(device)
         agent.precision = section_precision(rl)
-        algo = PPO.from_config(agent, rl, extra_losses)
+        algo = PPO.from_config(agent, rl)
         guide = make_guide(env) if (make_guide is not None and rl.alpha_schedule != "none") else None
         if guide is not None and hasattr(guide, "to"):
             guide.to(device)
@@ -246,75 +336,22 @@ def train(
             algo.load_state_dict({"optimizer": ckpt["optimizer"]})
             step, update = int(ckpt["step"]), int(ckpt["update"])
             set_rng_state(ckpt["rng"])
-        writer = MetricsLog(run_dir, step if ckpt is not None else None)
         shapes = space_shapes(obs_space)
         runner = Runner(env, agent, guide, seed=cfg.seed * 1000 + 100 * resumes)
-        recent: deque = deque(maxlen=50)
-        bar = Progress(final_step, f"{run.stage}/{run.method} seed{cfg.seed}", initial=step, enabled=progress)
-        last_ckpt = step
-        while update < n_updates:
-            alpha = alpha_from_config(step, rl) if guide is not None else 0.0
-            lr = rl.lr * max(0.0, 1.0 - step / max(final_step, 1))  # linear decay to 0 over the run
-            algo.set_lr(lr)
-            t0 = time.perf_counter()
-            n_done = len(runner.episodes)
-            agent.eval()
-            rollout = runner.collect(length, rl.horizon, use_guide=alpha > 0.0)
-            t_rollout = time.perf_counter() - t0
-            # The env workers sleep during the update, so the learner may use their cores (the rollout's
-            # batch-of-n_envs forwards do not gain from threads and would contend with the renderers).
-            set_threads(update_threads)
-            try:
-                stats = algo.update(rollout, alpha=alpha, step=step)
-            except NonFiniteLossError as e:
-                where = f"last good checkpoint: {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written"
-                raise NonFiniteLossError(f"{run.method} seed {cfg.seed}: {e}; {where}") from None
-            finally:
-                set_threads(rollout_threads)
-            step += per_update
-            update += 1
-            dt = time.perf_counter() - t0
-            eps = runner.episodes[n_done:]
-            recent.extend(eps)
-            row = {
-                **stats,
-                "alpha": alpha,
-                "lr": lr,
-                "steps_per_s": per_update / max(dt, 1e-9),
-                "rollout_s": t_rollout,
-                "update_s": dt - t_rollout,
-            }
-            if eps:
-                row["episodic_return"] = float(np.mean([e["return"] for e in eps]))
-                row["episode_length"] = float(np.mean([e["length"] for e in eps]))
-                succ = [float(e["success"]) for e in eps if "success" in e]
-                if succ:
-                    row["success_rate"] = float(np.mean(succ))
-            writer.log(step, row)
-            rs = [float(e["success"]) for e in recent if "success" in e]
-            bar.update(
-                per_update,
-                sr=f"{np.mean(rs):.2f}" if rs else "-",  # over the last 50 episodes
-                ret=f"{np.mean([e['return'] for e in recent]):.2f}" if recent else "-",
-                steps_per_s=f"{row['steps_per_s']:.0f}",
-            )
-            if step // rl.checkpoint_every > last_ckpt // rl.checkpoint_every and update < n_updates:
-                atomic_save_torch(
-                    {
-                        "model": agent.state_dict(),
-                        "optimizer": algo.state_dict()["optimizer"],
-                        "step": step,
-                        "update": update,
-                        "rng": rng_state(),
-                        "resumes": resumes,
-                        "schedule": {"alpha": alpha, "lr": lr},
-                        "key": run.key,
-                    },
-                    ckpt_path,
-                    run.checkpoint_recorder(),
-                )
-                last_ckpt = step
-        bar.close()
+        trainer = _Updates(rl, run, agent, algo, runner, guide, step, update, resumes, update_threads, rollout_threads)
+        loop = TrainingLoop(
+            run,
+            final_step,
+            f"{run.stage}/{run.method} seed{cfg.seed}",
+            "step",
+            ckpt_path,
+            rl.checkpoint_every,
+            progress=progress,
+            callbacks=tuple(callbacks),
+        )
+        step, finished = loop.run_from(trainer, step, resumed=ckpt is not None)
+        if not finished:
+            return Result(run, ckpt_path, step, False)
         payload = policy_payload(
             agent,
             shapes,
@@ -326,8 +363,6 @@ def train(
         run.record(artifact_digest=file_digest(final_path))
         ckpt_path.unlink(missing_ok=True)  # finished: final.pt is the artifact, the resumable state is obsolete
     finally:
-        if writer is not None:
-            writer.close()
         env.close()
         run.release()
     return Result(run, final_path, step, False)
@@ -378,6 +413,7 @@ def train_oracle(
     make_env: Callable[[int], Any] | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    callbacks: Sequence[Callback] = (),
 ) -> Result:
     """Oracle teacher π^o: PPO on [DepthEncoder(depth stack), v, ω, θ, Δp ∈ R⁶] (paper IV-C).
 
@@ -403,6 +439,7 @@ def train_oracle(
         make_guide=make_guide,
         overwrite=overwrite,
         progress=progress,
+        callbacks=callbacks,
     )
 
 
@@ -475,6 +512,7 @@ def train_student(
     make_env: Callable[[int], Any] | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    callbacks: Sequence[Callback] = (),
 ) -> Result:
     """Visuomotor policy on a frozen pretrained encoder: PPO on [f(rgb stack), v, ω, θ, Δp_goal] (paper IV-C).
 
@@ -485,7 +523,9 @@ def train_student(
     """
     if not Path(encoder_path).exists():
         raise CheckpointError(f"encoder checkpoint {encoder_path} does not exist (run the pretraining stage first)")
-    return _train_visuomotor(cfg, encoder_path, oracle_path, name, planner_factory, make_env, overwrite, progress)
+    return _train_visuomotor(
+        cfg, encoder_path, oracle_path, name, planner_factory, make_env, overwrite, progress, callbacks
+    )
 
 
 def train_pixel(
@@ -497,6 +537,7 @@ def train_pixel(
     make_env: Callable[[int], Any] | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    callbacks: Sequence[Callback] = (),
 ) -> Result:
     """End-to-end visuomotor PPO: the pixel encoder f (same architecture, trained with the policy) (V-C).
 
@@ -504,7 +545,7 @@ def train_pixel(
     f sees the centre ``pretrain.crop_to`` px of the env's frames (what the frozen encoders see) and has
     ``pretrain.feature_dim`` outputs, so both fields are part of the run's identity.
     """
-    return _train_visuomotor(cfg, None, oracle_path, name, planner_factory, make_env, overwrite, progress)
+    return _train_visuomotor(cfg, None, oracle_path, name, planner_factory, make_env, overwrite, progress, callbacks)
 
 
 def _train_visuomotor(
@@ -516,6 +557,7 @@ def _train_visuomotor(
     make_env: Callable[[int], Any] | None,
     overwrite: bool,
     progress: bool,
+    callbacks: Sequence[Callback] = (),
 ) -> Result:
     """The one trainer behind :func:`train_student` (frozen encoder) and :func:`train_pixel` (``encoder_path``
     None: end to end)."""
@@ -532,5 +574,6 @@ def _train_visuomotor(
         make_guide=_guide_maker(cfg, oracle_path, planner_factory),
         overwrite=overwrite,
         progress=progress,
+        callbacks=callbacks,
         meta={"encoder": str(encoder_path or ""), "oracle": str(oracle_path or "")},
     )
