@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from omcrl.config import load_config
+from omcrl.pipeline.records import RECORDS, DataRecord, OracleRecord, PretrainRecord
 
 
 def _fake_results(root: Path) -> None:
@@ -35,6 +36,12 @@ def _fake_results(root: Path) -> None:
     (root / "executed").mkdir()
     (root / "executed" / "wall_times.json").write_text(json.dumps({"00_scenes": 6.2, "02_pretrain_encoder": 1142.0}))
     (root / "executed" / "peak_rss_mb.json").write_text(json.dumps({"00_scenes": 412, "02_pretrain_encoder": 1830}))
+    # Two stages' records, built with the library's types as the notebooks build them.
+    DataRecord(file="data/quick/box.h5", episodes=80, steps=12345, pilot_success_rate=0.75, file_mb=27.0).write(
+        root / "tables"
+    )
+    OracleRecord(steps=150000.0, steps_per_s=212.0, final_success_rate=0.93,
+                 eval_box={"SR": 96.0, "SPL": 0.81, "CR": 2.0, "episodes": 50}).write(root / "tables")  # fmt: skip
 
 
 @pytest.mark.parametrize("preset", ["smoke", "quick"])
@@ -51,7 +58,9 @@ def test_summary_lists_every_figure_and_the_table(tmp_path, preset):
     assert "| tree | curl | 90.0 [81.0, 99.0] |" in text
     assert "19m02s" in text and "19m08s" in text  # notebook 02 and the total
     assert "| 412 MB |" in text and text.count("| 1,830 MB |") == 2  # notebook 02 and the total's peak
-    assert "not run yet (notebook 03_train_oracle)" in text  # a missing stage is named, not skipped silently
+    assert "not run yet (notebook 04_train_student)" in text  # a missing stage is named, not skipped silently
+    assert "80 episodes, 12,345 steps in `data/quick/box.h5` (27.0 MB)" in text
+    assert "training SR (last updates) 93" in text and "evaluation in box: SR 96" in text
     assert "| SPL | success weighted by path length |" in text  # the glossary
     assert (SMOKE_NOTE in text) == (preset == "smoke")
 
@@ -76,3 +85,25 @@ def test_an_empty_results_folder_gives_a_short_summary_that_names_what_to_run(tm
     text = write_summary(cfg).read_text()
     assert "not run yet (notebook 03_train_oracle)" in text and "not run yet (notebook 07_tables)" in text
     assert "| SR | success rate |" in text  # the glossary is there even before any number is
+
+
+def test_records_round_trip_and_read_the_files_of_older_versions(tmp_path):
+    """Each stage record writes the JSON its notebook wrote before the types existed and reads it back; a file
+    from an older version (a missing field, an extra key) still reads; a damaged one is one line naming it."""
+    from omcrl.runs import CorruptFile
+
+    for cls in RECORDS:
+        rec = cls()
+        assert cls.read(tmp_path) is None
+        rec.write(tmp_path)
+        assert cls.read(tmp_path) == rec, cls.__name__
+    flat = {"OMC": {"iterations": 1500, "final_loss": 2.1}, "probe_r2": {"OMC": {"mean_r2": 0.31}}}
+    (tmp_path / PretrainRecord.FILE).write_text(json.dumps(flat))
+    pre = PretrainRecord.read(tmp_path)
+    assert pre.encoders == {"OMC": flat["OMC"]} and pre.probe_r2["OMC"]["mean_r2"] == 0.31
+    assert json.loads(pre.write(tmp_path).read_text()) == flat  # the same layout as before
+    (tmp_path / OracleRecord.FILE).write_text(json.dumps({"steps": 10.0, "a_key_from_the_future": 1}))
+    assert OracleRecord.read(tmp_path).steps == 10.0
+    (tmp_path / DataRecord.FILE).write_text("[1, 2]")
+    with pytest.raises(CorruptFile, match=r"data_summary.json is not a readable DataRecord"):
+        DataRecord.read(tmp_path)

@@ -1,7 +1,8 @@
 """The results summary of a preset: ``results/<preset>/summary.md``.
 
 Written at the end of the notebook chain (``./reproduce.sh --quick``) and by ``python -m omcrl summary --preset
-P``. It reads what the stages left in ``results/<preset>/`` (``tables/*.json``, ``tables/table1.csv``, the
+P``. It reads what the stages left in ``results/<preset>/`` (their records, :mod:`omcrl.pipeline.records`, in
+``tables/*.json``; ``tables/table1.csv``; the
 notebooks' wall times, ``figures/``) and says plainly what is missing; it never runs or trains anything, so it is
 cheap to regenerate at any point of a run.
 """
@@ -19,6 +20,7 @@ import pandas as pd
 from omcrl.config import Config
 from omcrl.eval.ablation import findings_summary
 from omcrl.eval.metrics import glossary_markdown
+from omcrl.pipeline.records import DataRecord, DeployRecord, OracleRecord, PretrainRecord, StudentRecord, Table1Record
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import format_duration
 from omcrl.utils.runtime import machine_info
@@ -200,14 +202,14 @@ def summary_text(cfg: Config) -> str:
         out += ["No notebook has run through `python -m omcrl notebooks` yet.", ""]
 
     for heading, source, what, notebook, body in SECTIONS:
-        path = tables / source
-        d = (_read_json(path) or {} if path.suffix == ".json" else {}) if path.exists() else None
+        # A stage's record (its JSON, read through its type) or, for a table, just the file's presence.
+        path = tables / (source.FILE if isinstance(source, type) else source)
         out += [heading, ""]
-        if d is None:
+        if not path.exists():
             out += [f"_{what}: not run yet (notebook {notebook})._", ""]
             continue
         try:
-            out += body(d, tables)
+            out += body(source.read(tables) if isinstance(source, type) else {}, tables)
         except (OSError, ValueError, KeyError, TypeError, pd.errors.ParserError) as e:
             # A damaged table is one line in its section, never a crash of the whole summary.
             out += [f"_{what}: cannot be read ({type(e).__name__}: {' '.join(str(e).split())[:160]})._", ""]
@@ -223,22 +225,20 @@ def _duration(s: float) -> str:
     return format_duration(float(s))
 
 
-# Each section renders what one stage left in tables/: (d = its JSON, or {} for a CSV source; tables folder).
-def _section_data(d: dict, tables: Path) -> list[str]:
-    sr = d.get("pilot_success_rate")
+# Each section renders what one stage left in tables/: (d = its record, or {} for a table; tables folder).
+def _section_data(d: DataRecord, tables: Path) -> list[str]:
+    sr = d.pilot_success_rate
     return [
-        f"{d['episodes']} episodes, {d['steps']:,} steps in `{d['file']}` ({d.get('file_mb', 0):.1f} MB); "
+        f"{d.episodes} episodes, {d.steps:,} steps in `{d.file}` ({d.file_mb:.1f} MB); "
         f"scripted pilot success rate {_fmt(None if sr is None else 100 * sr)} %.",
         "",
     ]
 
 
-def _section_pretrain(d: dict, tables: Path) -> list[str]:
-    probe = d.get("probe_r2", {})
+def _section_pretrain(d: PretrainRecord, tables: Path) -> list[str]:
+    probe = d.probe_r2
     rows = []
-    for name, r in d.items():
-        if name == "probe_r2" or not isinstance(r, dict):
-            continue
+    for name, r in d.encoders.items():
         rows.append(
             {
                 "encoder": name,
@@ -254,28 +254,27 @@ def _section_pretrain(d: dict, tables: Path) -> list[str]:
     return [_md_table(rows), ""]
 
 
-def _section_oracle(d: dict, tables: Path) -> list[str]:
-    ev = d.get("eval_box", {})
+def _section_oracle(d: OracleRecord, tables: Path) -> list[str]:
+    ev = d.eval_box
     return [
-        f"{_fmt(d.get('steps'))} env steps at {_fmt(d.get('steps_per_s'))} steps/s; training SR (last updates) "
-        f"{_fmt(100 * d['final_success_rate'] if d.get('final_success_rate') is not None else None)} %; "
+        f"{_fmt(d.steps)} env steps at {_fmt(d.steps_per_s)} steps/s; training SR (last updates) "
+        f"{_fmt(100 * d.final_success_rate if d.final_success_rate is not None else None)} %; "
         f"evaluation in box: SR {_fmt(ev.get('SR'))} %, SPL {_fmt(ev.get('SPL'))}, CR {_fmt(ev.get('CR'))} % "
         f"({_fmt(ev.get('episodes'))} episodes).",
         "",
     ]
 
 
-def _section_student(d: dict, tables: Path) -> list[str]:
+def _section_student(d: StudentRecord, tables: Path) -> list[str]:
     rows = []
-    for label, key in (("ours", "guided"), ("ours-noOT", "unguided")):
-        r = d.get(key, {})
+    for label, r in (("ours", d.guided), ("ours-noOT", d.unguided)):
         rows.append(
             {
                 "method": label,
                 "env steps": r.get("steps"),
                 "steps/s": r.get("steps_per_s"),
                 "final training SR %": None if r.get("final_success_rate") is None else 100 * r["final_success_rate"],
-                "box SR % (eval)": d.get("box_SR", {}).get(label),
+                "box SR % (eval)": d.box_SR.get(label),
             }
         )
     return [_md_table(rows), ""]
@@ -295,8 +294,8 @@ def _section_table1(d: dict, tables: Path) -> list[str]:
         _md_table(long.to_dict("records")) if len(long) else "(empty)",
         "",
     ]
-    s = _read_json(tables / "table1_summary.json") or {}
-    claims = s.get("claims") or []
+    s = Table1Record.read(tables) or Table1Record()
+    claims = s.claims
     if claims:
         out += ["### The paper's orderings, checked here (SR, percentage points)", ""]
         out += [
@@ -313,17 +312,15 @@ def _section_table1(d: dict, tables: Path) -> list[str]:
             ),
             "",
         ]
-    if s.get("missing_runs"):
-        out += [f"Runs not found (not in the table): {', '.join(map(str, s['missing_runs']))}.", ""]
+    if s.missing_runs:
+        out += [f"Runs not found (not in the table): {', '.join(map(str, s.missing_runs))}.", ""]
     return out
 
 
-def _section_deploy(d: dict, tables: Path) -> list[str]:
-    lat = d.get("latency", {})
-    par = d.get("parity", {})
-    fl = d.get("sim_flight", {})
+def _section_deploy(d: DeployRecord, tables: Path) -> list[str]:
+    lat, par, fl = d.latency, d.parity, d.sim_flight
     return [
-        f"`{d.get('method')}` exported to ONNX: parity max |Δ| {_fmt(par.get('max_abs_diff'))} over "
+        f"`{d.method}` exported to ONNX: parity max |Δ| {_fmt(par.get('max_abs_diff'))} over "
         f"{par.get('observations')} observations; latency median / p99 (ms): "
         + ", ".join(f"{k} {_fmt(v.get('median_ms'))} / {_fmt(v.get('p99_ms'))}" for k, v in lat.items())
         + f"; simulated flight ended by `{fl.get('reason')}` after {fl.get('ticks')} ticks, "
@@ -419,12 +416,12 @@ SECTIONS = (
         "00_scenes",
         _section_gradient,
     ),
-    ("## Data (notebook 01)", "data_summary.json", "data", "01_collect_data", _section_data),
-    ("## Pretraining (notebook 02)", "pretrain_summary.json", "pretraining", "02_pretrain_encoder", _section_pretrain),
-    ("## Oracle (notebook 03)", "oracle_summary.json", "oracle", "03_train_oracle", _section_oracle),
+    ("## Data (notebook 01)", DataRecord, "data", "01_collect_data", _section_data),
+    ("## Pretraining (notebook 02)", PretrainRecord, "pretraining", "02_pretrain_encoder", _section_pretrain),
+    ("## Oracle (notebook 03)", OracleRecord, "oracle", "03_train_oracle", _section_oracle),
     (
         "## Student: ours and ours-noOT (notebook 04)",
-        "student_summary.json",
+        StudentRecord,
         "student",
         "04_train_student",
         _section_student,
@@ -445,7 +442,7 @@ SECTIONS = (
         "08_interpretability",
         _section_transfer,
     ),
-    ("## Deployment (notebook 09)", "deploy_summary.json", "deployment", "09_deploy_tello", _section_deploy),
+    ("## Deployment (notebook 09)", DeployRecord, "deployment", "09_deploy_tello", _section_deploy),
 )
 
 
