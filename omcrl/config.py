@@ -298,6 +298,11 @@ class SweepConfig:
         doc="env steps of each sweep run (0: rl.total_steps); the α decay is scaled by the same ratio",
     )
     pretrain_iterations: int = _f(0, lo=0, hi=10**9, doc="pretraining iterations of sweep encoders (0: as pretrain)")
+    storage: str = _f(
+        "",
+        doc="where jobs on a cluster without a shared filesystem exchange runs, data and logs: a folder every node "
+        "reaches or an fsspec URI (s3://bucket/prefix); '' = none (docs/cluster.md)",
+    )
 
 
 @dataclass

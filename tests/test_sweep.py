@@ -7,6 +7,7 @@ import shutil
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -438,3 +439,106 @@ def test_a_job_no_node_can_run_is_one_line_not_a_hang(tmp_path):
     with pytest.raises(sweep.ClusterError, match=r"job train .* asks for 1 GPU .* the cluster has 0 GPUs"):
         run_sweep(cfg, "smoke", [0], backend="ray", num_cpus=2, progress=False)
     assert time.monotonic() - t0 < 300
+
+
+def _rows(root):
+    """Episode rows of a smoke sweep as its evaluation caches under ``root`` hold them (one frame, sorted)."""
+    files = sorted((root / "results" / "smoke" / "eval").glob("*/seed0/*.csv"))
+    assert files, f"no evaluation rows under {root}"
+    # By method and scene, not the cache key: a policy file records where its encoder was, so its digest (the key)
+    # differs between roots while the weights and the episodes do not.
+    df = pd.concat([pd.read_csv(f).assign(file=f"{f.parent.parent.name}/{f.name.rsplit('-', 1)[0]}") for f in files])
+    return df.drop(columns=["checkpoint", "trajectory"], errors="ignore").reset_index(drop=True)
+
+
+@pytest.mark.slow
+def test_with_storage_a_second_root_finds_every_job_finished(tmp_path, monkeypatch):
+    """Two project roots (two machines) and one storage folder: the second run pulls what the first pushed and
+    skips every job, with the same rows."""
+    store = tmp_path / "store"
+    a, b = tmp_path / "a", tmp_path / "b"
+    monkeypatch.setenv("OMCRL_ROOT", str(a))
+    first = run_sweep(load_config("smoke", overrides=[f"sweep.storage={store}"]), "smoke", [0], backend="local",
+                      progress=False)  # fmt: skip
+    assert first.counts() == {"done": 6}
+    monkeypatch.setenv("OMCRL_ROOT", str(b))
+    second = run_sweep(load_config("smoke", overrides=[f"sweep.storage={store}"]), "smoke", [0], backend="local",
+                       progress=False)  # fmt: skip
+    assert second.counts() == {"skipped": 6}
+    assert [j.id.replace(str(b), "") for j in second.jobs] == [j.id.replace(str(a), "") for j in first.jobs]
+    pd.testing.assert_frame_equal(_episodes(first), _episodes(second))
+    pd.testing.assert_frame_equal(_rows(a), _rows(b))
+    assert len(list((b / "results" / "smoke" / "runs" / "rl").glob("*/seed0/final.pt"))) == 2
+
+
+@pytest.mark.slow
+def test_two_nodes_with_different_roots_sweep_through_storage(tmp_path, repo_root):
+    """A head and a worker whose jobs see different project roots (OMCRL_ROOT per node), the driver a third, and
+    storage in a fourth folder: the smoke grid completes and its rows and table equal the local backend's. Then the
+    nodes' roots are wiped and a new driver runs it again: every job is found finished by pulling from storage."""
+    ray_bin = shutil.which("ray", path=os.path.dirname(sys.executable))
+    port = "6395"
+    a, b, d, d2, c, store = (tmp_path / n for n in ("head", "worker", "driver", "driver2", "local", "store"))
+    base = {**os.environ, "RAY_AUTH_MODE": "disabled"}
+    base.pop("OMCRL_ROOT", None)
+    cli = [sys.executable, "-m", "omcrl", "sweep", "smoke", "--preset", "smoke", "--seeds", "0"]
+    local = subprocess.run([*cli, "--backend", "local"], cwd=repo_root, capture_output=True, text=True,
+                           timeout=900, env={**base, "OMCRL_ROOT": str(c)})  # fmt: skip
+    assert local.returncode == 0, local.stderr[-2000:]
+    start = [ray_bin, "start", "--num-cpus", "1"]
+    on_cluster = [*cli, "--address", f"127.0.0.1:{port}", "--set", f"sweep.storage={store}"]
+    subprocess.run([*start, "--head", "--port", port, "--include-dashboard=false"], check=True, capture_output=True,
+                   env={**base, "OMCRL_ROOT": str(a)})  # fmt: skip
+    try:
+        subprocess.run([*start, "--address", f"127.0.0.1:{port}"], check=True, capture_output=True,
+                       env={**base, "OMCRL_ROOT": str(b)})  # fmt: skip
+        first = subprocess.run(on_cluster, cwd=repo_root, capture_output=True, text=True, timeout=900,
+                               env={**base, "OMCRL_ROOT": str(d)})  # fmt: skip
+        assert first.returncode == 0, first.stderr[-3000:]
+        shutil.rmtree(a, ignore_errors=True)
+        shutil.rmtree(b, ignore_errors=True)
+        second = subprocess.run(on_cluster, cwd=repo_root, capture_output=True, text=True, timeout=900,
+                                env={**base, "OMCRL_ROOT": str(d2)})  # fmt: skip
+        assert second.returncode == 0, second.stderr[-3000:]
+    finally:
+        subprocess.run([ray_bin, "stop", "--force"], capture_output=True, env=base)
+    assert "6 jobs" in first.stdout and "{'skipped': 6}" in second.stdout, second.stdout[-2000:]
+    table = Path("results/smoke/tables/ablation_smoke.csv")
+    for driver in (d, d2):
+        # The driver has the rows (its evaluation caches fetched from storage) and every job's log, wherever it ran.
+        pd.testing.assert_frame_equal(_rows(c), _rows(driver))
+        tables = [pd.read_csv(r / table).sort_values(["method", "scene", "metric"]).reset_index(drop=True)
+                  for r in (c, driver)]  # fmt: skip
+        pd.testing.assert_frame_equal(*tables)  # the same numbers (rows come in the order jobs finished)
+        logs = sorted((driver / "results/smoke/sweeps/smoke/logs").glob("*.log"))
+        assert len(logs) == 6 and all("[sweep] finished in" in f.read_text() for f in logs)
+    pulls = [line for f in logs for line in f.read_text().splitlines() if "[sweep] from storage" in line]
+    assert {p.split(" into ")[1].split(":")[0] for p in pulls} <= {str(a), str(b)}  # never the driver's root
+    # Second run: each job's node had nothing, so every job fetched its files from storage.
+    assert len(pulls) == 6 and all("'fetched': 0" not in p for p in pulls), pulls
+
+
+def test_the_table1_grid_trains_the_learned_methods_of_table1_with_their_run_keys(tmp_path):
+    from omcrl.rl.methods import TABLE1_METHODS, get_method
+
+    assert [v.method for v in GRIDS["table1"]] == [m for m in TABLE1_METHODS if get_method(m).learned]
+    assert "table1" not in grids.ABLATION_GRIDS and "table1" in grids.FULL_BUDGET_GRIDS
+    cfg = _cfg(tmp_path)
+    jobs = expand(cfg, "table1", [0])
+    assert {j.method for j in jobs if j.kind == "train"} == {v.method for v in GRIDS["table1"]}
+    assert not any("sweep" in o or "total_steps" in o for j in jobs for o in j.overrides)  # the preset's budgets
+
+
+@pytest.mark.slow
+def test_embedded_ray_starts_its_own_even_beside_a_running_cluster(tmp_path):
+    """With a `ray start` cluster on the machine, a sweep without --address still starts a Ray of its own (plain
+    ray.init() would join the running one and refuse num_cpus)."""
+    ray_bin = shutil.which("ray", path=os.path.dirname(sys.executable))
+    env = {**os.environ, "RAY_AUTH_MODE": "disabled"}
+    subprocess.run([ray_bin, "start", "--head", "--port", "6401", "--num-cpus", "1", "--include-dashboard=false"],
+                   check=True, capture_output=True, env=env)  # fmt: skip
+    try:
+        res = run_sweep(_cfg(tmp_path), "smoke", [0], backend="ray", num_cpus=2, progress=False)
+        assert not res.failed and res.counts() == {"done": 6}
+    finally:
+        subprocess.run([ray_bin, "stop", "--force"], capture_output=True, env=env)

@@ -369,11 +369,16 @@ class WriterProcess:
         self.path = Path(path)
         self.n_episodes, self.created, self._done = 0, False, False
         self._stderr = tempfile.TemporaryFile()
+        # The child imports the same omcrl as this process, wherever that came from (a checkout, an install, or a
+        # copy Ray shipped to a cluster node with the job), so the package's folder goes first on its path.
+        pkg_parent = str(Path(__file__).resolve().parents[2])
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [pkg_parent, os.environ.get("PYTHONPATH")]))}
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "omcrl.data.writer_child", str(os.getpid())],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=self._stderr,
+            env=env,
         )
         opening = {
             "path": str(self.path),

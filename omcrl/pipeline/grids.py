@@ -125,8 +125,17 @@ PRECISION_VARIANTS = (
 GRIDS["precision"] = PRECISION_VARIANTS
 
 
+# Table I's training on a cluster: every learned method of the comparison at the preset's budgets, with the same
+# run keys as ``python -m omcrl train``, so `python -m omcrl tables` then finds them finished (and the evaluations
+# cached) and adds the planners. The names are :data:`omcrl.rl.methods.TABLE1_METHODS`' learned ones (a test keeps
+# them equal; this module stays free of PyTorch for the CLI's help).
+GRIDS["table1"] = tuple(
+    Variant(m, m) for m in ("oracle", "ours", "ours-noOT", "npe", "npe-ot", "curl", "curl-phi", "ppo")
+)
+
+
 # Grids that keep the preset's budgets instead of the shortened ablation budgets of cfg.sweep.
-FULL_BUDGET_GRIDS = (*REMEDY_GRIDS, "precision")
+FULL_BUDGET_GRIDS = (*REMEDY_GRIDS, "precision", "table1")
 
 
 def grid_variants(name: str) -> tuple[Variant, ...]:

@@ -17,11 +17,11 @@ from typing import Any
 
 import pandas as pd
 
-from omcrl.config import Config, ConfigError, config_hash, load_config, parse_override
-from omcrl.pipeline.grids import ABLATION_GRIDS, FULL_BUDGET_GRIDS, GRIDS, Variant, grid_variants
+from omcrl.config import Config, ConfigError, config_hash, load_config, parse_override, project_root
+from omcrl.pipeline.grids import ABLATION_GRIDS, FULL_BUDGET_GRIDS, Variant, grid_variants
 from omcrl.pipeline.notebooks import overrides_from_config
 from omcrl.pretrain.train import pretrain_run
-from omcrl.rl.methods import TABLE1_METHODS, encoder_config, get_method
+from omcrl.rl.methods import encoder_config, get_method
 from omcrl.rl.train import oracle_run
 from omcrl.utils.runtime import cpu_count
 
@@ -145,7 +145,10 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
             if spec.guide == "oracle" or spec.recipe.teacher:
                 deps.append(add(oracle))
             if not spec.recipe.teacher:
-                ident = {"method": v.method, "rl": asdict(c.rl), "env": asdict(c.env), "deps": deps, "seed": s}
+                # Dependencies by their ids without this machine's project root: the same job has the same id (and
+                # sweep-storage key) on every machine.
+                portable = [d.replace(str(project_root()), "<root>") for d in deps]
+                ident = {"method": v.method, "rl": asdict(c.rl), "env": asdict(c.env), "deps": portable, "seed": s}
                 ident |= spec.recipe.job_identity(c)
                 tid = add(
                     Job(f"train:{v.method}:{config_hash(ident)}", "train", v.method, s, v.overrides, tuple(deps),
@@ -184,11 +187,7 @@ def sweep_plan(cfg: Config, grids: Sequence[str] | None = None, seeds: Sequence[
     # The main comparison's jobs under the same budgets: a sweep finds those runs finished when it coincides.
     # The main comparison runs at the preset's own budgets, not the sweep's.
     full = load_config(cfg.preset, overrides=[*base_overrides(cfg), "sweep.rl_steps=0", "sweep.pretrain_iterations=0"])
-    GRIDS["_table1"] = tuple(Variant(m, m) for m in TABLE1_METHODS if get_method(m).learned)
-    try:
-        main = {j.id for j in expand(full, "_table1", seeds) if j.kind != "evaluate"}
-    finally:
-        del GRIDS["_table1"]
+    main = {j.id for j in expand(full, "table1", seeds) if j.kind != "evaluate"}
     rows = [
         {"id": w.id, "kind": w.kind, "method": w.method, "seed": w.seed, "grids": ",".join(used[w.id]),
          "rate_key": w.rate_key, "work": w.work, "table1": w.id in main, "deps": w.deps}
@@ -335,14 +334,28 @@ def describe_plan(
         unit = UNITS[g["kind"].iloc[0]]
         lines.append(f"  {key:<15} {len(g):>4}  {int(g['work'].sum()):,} {unit} ({int(g['table1'].sum())} shared)")
     if rates:
-        new = plan[~plan["table1"]]
+        # With the table1 grid in the plan, Table I's own runs are work to do; else they are assumed done.
+        whole = "table1" in (grids or ())
+        new = plan if whole else plan[~plan["table1"]]
+        which = "every job, Table I's included" if whole else "the jobs not shared with the main comparison"
+        unrated = new[~new["rate_key"].isin(list(rates))]
+        if len(unrated):
+            # Said, not guessed: those jobs are left out of the hours (collection is minutes at quick).
+            lines.append(
+                "  no measured rate for "
+                + ", ".join(
+                    f"{k} ({len(g)} jobs, {int(g['work'].sum()):,} {UNITS[g['kind'].iloc[0]]})"
+                    for k, g in unrated.groupby("rate_key")
+                )
+                + ": left out of the hours below (measure with python -m omcrl.bench cost --rates-out FILE)"
+            )
+            new = new[new["rate_key"].isin(list(rates))]
         by = sweep_cost(new, rates, 1)["by_key"]
-        lines.append("  machine-hours of the new jobs: " + ", ".join(f"{k} {h:,.1f}" for k, (_, h) in by.items()))
+        lines.append(f"  machine-hours ({which}): " + ", ".join(f"{k} {h:,.1f}" for k, (_, h) in by.items()))
         for n in nodes:
             c = sweep_cost(new, rates, n)
             lines.append(
-                f"  on {n} machine(s): {c['machine_hours']:.1f} machine-hours, {c['wall_hours']:.1f} h wall "
-                "(the jobs not shared with the main comparison)"
+                f"  on {n} machine(s): {c['machine_hours']:.1f} machine-hours, {c['wall_hours']:.1f} h wall ({which})"
             )
     else:
         lines.append(

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import time
 import traceback
 from collections.abc import Sequence
@@ -31,7 +32,7 @@ from typing import Any
 
 import pandas as pd
 
-from omcrl.config import Config, ConfigError, load_config
+from omcrl.config import ROOT_ENV, Config, ConfigError, load_config, project_root, resolve_path
 from omcrl.eval.ablation import ablation_table, write_ablation, write_precision, write_remedies
 from omcrl.eval.stage import evaluate_methods
 from omcrl.pipeline.grids import ABLATION_GRIDS, DEFAULT_VARIANT, GRIDS, REMEDY_GRIDS, grid_variants
@@ -48,6 +49,7 @@ from omcrl.pipeline.plan import (
 )
 from omcrl.pipeline.recipes import pretrain_method, train_method
 from omcrl.pipeline.stages import collect_stage, oracle_policy
+from omcrl.pipeline.storage import Storage, job_key
 from omcrl.rl.methods import final_policy_path
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import Progress
@@ -88,45 +90,109 @@ class SweepResult:
         return "\n".join(lines)
 
 
-def run_job(preset_cfg: dict, job: Job, log_path: str) -> dict:
+def _node_root() -> None:
+    """On a node where ``omcrl`` came with the job (Ray's ``runtime_env``) and no ``OMCRL_ROOT`` is set, work in
+    ``~/.cache/omcrl`` rather than in whatever folder the Ray worker was started from."""
+    if not os.environ.get(ROOT_ENV) and not (Path(__file__).resolve().parents[2] / "pyproject.toml").is_file():
+        os.environ[ROOT_ENV] = str(Path.home() / ".cache" / "omcrl")
+
+
+def _outputs(cfg: Config, job: Job, result: Any) -> list[Path]:
+    """What a job produced, to push to storage: the dataset, the run folder, or the evaluation cache folder."""
+    if job.kind == "collect":
+        return [result.path]
+    if job.kind in ("pretrain", "train"):
+        return [result.run_dir]
+    return [cfg.run_root / "eval" / job.method.replace("/", "_") / f"seed{job.seed}"]
+
+
+def run_job(preset_cfg: dict, job: Job, log_path: str, share: dict | None = None) -> dict:
     """Run one job (any backend) with its output in ``log_path``; returns ``{"status", "seconds", "rows"}``.
 
     ``preset_cfg`` is ``{"preset", "overrides"}`` of the sweep's base config (plain data: it travels to Ray workers).
-    Raises whatever the stage raises (the caller records it).
+    ``share`` (with ``sweep.storage``): ``{"uri", "grid", "key", "pull"}``: the job pulls the manifests ``pull``
+    (its dependencies' and its own) from storage first, and pushes its outputs under ``key`` and its log after;
+    ``log_path`` is then taken from this node's project root when relative. Raises whatever the stage raises (the
+    caller records it).
     """
+    store = None
+    if share is not None:
+        _node_root()
+        store = Storage(share["uri"])
+        log_path = str(resolve_path(log_path))
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    with open(log_path, "a", encoding="utf-8") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
-        print(f"[sweep] {job.kind} {job.method} seed {job.seed} {list(job.overrides)} ({job.id})", flush=True)
-        base = load_config(preset_cfg["preset"], overrides=preset_cfg["overrides"])
-        cfg = job_config(base, job.overrides, job.seed)
-        oracle_cfg = None if job.oracle_overrides is None else job_config(base, job.oracle_overrides, job.seed)
-        if cfg.eval.workers == 0 and job.kind == "evaluate":
-            cfg.eval.workers = job_cpus(cfg, job)
-        rows: list[dict] = []
-        skipped = False
-        if job.kind == "collect":
-            # The oracle that flies the policy share is the variant's teacher (without student-only overrides).
-            flyer = oracle_policy(oracle_cfg) if oracle_cfg is not None and cfg.data.policy == "oracle" else None
-            skipped = bool(collect_stage(cfg, flyer, progress=False).skipped)
-        elif job.kind == "pretrain":
-            skipped = bool(pretrain_method(cfg, job.method, progress=False).skipped)
-        elif job.kind == "train":
-            skipped = bool(train_method(cfg, job.method, progress=False, oracle_cfg=oracle_cfg).skipped)
-        else:
-            path = final_policy_path(cfg, job.method, oracle_cfg)
-            if path is None:
-                raise FileNotFoundError(f"{job.method} seed {job.seed}: no finished run to evaluate")
-            counts: dict[str, int] = {}
-            df = evaluate_methods(cfg, {job.method: path}, stats=counts)
-            # Read back whole from the cache: a skip, so jobs.csv keeps the time the evaluation took when it ran.
-            skipped = counts.get("evaluated", 0) == 0
-            df = df.drop(columns=["trajectory"], errors="ignore").assign(
-                label=job.label, overrides=" ".join(job.overrides)
-            )
-            rows = json.loads(df.to_json(orient="records"))
-        print(f"[sweep] finished in {time.perf_counter() - t0:.1f} s{' (cached)' if skipped else ''}", flush=True)
-    return {"status": "skipped" if skipped else "done", "seconds": time.perf_counter() - t0, "rows": rows}
+    try:
+        with (
+            open(log_path, "a", encoding="utf-8") as log,
+            contextlib.redirect_stdout(log),
+            contextlib.redirect_stderr(log),
+        ):
+            print(f"[sweep] {job.kind} {job.method} seed {job.seed} {list(job.overrides)} ({job.id})", flush=True)
+            if store is not None:
+                got = store.pull(share["pull"])
+                print(f"[sweep] from storage {store.uri} into {project_root()}: {got}", flush=True)
+            status, rows, outputs = _run_stage(preset_cfg, job)
+            if store is not None:
+                m = store.push(share["key"], outputs)
+                print(f"[sweep] pushed {len(m['files'])} files to {store.uri} ({share['key']})", flush=True)
+            print(f"[sweep] finished in {time.perf_counter() - t0:.1f} s{' (cached)' if status == 'skipped' else ''}",
+                  flush=True)  # fmt: skip
+    finally:
+        if store is not None:
+            store.push_log(share["grid"], Path(log_path).name, Path(log_path))
+    return {"status": status, "seconds": time.perf_counter() - t0, "rows": rows}
+
+
+def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path]]:
+    """The stage of one job in this process: ``(status, evaluation rows, output paths)``."""
+    base = load_config(preset_cfg["preset"], overrides=preset_cfg["overrides"])
+    cfg = job_config(base, job.overrides, job.seed)
+    oracle_cfg = None if job.oracle_overrides is None else job_config(base, job.oracle_overrides, job.seed)
+    if cfg.eval.workers == 0 and job.kind == "evaluate":
+        cfg.eval.workers = job_cpus(cfg, job)
+    rows: list[dict] = []
+    result: Any = None
+    if job.kind == "collect":
+        # The oracle that flies the policy share is the variant's teacher (without student-only overrides).
+        flyer = oracle_policy(oracle_cfg) if oracle_cfg is not None and cfg.data.policy == "oracle" else None
+        result = collect_stage(cfg, flyer, progress=False)
+        skipped = bool(result.skipped)
+    elif job.kind == "pretrain":
+        result = pretrain_method(cfg, job.method, progress=False)
+        skipped = bool(result.skipped)
+    elif job.kind == "train":
+        result = train_method(cfg, job.method, progress=False, oracle_cfg=oracle_cfg)
+        skipped = bool(result.skipped)
+    else:
+        path = final_policy_path(cfg, job.method, oracle_cfg)
+        if path is None:
+            raise FileNotFoundError(f"{job.method} seed {job.seed}: no finished run to evaluate")
+        counts: dict[str, int] = {}
+        df = evaluate_methods(cfg, {job.method: path}, stats=counts)
+        # Read back whole from the cache: a skip, so jobs.csv keeps the time the evaluation took when it ran.
+        skipped = counts.get("evaluated", 0) == 0
+        df = df.drop(columns=["trajectory"], errors="ignore").assign(label=job.label, overrides=" ".join(job.overrides))
+        rows = json.loads(df.to_json(orient="records"))
+    return ("skipped" if skipped else "done"), rows, _outputs(cfg, job, result)
+
+
+def upstream(jobs: Sequence[Job]) -> dict[str, list[str]]:
+    """``{job id: ids of every job it depends on, directly or not}``."""
+    by_id = {j.id: j for j in jobs}
+    out: dict[str, list[str]] = {}
+
+    def walk(jid: str) -> list[str]:
+        if jid not in out:
+            seen: dict[str, None] = {}
+            for d in by_id[jid].deps:
+                seen.update(dict.fromkeys([*walk(d), d]))
+            out[jid] = list(seen)
+        return out[jid]
+
+    for j in jobs:
+        walk(j.id)
+    return out
 
 
 def run_sweep(
@@ -151,6 +217,10 @@ def run_sweep(
     logs_dir = cfg.run_root / "sweeps" / grid / "logs"
     base = {"preset": cfg.preset, "overrides": base_overrides(cfg)}
     res = SweepResult(grid, jobs, {}, logs={j.id: logs_dir / j.log_name for j in jobs})
+    store = Storage(cfg.sweep.storage) if cfg.sweep.storage else None
+    shares = _shares(jobs, grid, store)
+    # With storage, a job's log path is taken from its node's project root (nodes may have different ones).
+    log_arg = {j.id: Storage._rel(res.logs[j.id], project_root()) if store else str(res.logs[j.id]) for j in jobs}
     t0 = time.perf_counter()
     rows: list[dict] = []
     bar = Progress(len(jobs), f"sweep/{grid}", unit="job", enabled=progress)
@@ -174,17 +244,33 @@ def run_sweep(
                 bar.update(1, **_postfix(res, running))
                 continue
             try:
-                out = run_job(base, job, str(res.logs[job.id]))
+                out = run_job(base, job, log_arg[job.id], shares.get(job.id))
                 finish(job, out, None)
             except Exception as e:
                 finish(job, None, _error(e, res.logs[job.id]))
     else:
-        _run_ray(cfg, jobs, base, res, finish, running, bar, address, num_cpus)
+        _run_ray(cfg, jobs, base, res, finish, running, bar, address, num_cpus, store, shares, log_arg)
     bar.close()
+    if store is not None:
+        # The driver's tables and learning curves read the runs: fetch what the finished jobs made (not the data).
+        done = [j for j in jobs if j.kind != "collect" and res.status.get(j.id) in ("done", "skipped")]
+        store.pull([shares[j.id]["key"] for j in done])
     res.wall_s = time.perf_counter() - t0
     res.episodes = pd.DataFrame(rows)
     _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
     return res
+
+
+def _shares(jobs: Sequence[Job], grid: str, store: Storage | None) -> dict[str, dict]:
+    """Each job's storage instructions for :func:`run_job` (none without storage)."""
+    if store is None:
+        return {}
+    up = upstream(jobs)
+    key = {j.id: job_key(j.id) for j in jobs}
+    return {
+        j.id: {"uri": store.uri, "grid": grid, "key": key[j.id], "pull": [*(key[d] for d in up[j.id]), key[j.id]]}
+        for j in jobs
+    }
 
 
 def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
@@ -229,17 +315,25 @@ def _run_ray(
     bar: Any,
     address: str | None,
     num_cpus: int | None,
+    store: Storage | None,
+    shares: dict[str, dict],
+    log_arg: dict[str, str],
 ) -> None:
     import ray
 
     started_here = not ray.is_initialized()
     if started_here:
         if address is None:
-            ray.init(num_cpus=num_cpus or cpu_count(), include_dashboard=False, log_to_driver=False)
+            # address="local": a Ray of its own even when a cluster started with `ray start` runs on this machine
+            # (plain ray.init() would join that one, and refuse num_cpus).
+            ray.init(address="local", num_cpus=num_cpus or cpu_count(), include_dashboard=False, log_to_driver=False)
         else:
             connect_ray(address)
     try:
-        check_shared_results(cfg, base)
+        if store is None:
+            check_shared_results(cfg, base)
+        else:
+            check_storage(store)
         capacity = largest_node_cpus()
         # A task lost with its node (a system failure) is retried twice; a job that raised is not (Ray retries
         # application errors only with retry_exceptions, off here): a deterministic error fails once, with its log.
@@ -264,7 +358,9 @@ def _run_ray(
                             f"device=cuda) and {need} CPUs, but the cluster has {cluster_gpus} GPUs: it could never "
                             "run; add a GPU node, or set rl.device / pretrain.device to auto or cpu"
                         )
-                    ref = remote.options(num_cpus=need, num_gpus=gpus).remote(base, job, str(res.logs[job.id]))
+                    ref = remote.options(num_cpus=need, num_gpus=gpus).remote(
+                        base, job, log_arg[job.id], shares.get(job.id)
+                    )
                     pending[ref] = job
                     running.add(job.id)
             if not pending:
@@ -273,6 +369,10 @@ def _run_ray(
             for ref in done:
                 job = pending.pop(ref)
                 running.discard(job.id)
+                if store is not None:
+                    # The job's node may be another machine: its log comes back through storage.
+                    with contextlib.suppress(OSError):
+                        store.fetch_log(shares[job.id]["grid"], res.logs[job.id].name, res.logs[job.id])
                 try:
                     finish(job, ray.get(ref), None)
                 except Exception as e:
@@ -310,16 +410,32 @@ def connect_ray(address: str, timeout_s: float = 5.0) -> None:
                 "the head with `ray start --head --port PORT` on that machine, or check the address"
             ) from None
     try:
-        ray.init(address=address, log_to_driver=False)
+        # The code travels with the jobs (nodes need Python and the pinned dependencies, not a checkout).
+        pkg = str(Path(__file__).resolve().parents[1])
+        env = {"py_modules": [pkg], "excludes": ["__pycache__", "*.pyc"]}
+        ray.init(address=address, log_to_driver=False, runtime_env=env)
     except Exception as e:
         text = f"{type(e).__name__}: {' '.join(str(e).split())[:200]}"
         if "auth" in text.lower() or "token" in text.lower():
             raise ClusterError(
                 f"sweep --address {address}: the cluster refused authentication ({text}); Ray 2.60's `ray start` "
-                "enables token auth: export RAY_AUTH_MODE=token and the cluster's token (see docs/cluster.md) "
-                "before running the sweep"
+                "enables token auth: export RAY_AUTH_MODE=token and the head's token (RAY_AUTH_TOKEN, or "
+                "RAY_AUTH_TOKEN_PATH=<a copy of the head's ~/.ray/auth_token>) before the sweep; docs/cluster.md"
             ) from None
         raise ClusterError(f"sweep --address {address}: cannot join the cluster ({text})") from None
+
+
+def _on_every_node(nodes: list[dict], fn: Any, args: tuple, timeout_s: float) -> list[Any]:
+    """``fn(*args)`` once on each of Ray's ``nodes`` (a zero-CPU task pinned to it); the answers in node order."""
+    import ray
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    task = ray.remote(num_cpus=0, max_retries=0)(fn)
+    refs = [
+        task.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote(*args)
+        for n in nodes
+    ]
+    return ray.get(refs, timeout=timeout_s)
 
 
 def _sees(base: dict, name: str) -> tuple[str, bool]:
@@ -337,7 +453,6 @@ def check_shared_results(cfg: Config, base: dict, timeout_s: float = 120.0) -> N
     import uuid
 
     import ray
-    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
     nodes = [n for n in ray.nodes() if n.get("Alive")]
     if len(nodes) < 2:
@@ -347,12 +462,7 @@ def check_shared_results(cfg: Config, base: dict, timeout_s: float = 120.0) -> N
     marker.parent.mkdir(parents=True, exist_ok=True)
     marker.write_text("written by the sweep's driver\n")
     try:
-        sees = ray.remote(num_cpus=0, max_retries=0)(_sees)
-        refs = [
-            sees.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote(base, name)
-            for n in nodes
-        ]
-        answers = ray.get(refs, timeout=timeout_s)
+        answers = _on_every_node(nodes, _sees, (base, name), timeout_s)
     finally:
         marker.unlink(missing_ok=True)
     blind = [f"{n.get('NodeManagerAddress', '?')} (looks in {path})" for n, (path, ok) in zip(nodes, answers) if not ok]
@@ -360,8 +470,39 @@ def check_shared_results(cfg: Config, base: dict, timeout_s: float = 120.0) -> N
         raise ClusterError(
             f"sweep: {len(blind)} of {len(nodes)} nodes do not see the driver's results folder {cfg.run_root}: "
             + "; ".join(blind)
-            + ". Jobs read and write runs there, so every node needs the same folder: mount a shared filesystem at "
-            "the same path (or point OMCRL_ROOT / results_dir at it) on every node; see docs/cluster.md"
+            + ". Jobs read and write runs there, so either set --set sweep.storage=URI (a folder or s3:// URI every "
+            "node reaches; jobs then pull their inputs and push their runs) or mount a shared filesystem at the same "
+            "path on every node; see docs/cluster.md"
+        )
+
+
+def _has_marker(uri: str, name: str) -> tuple[str, bool]:
+    """On a node: its address, and whether the driver's marker ``name`` is visible in storage ``uri``."""
+    import socket
+
+    try:
+        return socket.gethostname(), Storage(uri).has_marker(name)
+    except Exception as e:  # an unreachable store or a missing fsspec driver on the node: report, do not hang
+        return f"{socket.gethostname()} ({type(e).__name__}: {e})", False
+
+
+def check_storage(store: Storage, timeout_s: float = 120.0) -> None:
+    """Refuse to start unless a task on every live node sees a marker the driver wrote to ``store``."""
+    import ray
+
+    nodes = [n for n in ray.nodes() if n.get("Alive")]
+    name = store.write_marker()
+    try:
+        answers = _on_every_node(nodes, _has_marker, (store.uri, name), timeout_s)
+    finally:
+        store.remove_marker(name)
+    blind = [f"{n.get('NodeManagerAddress', '?')} [{who}]" for n, (who, ok) in zip(nodes, answers) if not ok]
+    if blind:
+        raise ClusterError(
+            f"sweep.storage {store.uri}: {len(blind)} of {len(nodes)} nodes cannot see it: "
+            + "; ".join(blind)
+            + ". Use a location every node reaches (a shared mount at the same path, or an s3:// / gs:// URI with "
+            "its fsspec driver installed on every node); see docs/cluster.md"
         )
 
 
@@ -389,7 +530,8 @@ def sweep_stage(
     nothing."""
     if grid is None:
         raise ConfigError(f"stage 'sweep' needs a grid name, one of {[*GRIDS, 'all']}")
-    grids = list(ABLATION_GRIDS) if grid == "all" else [grid]
+    # ``a,b``: several grids in turn (``table1,all``: Table I's training and then every ablation).
+    grids = list(dict.fromkeys(g for name in grid.split(",") for g in (ABLATION_GRIDS if name == "all" else [name])))
     for g in grids:
         grid_variants(g)
     if plan:
@@ -455,7 +597,11 @@ def run_ablations(
     out: dict[str, dict[str, Any]] = {}
     for g in grids:
         res = run_sweep(cfg, g, seeds, backend=backend, address=address, num_cpus=num_cpus, progress=progress)
-        if len(res.episodes):
+        if g == "table1":
+            # Not an ablation: Table I itself comes from `python -m omcrl tables` (which adds the planners and
+            # finds these runs and their evaluations cached).
+            table, paths = pd.DataFrame(), {}
+        elif len(res.episodes):
             table = ablation_table(res.episodes)
             paths = write_ablation(res.episodes, cfg.run_root / "tables", g)
             if g in REMEDY_GRIDS and DEFAULT_VARIANT.label in set(res.episodes["label"]):
