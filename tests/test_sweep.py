@@ -170,7 +170,8 @@ def test_sweep_on_a_separate_ray_head_by_address(tmp_path):
     try:
         os.environ["RAY_AUTH_MODE"] = "disabled"
         res = run_sweep(_cfg(tmp_path), "smoke", [0], backend="ray", address=f"127.0.0.1:{port}", progress=False)
-        assert not res.failed and len(res.episodes) == 2 * 4 * _cfg(tmp_path).eval.episodes
+        c = _cfg(tmp_path)
+        assert not res.failed and len(res.episodes) == 2 * len(c.eval.scenes) * c.eval.episodes
     finally:
         os.environ.pop("RAY_AUTH_MODE", None)
         subprocess.run([ray_bin, "stop", "--force"], capture_output=True, env=env)

@@ -409,20 +409,34 @@ def connect_ray(address: str, timeout_s: float = 5.0) -> None:
                 f"sweep --address {address}: nothing answers at {host}:{port} within {timeout_s:g} s ({e}); start "
                 "the head with `ray start --head --port PORT` on that machine, or check the address"
             ) from None
+    # Ray retries joining for ~20 s (NUM_REDIS_GET_RETRIES) whatever the reason; a refusal (no token) or a head that
+    # is not Ray's is said within ~5 s instead, unless the user set the budget themselves.
+    wait_var = "RAY_gcs_server_port_wait_time_s"
+    set_here = wait_var not in os.environ
+    if set_here:
+        os.environ[wait_var] = "5"
     try:
         # The code travels with the jobs (nodes need Python and the pinned dependencies, not a checkout).
         pkg = str(Path(__file__).resolve().parents[1])
         env = {"py_modules": [pkg], "excludes": ["__pycache__", "*.pyc"]}
         ray.init(address=address, log_to_driver=False, runtime_env=env)
     except Exception as e:
-        text = f"{type(e).__name__}: {' '.join(str(e).split())[:200]}"
-        if "auth" in text.lower() or "token" in text.lower():
+        # Ray wraps the cause (an AuthenticationError inside a RuntimeError inside a ConnectionError): read them all.
+        chain, x = [], e
+        while x is not None and len(chain) < 8:
+            chain.append(f"{type(x).__name__}: {' '.join(str(x).split())}")
+            x = x.__cause__ or x.__context__
+        text = " <- ".join(chain)
+        if "invalidauthtoken" in text.lower() or "authenticationerror" in text.lower():
             raise ClusterError(
-                f"sweep --address {address}: the cluster refused authentication ({text}); Ray 2.60's `ray start` "
-                "enables token auth: export RAY_AUTH_MODE=token and the head's token (RAY_AUTH_TOKEN, or "
-                "RAY_AUTH_TOKEN_PATH=<a copy of the head's ~/.ray/auth_token>) before the sweep; docs/cluster.md"
+                f"sweep --address {address}: the cluster refused authentication (InvalidAuthToken); Ray 2.60's "
+                "`ray start` enables token auth: export RAY_AUTH_MODE=token and the head's token (RAY_AUTH_TOKEN, "
+                "or RAY_AUTH_TOKEN_PATH=<a copy of the head's ~/.ray/auth_token>) before the sweep; docs/cluster.md"
             ) from None
-        raise ClusterError(f"sweep --address {address}: cannot join the cluster ({text})") from None
+        raise ClusterError(f"sweep --address {address}: cannot join the cluster ({text[:300]})") from None
+    finally:
+        if set_here:
+            os.environ.pop(wait_var, None)
 
 
 def _on_every_node(nodes: list[dict], fn: Any, args: tuple, timeout_s: float) -> list[Any]:
