@@ -11,7 +11,7 @@ import torch
 
 from omcrl.config import ConfigError, load_config
 from omcrl.data import DatasetError, open_dataset
-from omcrl.data.collect import assign_sources, dataset_path, episode_outcomes, run
+from omcrl.data.collect import assign_sources, collect_dataset, dataset_path, episode_outcomes
 
 torch.set_num_threads(1)
 
@@ -53,7 +53,7 @@ def test_assign_sources_is_prefix_stable_and_follows_the_mix():
 
 def test_collect_writes_resumes_and_refuses_mismatch(tmp_path):
     cfg = _cfg(tmp_path, episodes=4)
-    res = run(cfg, progress=False)
+    res = collect_dataset(cfg, progress=False)
     path = dataset_path(cfg)
     assert res.path == path and res.added == 4 and res.episodes == 4 and path.is_file()
     want = assign_sources(cfg.data.mix, 6, cfg.seed)
@@ -73,11 +73,11 @@ def test_collect_writes_resumes_and_refuses_mismatch(tmp_path):
     assert sum(res.per_source.values()) == 4
 
     # Enough episodes already: nothing happens.
-    assert run(cfg, progress=False).skipped
+    assert collect_dataset(cfg, progress=False).skipped
 
     # More episodes: the first four are untouched, two are appended with the next sources of the sequence.
     cfg6 = _cfg(tmp_path, episodes=6)
-    res6 = run(cfg6, progress=False)
+    res6 = collect_dataset(cfg6, progress=False)
     assert res6.added == 2 and res6.episodes == 6
     with open_dataset(path) as ds:
         assert len(ds) == 6 and ds.sources == want
@@ -87,17 +87,17 @@ def test_collect_writes_resumes_and_refuses_mismatch(tmp_path):
     blob = path.read_bytes()
     bad = _cfg(tmp_path, episodes=8, image_size=36)
     with pytest.raises(DatasetError, match="image_size.*expected 36.*got 32"):
-        run(bad, progress=False)
+        collect_dataset(bad, progress=False)
     assert path.read_bytes() == blob
 
 
 def test_collect_checks_config_before_work(tmp_path):
     cfg = _cfg(tmp_path, extra=("pretrain.crop_from=40",))
     with pytest.raises(ConfigError, match="crop_from"):
-        run(cfg, progress=False)
+        collect_dataset(cfg, progress=False)
     cfg = _cfg(tmp_path, extra=("data.mix={pilot: 0.5, policy: 0.5}",))
     with pytest.raises(ConfigError, match="no policy"):
-        run(cfg, progress=False)
+        collect_dataset(cfg, progress=False)
     assert not dataset_path(cfg).exists()
 
 
@@ -110,7 +110,7 @@ def test_collect_with_a_given_policy(tmp_path):
         return np.array([0.5, 0.0, 0.1])
 
     cfg = _cfg(tmp_path, episodes=2, extra=("data.mix={policy: 1.0}",))
-    res = run(cfg, policy=policy, progress=False)
+    res = collect_dataset(cfg, policy=policy, progress=False)
     assert res.per_source == {"policy": 2} and len(calls) >= res.steps_added
     with open_dataset(dataset_path(cfg)) as ds:
         np.testing.assert_allclose(ds.read(0, "action")[0], [0.5, 0.0, 0.1], atol=1e-6)

@@ -277,14 +277,14 @@ subprocess.run(["mount", "-t", "tmpfs", "-o", "size=700k", "tmpfs", mnt], check=
 cfg = load_config("smoke", overrides=[f"data.file={mnt}/box.h5", "data.episodes=12", f"results_dir={mnt}"])
 out = {}
 try:
-    collect.run(cfg, progress=False)
+    collect.collect_dataset(cfg, progress=False)
     out["error"] = None
 except DatasetError as e:
     out["error"] = str(e)
 with open_dataset(f"{mnt}/box.h5") as ds:
     out["kept"] = len(ds)
 subprocess.run(["mount", "-o", "remount,size=30m", mnt], check=True)
-r = collect.run(cfg, progress=False)
+r = collect.collect_dataset(cfg, progress=False)
 out["after"], out["added"] = r.episodes, r.added
 print(json.dumps(out))
 """

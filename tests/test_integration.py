@@ -205,7 +205,7 @@ def test_evaluate_stage_finds_policies_writes_tables_and_caches(chain, monkeypat
         "smoke", overrides=[f"results_dir={chain['root']}", "eval.scenes=[box, barrier]", "eval.episodes=2"]
     )
     assert list(stage.find_policies(cfg)) == ["oracle", "ours"]
-    res = stage.run(cfg, progress=False)
+    res = stage.evaluate_stage(cfg, progress=False)
     assert list(res.table.index) == [(m, s) for m in ("oracle", "ours", "HybridAPF") for s in ("box-v0", "barrier-v0")]
     wide = res.wide()
     assert list(wide.columns.get_level_values(0).unique()) == ["box-v0", "barrier-v0"]  # paper order, not sorted
@@ -215,7 +215,7 @@ def test_evaluate_stage_finds_policies_writes_tables_and_caches(chain, monkeypat
     tables = chain["root"] / "smoke" / "tables"
     assert res.paths["md"] == tables / "evaluate_seed0.md" and not list(tables.glob("table1*"))
     with pytest.raises(ValueError, match="only `python -m omcrl tables` writes table1"):
-        stage.run(cfg, name="table1", progress=False)
+        stage.evaluate_stage(cfg, name="table1", progress=False)
     # A Table I file in another form is one line in the summary, not a traceback.
     from omcrl.pipeline.summary import summary_text
 
@@ -230,7 +230,7 @@ def test_evaluate_stage_finds_policies_writes_tables_and_caches(chain, monkeypat
     assert s["episodes"] == 2 and 0.0 <= s["SR"] <= 100.0 and math.isfinite(s["NE"])
     # A second run reads every (method, scene) from the cache instead of flying the episodes again.
     monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))
-    again = stage.run(cfg, progress=False)
+    again = stage.evaluate_stage(cfg, progress=False)
     pd.testing.assert_frame_equal(again.table, res.table)
 
 

@@ -278,8 +278,8 @@ def test_a_damaged_pretraining_checkpoint_is_not_resumed(tmp_path):
     import pytest
 
     from omcrl.config import load_config
-    from omcrl.data.collect import run as collect
-    from omcrl.pretrain.train import run as pretrain
+    from omcrl.data.collect import collect_dataset as collect
+    from omcrl.pretrain.train import pretrain_encoder as pretrain
     from omcrl.runs import ArtifactMismatch
 
     cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", f"data.file={tmp_path}/box.h5"])
@@ -325,10 +325,10 @@ CORRUPTIONS = {
 def _smoke_artifacts(root):
     """Every kind of file the kit writes and reads back, from a tiny real chain (smoke preset)."""
     from omcrl.config import load_config
-    from omcrl.data.collect import run as collect
+    from omcrl.data.collect import collect_dataset as collect
     from omcrl.eval.stage import evaluate_methods
     from omcrl.pipeline import train_method
-    from omcrl.pretrain.train import run as pretrain
+    from omcrl.pretrain.train import pretrain_encoder as pretrain
 
     cfg = load_config("smoke", overrides={"results_dir": str(root), "data": {"file": f"{root}/box.h5"},
                                           "eval": {"workers": 1}})  # fmt: skip
@@ -358,7 +358,7 @@ def _consume(kind, cfg, files):
     from omcrl.deploy.export import export_onnx
     from omcrl.eval.stage import evaluate_methods
     from omcrl.models.artifact import load_encoder
-    from omcrl.pretrain.train import run as pretrain
+    from omcrl.pretrain.train import pretrain_encoder as pretrain
     from omcrl.rl import load_policy
     from omcrl.runs import read_identity, read_metrics
 

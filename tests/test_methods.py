@@ -46,7 +46,7 @@ def _cfg(root, *more):
 def grid(tmp_path_factory):
     root = tmp_path_factory.mktemp("methods")
     cfg = _cfg(root)
-    collect.run(cfg, progress=False)
+    collect.collect_dataset(cfg, progress=False)
     digests = {}
     for m in [m for m, s in METHODS.items() if s.features == "frozen"]:  # ablation variants included
         pretrain_method(cfg, m, progress=False)
@@ -240,5 +240,5 @@ def test_data_flown_by_the_trained_oracle(grid):
         collect_stage(oc.with_seed(7), progress=False)
     # The data layer itself takes a policy and never looks for the oracle: without one it says who passes it.
     with pytest.raises(ConfigError, match=r"no policy was passed \(data.policy='oracle': the collect stage"):
-        collect.run(oc.with_seed(7), progress=False)
+        collect.collect_dataset(oc.with_seed(7), progress=False)
     assert not oc.with_seed(7).data_path.exists()

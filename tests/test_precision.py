@@ -63,7 +63,7 @@ def test_bf16_and_fp32_runs_have_different_keys_and_fp32_keeps_its_key(monkeypat
 
 def test_bf16_chain_trains_evaluates_and_exports_with_parity(tmp_path):
     """Collect, pretrain (OMC) and train end-to-end PPO in bf16 at smoke; evaluate; export to ONNX."""
-    from omcrl.data.collect import run as collect
+    from omcrl.data.collect import collect_dataset as collect
     from omcrl.deploy import OnnxPolicy, export_onnx
     from omcrl.eval.stage import evaluate_methods
     from omcrl.pipeline import pretrain_method, train_method

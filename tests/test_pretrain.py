@@ -23,8 +23,8 @@ from omcrl.pretrain import (
     bilinear_info_nce,
     masked_info_nce,
     method_name,
+    pretrain_encoder,
     probe,
-    run,
     sample_mask_ops,
     transformer_lr_factor,
 )
@@ -175,7 +175,7 @@ def test_omc_loss_decreases(data, tmp_path):
         iterations=80,
         checkpoint_every=80,
     )
-    r = run(cfg, data, progress=False)
+    r = pretrain_encoder(cfg, data, progress=False)
     loss = pd.read_csv(r.metrics_path).query("metric == 'loss'")["value"].to_numpy()
     assert len(loss) == 80
     assert loss[-20:].mean() < loss[:10].mean() - 0.15
@@ -184,7 +184,7 @@ def test_omc_loss_decreases(data, tmp_path):
 # ---------------------------------------------------------------- the stage
 def test_run_outputs_cache_and_artifact(data, tmp_path):
     cfg = _cfg(tmp_path)
-    r = run(cfg, data, progress=False)
+    r = pretrain_encoder(cfg, data, progress=False)
     assert r.run_dir.parent.parent == tmp_path / "res" / "smoke" / "runs" / "pretrain" and not r.skipped
     assert r.run_dir.name == "seed0" and r.run_dir.parent.name.startswith("omc-")
     assert {p.name for p in r.run_dir.iterdir()} >= {
@@ -209,23 +209,23 @@ def test_run_outputs_cache_and_artifact(data, tmp_path):
     assert enc.meta["dataset_fingerprint"] == open_dataset(data).fingerprint
     assert enc(torch.zeros(2, 9, 20, 20, dtype=torch.uint8)).shape == (2, 16)
     mtime = r.encoder_path.stat().st_mtime_ns
-    again = run(cfg, data, progress=False)
+    again = pretrain_encoder(cfg, data, progress=False)
     assert again.skipped and r.encoder_path.stat().st_mtime_ns == mtime
     # A corrupted finished encoder is not trusted: it is rebuilt (here from the final checkpoint), with a warning.
     good = r.encoder_path.read_bytes()
     r.encoder_path.write_bytes(good[: len(good) // 2])
     with pytest.warns(UserWarning, match="does not match the digest"):
-        fixed = run(cfg, data, progress=False)
+        fixed = pretrain_encoder(cfg, data, progress=False)
     assert not fixed.skipped and r.encoder_path.read_bytes() == good
 
 
 def test_interrupted_run_resumes_to_identical_result(data, tmp_path):
     cfg_a = _cfg(tmp_path / "a")
-    straight = run(cfg_a, data, progress=False)
+    straight = pretrain_encoder(cfg_a, data, progress=False)
     cfg_b = _cfg(tmp_path / "b")
-    part = run(cfg_b, data, progress=False, stop_after=4)  # checkpoint at 3, iteration 4 is lost
+    part = pretrain_encoder(cfg_b, data, progress=False, stop_after=4)  # checkpoint at 3, iteration 4 is lost
     assert part.iterations == 4 and not (part.run_dir / "encoder.pt").exists()
-    resumed = run(cfg_b, data, progress=False)
+    resumed = pretrain_encoder(cfg_b, data, progress=False)
     assert resumed.iterations == 6 and not resumed.skipped
     sa = torch.load(straight.encoder_path, weights_only=True)
     sb = torch.load(resumed.encoder_path, weights_only=True)
@@ -252,7 +252,7 @@ def test_interrupted_run_resumes_to_identical_result(data, tmp_path):
 def test_variants_run(data, tmp_path, pre, name):
     cfg = _cfg(tmp_path, iterations=3, **pre)
     assert method_name(cfg.pretrain) == name
-    r = run(cfg, data, progress=False)
+    r = pretrain_encoder(cfg, data, progress=False)
     assert r.name == name and math.isfinite(r.final_loss)
     enc = load_encoder(r.encoder_path)
     assert enc.meta["use_projection"] == cfg.pretrain.use_projection and enc.feature_dim == 16
@@ -291,16 +291,16 @@ def test_finished_run_skips_without_its_dataset_and_lost_metrics_are_reported(da
     moved = tmp_path / "copy.h5"
     shutil.copy(data, moved)
     cfg = _cfg(tmp_path)
-    first = run(cfg, moved, progress=False)
+    first = pretrain_encoder(cfg, moved, progress=False)
     moved.unlink()
-    again = run(cfg, moved, progress=False)
+    again = pretrain_encoder(cfg, moved, progress=False)
     assert again.skipped and again.encoder_path == first.encoder_path
     # Resume with metrics.csv gone: a warning says what is lost; done.json stays valid JSON.
     cfg_b = _cfg(tmp_path / "b")
-    part = run(cfg_b, data, progress=False, stop_after=4)
+    part = pretrain_encoder(cfg_b, data, progress=False, stop_after=4)
     (part.run_dir / "metrics.csv").unlink()
     with pytest.warns(UserWarning, match="history is lost"):
-        done = run(cfg_b, data, progress=False)
+        done = pretrain_encoder(cfg_b, data, progress=False)
     assert done.iterations == 6
     record = json.loads((done.run_dir / "done.json").read_text())  # strict JSON: no NaN
     assert record["final_loss"] is None or np.isfinite(record["final_loss"])

@@ -176,7 +176,7 @@ def test_generic_textures_avoid_the_evaluation_scenes_materials():
 
 
 def test_randomized_data_has_its_own_file_and_run_and_the_default_keeps_its_key(tmp_path):
-    from omcrl.data.collect import run as collect
+    from omcrl.data.collect import collect_dataset as collect
     from omcrl.data.dataset import DatasetError
     from omcrl.pretrain.train import pretrain_run
 
@@ -284,7 +284,7 @@ def test_transfer_stage_names_the_missing_run_before_any_work(tmp_path):
 
     cfg = load_config("smoke", overrides={"results_dir": str(tmp_path)})
     with pytest.raises(CheckpointError, match="train --method ours --preset smoke --seed 0"):
-        transfer.run(cfg)
+        transfer.transfer_stage(cfg)
     assert not (tmp_path / "smoke" / "tables").exists()
     assert transfer.pilot_episodes(cfg) == 2 and transfer.pilot_episodes(load_config("quick")) == 12
 

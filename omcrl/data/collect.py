@@ -1,6 +1,6 @@
 """Collect trajectory data for upstream pretraining (paper IV-B "Data Collection", V-D).
 
-``run(cfg, policy=None) -> CollectResult`` flies ``cfg.data.episodes`` episodes in ``cfg.data.scene`` with a
+``collect_dataset(cfg, policy=None) -> CollectResult`` flies ``cfg.data.episodes`` episodes in ``cfg.data.scene`` with a
 mix of behaviour sources and appends them to the HDF5 file ``cfg.data.file`` (``{preset}`` substituted, a
 relative path is taken from the current directory — the repository root for the CLI and the notebooks).
 
@@ -257,7 +257,7 @@ def _open_existing(path: Path, cfg: Config) -> int:
         ) from None
 
 
-def run(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> CollectResult:
+def collect_dataset(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> CollectResult:
     """Collect ``cfg.data.episodes`` episodes into ``cfg.data.file`` (appending to a shorter existing file).
 
     Parameters

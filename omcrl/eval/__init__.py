@@ -1,6 +1,6 @@
 """Evaluation: episode metrics (NE OS SR SPL CR TTS, paper V-B), the evaluation runner and tables.
 
-``run(cfg)`` is the CLI stage ``python -m omcrl evaluate``: every trained oracle/student policy under
+``evaluate_stage(cfg)`` is the CLI stage ``python -m omcrl evaluate``: every trained oracle/student policy under
 ``<run_root>/runs`` plus Hybrid APF in all evaluation scenes, tables under ``<run_root>/tables``.
 """
 
@@ -15,7 +15,7 @@ from omcrl.eval.metrics import (
     summary_table,
 )
 from omcrl.eval.runner import EvalPool, eval_seeds, evaluate
-from omcrl.eval.stage import EvalResult, evaluate_methods, find_policies, run, to_markdown, write_tables
+from omcrl.eval.stage import EvalResult, evaluate_methods, evaluate_stage, find_policies, to_markdown, write_tables
 from omcrl.eval.stats import aggregate, compare_sr, mean_ci
 from omcrl.eval.table1 import Table1Result, evaluate_grid, paper_table1, write_table1
 
@@ -32,12 +32,12 @@ __all__ = [
     "evaluate",
     "evaluate_grid",
     "evaluate_methods",
+    "evaluate_stage",
     "find_policies",
     "format_table",
     "glossary_markdown",
     "mean_ci",
     "paper_table1",
-    "run",
     "start_episode",
     "summarize",
     "summary_table",

@@ -1,7 +1,7 @@
 """Evaluation stage: find trained policies, evaluate them (and Hybrid APF) in every scene, write Table I.
 
-``run(cfg)`` is the CLI stage ``python -m omcrl evaluate --preset P``. It evaluates every finished policy under
-``<run_root>/runs/rl/<method>-<key>/seed<k>/final.pt`` plus the privileged :class:`HybridAPF` baseline
+``evaluate_stage(cfg)`` is the CLI stage ``python -m omcrl evaluate --preset P``. It evaluates every finished
+policy under ``<run_root>/runs/rl/<method>-<key>/seed<k>/final.pt`` plus the privileged :class:`HybridAPF` baseline
 in ``cfg.eval.scenes`` for ``cfg.eval.episodes`` episodes each (the same evaluation seeds for every method),
 and writes under ``<run_root>/``::
 
@@ -284,7 +284,7 @@ def write_tables(episodes_df: pd.DataFrame, directory: str | Path, name: str, os
     return {**paths, "table": table}
 
 
-def run(cfg: Config, *, name: str | None = None, progress: bool = True) -> EvalResult:
+def evaluate_stage(cfg: Config, *, name: str | None = None, progress: bool = True) -> EvalResult:
     """CLI stage ``evaluate``: all finished oracle/student policies at ``cfg.seed`` + Hybrid APF, all scenes; write
     a one-seed table ``tables/evaluate_seed<k>.{csv,md}`` (default ``name``) and its episodes. Table I itself
     (``tables/table1.*``, over seeds) has one writer, the ``tables`` stage.

@@ -309,7 +309,7 @@ def write_table1(
     return table, sig, paths
 
 
-def run(cfg: Config, *, progress: bool = True) -> Table1Result:
+def tables_stage(cfg: Config, *, progress: bool = True) -> Table1Result:
     """CLI stage ``tables``: evaluate every finished run of every method at ``cfg.seeds`` and write Table I.
 
     Runs that do not exist yet are listed (``missing``), not trained; raise FileNotFoundError when no learned

@@ -2,7 +2,7 @@
 
 The paper's four scenes form "a gradient of perceptual and navigational difficulty" (V-A): box (training) <
 furniture (easy) < barrier (medium) < tree (hard). Whether a scene suite follows it must be settled before any
-learned method flies it, so no learned method's success can pick the scenes. ``run(cfg)`` writes
+learned method flies it, so no learned method's success can pick the scenes. ``gradient_stage(cfg)`` writes
 
     tables/scene_gradient.{csv,md}   per setting: the perceptual shift from box and the navigational difficulty
     tables/scene_gradient_order.md   does each measure order box < furniture-v1 < barrier < tree?
@@ -225,7 +225,7 @@ def _markdown(table: pd.DataFrame, order: pd.DataFrame, cfg: Config) -> tuple[st
     return head + "\n".join(lines) + "\n", "\n".join(order_md) + "\n"
 
 
-def run(
+def gradient_stage(
     cfg: Config, *, episodes: int | None = None, inits: Sequence[int] = (0, 1, 2), progress: bool = True
 ) -> GradientResult:
     """CLI stage ``gradient``: the tables of the module docstring under ``<run_root>/tables``; needs nothing

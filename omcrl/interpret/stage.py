@@ -1,7 +1,7 @@
 """The interpretability stage (notebook 08, ``python -m omcrl interpret --preset P``): disturbance tests, Grad-CAM
 mass on obstacles and feature stability, as tables under ``<run_root>/tables/``.
 
-``run(cfg)`` writes
+``interpret_stage(cfg)`` writes
 
     tables/disturbance.{csv,md}     SR per method and condition in the simulated room, 95 % CI, the paper's SR
     tables/gradcam_mass.{csv,md}    share of Grad-CAM mass on obstacle pixels per method and condition
@@ -126,7 +126,7 @@ def encoders_for_stability(cfg: Config, methods: Sequence[str] = ("ours", "curl"
     return out
 
 
-def run(
+def interpret_stage(
     cfg: Config,
     *,
     methods: Sequence[str] = ENCODER_METHODS,

@@ -1,6 +1,6 @@
 """The zero-shot diagnosis as a stage (``python -m omcrl transfer --preset P``; docs/generalization.md).
 
-Why does a student trained in box fail in an unseen scene? ``run(cfg)`` measures, for the Table I runs at
+Why does a student trained in box fail in an unseen scene? ``transfer_stage(cfg)`` measures, for the Table I runs at
 ``cfg.seeds`` (the encoders at ``cfg.seed``):
 
     tables/transfer_appearance.{csv,md}  SR of ``ours`` with each scene's layouts in its own and in another look
@@ -182,7 +182,7 @@ def encoders(cfg: Config, methods: Sequence[str] = ("ours", "curl")) -> dict[str
     return encoders_for_stability(cfg, methods)
 
 
-def run(
+def transfer_stage(
     cfg: Config,
     *,
     methods: Sequence[str] = ("ours", "curl"),

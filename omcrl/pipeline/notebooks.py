@@ -475,7 +475,7 @@ def select_notebooks(only: Sequence[str] | None = None, skip: Sequence[str] | No
     return chain
 
 
-def run(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[str] | None = None) -> None:
+def notebooks_stage(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[str] | None = None) -> None:
     """CLI stage ``notebooks``: run the chain for ``cfg.preset`` (all notebooks, or ``only`` / without ``skip``),
     passing on every non-default field, then write and print the summary (:mod:`omcrl.pipeline.summary`)."""
     chain = select_notebooks(only, skip)

@@ -20,7 +20,7 @@ from omcrl.rl.train import Result
 
 def pretrain_method(cfg: Config, method: str, *, progress: bool = True) -> Any:
     """Pretrain (or find) the frozen encoder of ``method`` at ``cfg.seed``; returns the PretrainResult."""
-    return pretrain.run(encoder_config(cfg, method), progress=progress)
+    return pretrain.pretrain_encoder(encoder_config(cfg, method), progress=progress)
 
 
 def train_method(

@@ -17,7 +17,7 @@ from omcrl.config import Config
 STAGES: dict[str, tuple[str, str]] = {
     "config": ("omcrl.pipeline.stages:print_config", "print the resolved config as YAML"),
     "notebooks": (
-        "omcrl.pipeline.notebooks:run",
+        "omcrl.pipeline.notebooks:notebooks_stage",
         "run the notebook chain; executed copies in results/<preset>/executed/",
     ),
     "collect": ("omcrl.pipeline.stages:collect_stage", "collect trajectory data for pretraining"),
@@ -28,18 +28,18 @@ STAGES: dict[str, tuple[str, str]] = {
     "oracle": ("omcrl.pipeline.stages:oracle_stage", "train the privileged oracle with PPO (= train --method oracle)"),
     "student": ("omcrl.pipeline.stages:student_stage", "train the oracle-guided student (= train --method ours)"),
     "train": ("omcrl.pipeline.stages:train_stage", "train one method of the comparison: --method NAME [--seed K]"),
-    "evaluate": ("omcrl.eval:run", "evaluate the policies of --seed (or cfg.seed) and write a quick table"),
-    "tables": ("omcrl.eval.table1:run", "evaluate every method at cfg.seeds and write Table I with CIs"),
+    "evaluate": ("omcrl.eval:evaluate_stage", "evaluate the policies of --seed (or cfg.seed) and write a quick table"),
+    "tables": ("omcrl.eval.table1:tables_stage", "evaluate every method at cfg.seeds and write Table I with CIs"),
     "interpret": (
-        "omcrl.interpret.stage:run",
+        "omcrl.interpret.stage:interpret_stage",
         "disturbance tests in a simulated room, Grad-CAM mass on obstacles, feature stability (notebook 08)",
     ),
     "transfer": (
-        "omcrl.interpret.transfer:run",
+        "omcrl.interpret.transfer:transfer_stage",
         "why a box-trained student fails zero-shot: geometry vs look, blind student, feature shift, probe across",
     ),
     "gradient": (
-        "omcrl.interpret.gradient:run",
+        "omcrl.interpret.gradient:gradient_stage",
         "the scenes' gradient of difficulty with nothing learned: shift from box (random encoders, pixels) and "
         "planners' SR",
     ),
@@ -47,7 +47,10 @@ STAGES: dict[str, tuple[str, str]] = {
         "omcrl.pipeline.sweep:sweep_stage",
         "run a named ablation grid over seeds: sweep GRID [--seeds 0,1,2] [--backend ray|local] [--address A]",
     ),
-    "summary": ("omcrl.pipeline.summary:run", "write and print results/<preset>/summary.md from what the stages left"),
+    "summary": (
+        "omcrl.pipeline.summary:summary_stage",
+        "write and print results/<preset>/summary.md from what the stages left",
+    ),
     "export": ("omcrl.deploy.export:export_stage", "export a visuomotor policy to ONNX: --policy RUN [--out FILE]"),
     "replay": (
         "omcrl.pipeline.stages:replay_stage",

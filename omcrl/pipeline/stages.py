@@ -56,7 +56,7 @@ def student_stage(cfg: Config, *, progress: bool = True) -> Result:
 def pretrain_stage(cfg: Config, method: str | None = None, *, progress: bool = True) -> Any:
     """CLI stage ``pretrain``: the encoder of ``--method`` (ours, curl, curl-phi, ...), else ``cfg.pretrain``."""
     if method is None:
-        return pretrain.run(cfg, progress=progress)
+        return pretrain.pretrain_encoder(cfg, progress=progress)
     return pretrain_method(cfg, method, progress=progress)
 
 
@@ -77,8 +77,8 @@ def oracle_policy(cfg: Config) -> Any:
 
 
 def collect_stage(cfg: Config, policy: Any = None, *, progress: bool = True) -> collect.CollectResult:
-    """CLI stage ``collect``: :func:`omcrl.data.collect.run`, with this config's trained oracle flying the
+    """CLI stage ``collect``: :func:`omcrl.data.collect.collect_dataset`, with this config's trained oracle flying the
     ``policy`` share when ``data.policy=oracle`` (the data layer takes a policy; finding the oracle is ours)."""
     if policy is None and cfg.data.policy == "oracle":
         policy = oracle_policy(cfg)
-    return collect.run(cfg, policy, progress=progress)
+    return collect.collect_dataset(cfg, policy, progress=progress)

@@ -454,7 +454,7 @@ def write_summary(cfg: Config) -> Path:
     return path
 
 
-def run(cfg: Config) -> None:
+def summary_stage(cfg: Config) -> None:
     """CLI stage ``summary``: write the summary of ``cfg.preset`` and print it."""
     path = write_summary(cfg)
     print(path.read_text(encoding="utf-8"))

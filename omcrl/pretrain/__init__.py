@@ -1,6 +1,6 @@
 """Upstream representation learning: masking, InfoNCE, OMC and the CURL family, probes.
 
-``run(cfg) -> PretrainResult`` trains and writes the frozen-encoder artifact
+``pretrain_encoder(cfg) -> PretrainResult`` trains and writes the frozen-encoder artifact
 (load it with :func:`omcrl.models.load_encoder`).
 """
 
@@ -21,8 +21,8 @@ from omcrl.pretrain.train import (
     default_dataset_path,
     encoder_path,
     method_name,
+    pretrain_encoder,
     pretrain_run,
-    run,
     run_dir,
 )
 
@@ -40,10 +40,10 @@ __all__ = [
     "mask_sequence",
     "masked_info_nce",
     "method_name",
+    "pretrain_encoder",
     "pretrain_run",
     "probe",
     "probe_targets",
-    "run",
     "run_dir",
     "sample_mask_ops",
     "transformer_lr_factor",

@@ -1,4 +1,4 @@
-"""Upstream pretraining stage: ``run(cfg) -> PretrainResult`` (paper IV-B, V-D).
+"""Upstream pretraining stage: ``pretrain_encoder(cfg) -> PretrainResult`` (paper IV-B, V-D).
 
 Writes under ``results/<preset>/runs/pretrain/<name>/seed<k>/``:
 
@@ -209,7 +209,7 @@ class _Iterations(Trainer):
         }
 
 
-def run(
+def pretrain_encoder(
     cfg: Config,
     dataset_path: str | Path | None = None,
     *,

@@ -90,9 +90,10 @@ def scene_gallery(
 
 
 def plot_gradient(table: Any) -> plt.Figure:
-    """The scenes' gradient (:func:`omcrl.interpret.gradient.run`'s table): one panel per measure of the shift from
-    box, one bar per setting in the table's order (the box floor, the paper's scenes, then the stress test), with
-    the random encoders' min–max as error bars; the title of each panel says whether the paper's order holds."""
+    """The scenes' gradient (:func:`omcrl.interpret.gradient.gradient_stage`'s table): one panel per measure of
+    the shift from box, one bar per setting in the table's order (the box floor, the paper's scenes, then the stress
+    test), with the random encoders' min–max as error bars; the title of each panel says whether the paper's order
+    holds."""
 
     verdict = order_verdicts(table).set_index("measure").holds
     panels = (
