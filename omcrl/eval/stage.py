@@ -172,6 +172,12 @@ def _write_cache(folder: Path, stem: str, key: str, df: pd.DataFrame) -> None:
     atomic_write_text(path.with_suffix(".json"), json.dumps(meta))
 
 
+def eval_cache_dir(cfg: Config, label: str) -> Path:
+    """Where :func:`evaluate_methods` caches ``label``'s episodes at ``cfg.seed``:
+    ``<run_root>/eval/<label>/seed<k>``."""
+    return cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}"
+
+
 def evaluate_methods(
     cfg: Config,
     methods: Mapping[str, Any],
@@ -228,7 +234,7 @@ def evaluate_methods(
                 if cfg.eval.lanes != 1 and callable(getattr(policy, "act_batch", None)):
                     ident["lanes"] = cfg.eval.lanes  # likewise: one env at a time (and planners) keep their keys
                 key = config_hash({**ident, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
-                folder = cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}"
+                folder = eval_cache_dir(cfg, label)
                 tail = "" if not disturbance else "-" + "-".join(f"{v}" for v in disturbance.values())
                 stem = scene + tail
                 # Caches written before scenes had versions are named by the bare family (v0, same key).

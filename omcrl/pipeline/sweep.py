@@ -34,7 +34,7 @@ import pandas as pd
 
 from omcrl.config import ROOT_ENV, Config, ConfigError, load_config, project_root, resolve_path
 from omcrl.eval.ablation import ablation_table, write_ablation, write_precision, write_remedies
-from omcrl.eval.stage import evaluate_methods
+from omcrl.eval.stage import eval_cache_dir, evaluate_methods
 from omcrl.pipeline.grids import ABLATION_GRIDS, DEFAULT_VARIANT, GRIDS, REMEDY_GRIDS, grid_variants
 from omcrl.pipeline.plan import (
     Job,
@@ -103,7 +103,7 @@ def _outputs(cfg: Config, job: Job, result: Any) -> list[Path]:
         return [result.path]
     if job.kind in ("pretrain", "train"):
         return [result.run_dir]
-    return [cfg.run_root / "eval" / job.method.replace("/", "_") / f"seed{job.seed}"]
+    return [eval_cache_dir(cfg, job.method)]
 
 
 def run_job(preset_cfg: dict, job: Job, log_path: str, share: dict | None = None) -> dict:
