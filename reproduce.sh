@@ -15,6 +15,9 @@
 #   ./reproduce.sh --test -k config         ./reproduce.sh --quick --set rl.total_steps=50000
 #   ./reproduce.sh --quick --skip 06        the chain without the ablation sweeps (notebook 06: hours more)
 #   ./reproduce.sh --quick --only 05,07     only these notebooks (their inputs must exist)
+#   ./reproduce.sh --quick --from-reference [PATH]
+#                                           start from the trained reference runs (reference/quick/bundle, or PATH),
+#                                           verified, instead of training: then notebooks 07-09 (minutes)
 # Environment: PYTHON=/path/to/python3.11 to choose the interpreter for a new .venv;
 # TORCH_INDEX_URL=https://download.pytorch.org/whl/cpu for the CPU-only torch build (see the README).
 set -euo pipefail
@@ -105,6 +108,22 @@ ensure_venv() {
   say "install done"
 }
 
+# --from-reference [PATH]: taken out of the arguments here (the notebooks command does not know it).
+from_ref=""
+ref_path=""
+rest=()
+while [[ $# -gt 0 ]]; do
+  if [[ "$1" == --from-reference ]]; then
+    [[ "$mode" == --test || "$mode" == --lab ]] && die "--from-reference goes with a chain mode (--smoke, --quick, --paper)" 2
+    from_ref=1
+    if [[ $# -gt 1 && "$2" != -* ]]; then ref_path="$2"; shift; fi
+  else
+    rest+=("$1")
+  fi
+  shift
+done
+set -- ${rest[@]+"${rest[@]}"}
+
 for arg in "$@"; do
   if [[ "$mode" != --test && ( "$arg" == --preset || "$arg" == --preset=* ) ]]; then
     die "$mode already chooses the preset; drop '$arg' (e.g. ./reproduce.sh --quick, not --smoke --preset quick)" 2
@@ -146,6 +165,14 @@ case "$mode" in
     preset="${mode#--}"
     if [[ "$preset" == paper ]] && ! "$PY" -c 'import sys, torch; sys.exit(not torch.cuda.is_available())' 2>/dev/null; then
       say "warning: no CUDA device visible to torch; the paper preset on a CPU takes days"
+    fi
+    if [[ -n "$from_ref" ]]; then
+      say "unpacking the reference runs of preset $preset (verified against their manifest)"
+      "$PY" -m omcrl reference --preset "$preset" ${ref_path:+--from "$ref_path"}
+      chosen=""
+      for arg in "$@"; do [[ "$arg" == --only* || "$arg" == --skip* ]] && chosen=1; done
+      # The trained runs are there: the tables, interpretability and deployment need no training.
+      [[ -z "$chosen" ]] && set -- "$@" --only 07,08,09
     fi
     say "running the notebook chain with preset $preset (executed copies in results/$preset/executed/)"
     "$PY" -m omcrl notebooks --preset "$preset" "$@"

@@ -20,7 +20,14 @@ from collections.abc import Sequence
 from typing import Any
 
 from omcrl.config import PRESETS, ConfigError, load_config
-from omcrl.pipeline.registry import METHOD_STAGES, NO_PRESET_STAGES, STAGES, StageUnavailable, load_stage
+from omcrl.pipeline.registry import (
+    METHOD_STAGES,
+    NO_PRESET_STAGES,
+    STAGE_OUTPUTS,
+    STAGES,
+    StageUnavailable,
+    load_stage,
+)
 
 
 def describe(result: Any) -> str:
@@ -65,9 +72,15 @@ PRESET_HELP = (
 
 
 def _stage_epilog(name: str) -> str:
+    import textwrap
+
+    out = ""
+    if name in STAGE_OUTPUTS:
+        out = "writes and defaults:\n" + textwrap.fill(STAGE_OUTPUTS[name], 100, initial_indent="  ",
+                                                        subsequent_indent="  ")  # fmt: skip
     if name in METHOD_STAGES:
-        return f"methods (--method):\n{_methods_help(name)}"
-    return ""
+        out += f"\n\nmethods (--method):\n{_methods_help(name)}"
+    return out
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -135,6 +148,36 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "notebooks":
             sp.add_argument("--only", default=None, metavar="NN,..", help="run only these notebooks, e.g. 05,07")
             sp.add_argument("--skip", default=None, metavar="NN,..", help="leave these out, e.g. 06 (the ablations)")
+        if name == "summary":
+            sp.add_argument(
+                "--readme",
+                action="store_true",
+                help="instead: rewrite the README's 'Results at a glance' from reference/<preset>/table1/",
+            )
+        if name == "reference":
+            sp.add_argument(
+                "--from",
+                dest="source",
+                default=None,
+                metavar="PATH",
+                help="a bundle folder (default: reference/<preset> in the checkout); with --pack, where to write it",
+            )
+            sp.add_argument(
+                "--pack",
+                action="store_true",
+                help="make the bundle from results/<preset>/ (the Table I runs at the config's seeds) instead",
+            )
+            sp.add_argument(
+                "--exact",
+                action="store_true",
+                help="with --pack: keep every bit of the weights (default: weight matrices rounded to float16 "
+                "precision, the effect on Table I's episodes measured and recorded)",
+            )
+            sp.add_argument(
+                "--with-table",
+                action="store_true",
+                help="with --pack: make results/<preset>/tables/ the reference Table I (reference/<preset>/table1/)",
+            )
         if name == "replay":
             sp.add_argument("log", help="a flight log CSV (ControlLoop's log_path)")
             sp.add_argument("--out", default=None, help="the PNG (default: beside the log)")
@@ -158,7 +201,9 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
     from omcrl.deploy.runtime import ModelSpecError
     from omcrl.models.artifact import EncoderError
     from omcrl.models.features import CheckpointError
+    from omcrl.pipeline.glance import GlanceError
     from omcrl.pipeline.notebooks import NotebookError
+    from omcrl.pipeline.reference import ReferenceError
     from omcrl.pipeline.sweep import ClusterError, SweepFailed
     from omcrl.rl.ppo import NonFiniteLossError
     from omcrl.runs import CorruptFile, RunConfigMismatch, RunLocked
@@ -177,6 +222,8 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
         ModelSpecError,
         UnsafeFileError,
         NotebookError,
+        ReferenceError,
+        GlanceError,
         NonFiniteLossError,
         SweepFailed,
         ClusterError,
@@ -221,6 +268,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             result = func(cfg, policy=args.policy, out=args.out)
         elif args.stage == "replay":
             result = func(cfg, log=args.log, out=args.out)
+        elif args.stage == "reference":
+            result = func(cfg, pack=args.pack, source=args.source, with_table=args.with_table, exact=args.exact)
+        elif args.stage == "summary":
+            result = func(cfg, readme=args.readme)
         elif args.stage == "notebooks":
             result = func(cfg, only=_csv(args.only), skip=_csv(args.skip))
         elif args.stage == "sweep":

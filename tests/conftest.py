@@ -32,6 +32,7 @@ STAGE_MODULES = {
     "test_interpret",
     "test_transfer",
     "test_bench",
+    "test_extending",
 }
 
 

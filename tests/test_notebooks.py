@@ -179,6 +179,36 @@ def test_chain_smoke(tmp_path):
 
     summary = write_summary(load_config("smoke", overrides=[f"results_dir={tmp_path}"])).read_text()
     assert "not run yet" not in summary and "| SR | success rate |" in summary
+    _reference_round_trip(tmp_path)
+
+
+def _reference_round_trip(tmp_path):
+    """The chain's runs packed as a reference bundle, unpacked into a fresh results folder: the run registry finds
+    every Table I run there, and Table I is rebuilt from the bundle alone (its cached evaluations) row for row."""
+    import pandas as pd
+
+    from omcrl.config import load_config
+    from omcrl.eval.table1 import tables_stage
+    from omcrl.pipeline.reference import pack_reference, unpack_reference
+    from omcrl.rl.methods import METHODS, TABLE1_METHODS
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    packed = pack_reference(cfg, out=tmp_path / "bundle")
+    files = packed.manifest["files"]
+    assert files and not [f for f in files if f.endswith("checkpoint.pt") or "/tb/" in f]
+    assert any(f.startswith("runs/pretrain/") and f.endswith("encoder.pt") for f in files)  # upstream came along
+    learned = sorted(f"{m}/seed{s}" for m in TABLE1_METHODS if METHODS[m].learned for s in cfg.seeds)
+    fresh = load_config("smoke", overrides=[f"results_dir={tmp_path / 'fresh'}"])
+    res = unpack_reference(fresh, tmp_path / "bundle")
+    assert sorted(res.found) == learned and not res.not_found
+    t = tables_stage(fresh, progress=False)
+    assert not t.missing
+    evals = {p.relative_to(fresh.run_root).as_posix() for p in (fresh.run_root / "eval").rglob("*.csv")}
+    assert evals == {f for f in files if f.startswith("eval/")}  # nothing was evaluated again
+    key = ["method", "train_seed", "scene", "episode"]
+    a, b = (pd.read_csv(r / "tables" / "table1_episodes.csv").sort_values(key, ignore_index=True)
+            for r in (cfg.run_root, fresh.run_root))  # fmt: skip
+    pd.testing.assert_frame_equal(a, b)
 
 
 def test_overrides_from_config_round_trip():
@@ -198,3 +228,15 @@ def test_undeclared_overrides_are_an_error(tmp_path):
     src = _write(tmp_path / "00_x.ipynb", [])
     with pytest.raises(nbr.NotebookError, match="overrides"):
         run_notebook(src, "smoke", results_dir=tmp_path, cwd=tmp_path, overrides=["rl.epochs=1"])
+
+
+def test_every_notebook_prints_its_measured_expected_time(repo_root):
+    from omcrl.pipeline.expected import EXPECTED_WALL_S, expected_time
+
+    for name in NOTEBOOKS:
+        src = (repo_root / "notebooks" / f"{name}.ipynb").read_text(encoding="utf-8")
+        assert f'preset_banner(cfg.preset, \\"{name}\\")' in src, name
+    for preset in ("smoke", "quick"):
+        assert set(EXPECTED_WALL_S[preset]) == set(NOTEBOOKS), preset  # measured for every notebook
+        assert "about" in expected_time(preset, NOTEBOOKS[0])
+    assert "was not measured" in expected_time("paper", NOTEBOOKS[0])

@@ -55,7 +55,9 @@ def test_summary_lists_every_figure_and_the_table(tmp_path, preset):
     text = path.read_text()
     for f in (cfg.run_root / "figures").glob("*.png"):
         assert f"(figures/{f.name})" in text
-    assert "| tree | curl | 90.0 [81.0, 99.0] |" in text
+    # Table I compact: a row per method, a column per scene, the paper's value in italics where it has one.
+    assert "| method | box-v0 (training) | tree-v0 (hard) |" in text
+    assert "| CURL | 90 [81, 99] | 90 [81, 99] *0* |" in text and "| Ours | 5 [4, 6] | 5 [4, 6] *8* |" in text
     assert "19m02s" in text and "19m08s" in text  # notebook 02 and the total
     assert "| 412 MB |" in text and text.count("| 1,830 MB |") == 2  # notebook 02 and the total's peak
     assert "not run yet (notebook 04_train_student)" in text  # a missing stage is named, not skipped silently
@@ -107,3 +109,22 @@ def test_records_round_trip_and_read_the_files_of_older_versions(tmp_path):
     (tmp_path / DataRecord.FILE).write_text("[1, 2]")
     with pytest.raises(CorruptFile, match=r"data_summary.json is not a readable DataRecord"):
         DataRecord.read(tmp_path)
+
+
+def test_readme_results_at_a_glance_match_the_reference_table(repo_root):
+    """The README's table and verdicts are what reference/quick/table1 gives: re-run
+    `python -m omcrl summary --preset quick --readme` after the reference Table I changes."""
+    from omcrl.pipeline.glance import current_block, reference_table_dir, render_glance
+
+    readme = (repo_root / "README.md").read_text(encoding="utf-8")
+    assert current_block(readme) == render_glance(reference_table_dir("quick"))
+
+
+def test_readme_block_is_replaced_between_its_markers_only(tmp_path):
+    from omcrl.pipeline.glance import END, START, GlanceError, current_block, replace_block
+
+    text = f"head\n{START}\nold\n{END}\ntail\n"
+    new = replace_block(text, "new table")
+    assert new.startswith("head\n") and new.endswith("tail\n") and current_block(new) == "new table"
+    with pytest.raises(GlanceError, match="README.md: the markers"):
+        replace_block("no markers here", "x")

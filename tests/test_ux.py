@@ -154,5 +154,13 @@ def test_reproduce_refuses_a_contradictory_preset(repo_root):
     assert "installing" not in r.stdout  # refused before the venv check or any install
 
 
+def test_reproduce_takes_from_reference_only_with_a_chain_mode(repo_root):
+    r = subprocess.run(
+        ["bash", str(repo_root / "reproduce.sh"), "--test", "--from-reference"], capture_output=True, text=True
+    )
+    assert r.returncode == 2 and "--from-reference goes with a chain mode" in r.stderr
+    assert "installing" not in r.stdout
+
+
 def test_project_root_is_the_checkout(repo_root):
     assert project_root() == repo_root.resolve()

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from omcrl.config import PRESETS, ConfigError, load_config, resolve_path
+from omcrl.pipeline.expected import EXPECTED_WALL_S
 from omcrl.pipeline.summary import write_summary
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.memory import PeakRSS
@@ -359,7 +360,9 @@ def run_chain(
     for n in chain:
         t0 = time.perf_counter()
         if verbose:
-            print(f"[notebooks] {n} (preset {preset}) ...", flush=True)
+            want = EXPECTED_WALL_S.get(preset, {}).get(n)  # measured (omcrl.pipeline.expected)
+            hint = f", about {format_duration(want)} from nothing trained on 2 cores" if want else ""
+            print(f"[notebooks] {n} (preset {preset}{hint}) ...", flush=True)
         # Peak memory of the kernel and the workers it starts, every 0.25 s (an upper bound: see PeakRSS).
         with _console_feed(n if verbose else None), PeakRSS(0.25, children=True) as mem:
             out = run_notebook(n, preset, parameters=parameters, results_dir=results_dir, overrides=overrides, cwd=cwd)

@@ -51,12 +51,48 @@ STAGES: dict[str, tuple[str, str]] = {
         "omcrl.pipeline.summary:summary_stage",
         "write and print results/<preset>/summary.md from what the stages left",
     ),
+    "reference": (
+        "omcrl.pipeline.reference:reference_stage",
+        "unpack the trained reference runs of the preset (reference/<preset>/, verified) into results/<preset>/; "
+        "--pack makes the bundle",
+    ),
     "export": ("omcrl.deploy.export:export_stage", "export a visuomotor policy to ONNX: --policy RUN [--out FILE]"),
     "replay": (
         "omcrl.pipeline.stages:replay_stage",
         "draw a flight log (path, commands, stream ages, battery, events): LOG",
     ),
 }
+# What each stage writes (under results/<preset>/ unless a path is given) and its defaults, for its --help.
+STAGE_OUTPUTS: dict[str, str] = {
+    "config": "writes nothing; prints the config that --preset, --config and --set give",
+    "notebooks": "executed/<notebook>.ipynb, executed/wall_times.json and peak_rss_mb.json, then summary.md; "
+    "default: every notebook 00-09 in order (--only / --skip choose)",
+    "collect": "the HDF5 dataset data.file (default data/<preset>/box.h5); default: the box scene, the preset's "
+    "episode count, the scripted pilot (data.policy)",
+    "pretrain": "runs/pretrain/<variant>-<key>/seed<k>/ (encoder.pt, done.json, metrics.csv, tb/); default: "
+    "pretrain.method of the config (omc) at seed 0; a finished run of the same config is skipped",
+    "oracle": "runs/rl/oracle-<key>/seed<k>/ (final.pt, run.json, metrics.csv, tb/); default seed 0; a finished "
+    "run is skipped, an interrupted one resumes",
+    "student": "runs/rl/ours-<key>/seed<k>/ (final.pt, run.json, metrics.csv, tb/); needs the oracle and the OMC "
+    "encoder of the same seed; default seed 0",
+    "train": "runs/rl/<method>-<key>/seed<k>/ (final.pt, run.json, metrics.csv, tb/); every missing "
+    "prerequisite is named at once with its command; default seed 0",
+    "evaluate": "eval/<method>/seed<k>/<scene>-<key>.csv (cached episodes) and tables/evaluate_seed<k>.{csv,md}; "
+    "default: every finished policy of seed 0 and the Hybrid APF, eval.episodes per scene of eval.scenes",
+    "tables": "tables/table1.{csv,md,tex}, table1_vs_paper.{csv,md}, table1_significance.csv, table1_episodes.csv; "
+    'default: the config\'s seeds (--set "seeds=[0,1,2]" for three); missing runs are listed, not trained',
+    "interpret": "tables/disturbance, gradcam_mass, stability (.csv, .md) and eval/ caches; default seed 0",
+    "transfer": "tables/transfer_*.{csv,md}; default: seed 0's ours run and the scenes of eval.scenes",
+    "gradient": "tables/scene_gradient.{csv,md}, scene_gradient_order.md; nothing trained is used",
+    "sweep": "sweeps/<grid>/ (jobs, logs/), the runs and evaluations it makes, tables/<grid>.* ; default: the "
+    "config's seeds, an embedded Ray with every core (--backend local: in this process)",
+    "summary": "summary.md (and prints it); --readme instead rewrites the README's results from reference/<preset>/",
+    "reference": "unpacks reference/<preset>/bundle (or --from PATH) into runs/ and eval/, verified; --pack writes "
+    "reference/<preset>/bundle from the finished Table I runs at the config's seeds",
+    "export": "policy.onnx beside final.pt (or --out); --policy is required",
+    "replay": "a PNG beside the flight log (or --out)",
+}
+
 # Stages that take --method.
 METHOD_STAGES = ("train", "pretrain")
 

@@ -20,6 +20,8 @@ import pandas as pd
 from omcrl.config import Config
 from omcrl.eval.ablation import findings_summary
 from omcrl.eval.metrics import glossary_markdown
+from omcrl.pipeline.expected import EXPECTED_WALL_S, expected_time
+from omcrl.pipeline.glance import update_readme, wide_table
 from omcrl.pipeline.records import DataRecord, DeployRecord, OracleRecord, PretrainRecord, StudentRecord, Table1Record
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import format_duration
@@ -29,19 +31,21 @@ SMOKE_NOTE = (
     "**Smoke preset: these numbers only check the plumbing.** Every learned method trained a few hundred env "
     "steps and is evaluated on a handful of episodes, so success rates near 0 and wide intervals are expected. "
     "For numbers that mean something run the `quick` preset (`./reproduce.sh --quick`, a few hours on a laptop "
-    "CPU; `docs/results-quick.md` has a reference run), or `paper` on a GPU machine."
+    "CPU; `docs/results.md` has a reference run), or `paper` on a GPU machine."
 )
 
 
-def preset_banner(preset: str) -> str:
-    """What a preset's numbers mean, for the top of every notebook; empty for ``quick`` and ``paper``."""
-    if preset != "smoke":
-        return ""
-    return (
-        "smoke preset: every stage runs at a tiny scale (a few hundred env steps, a handful of episodes), so the "
-        "numbers below only check the plumbing. For results that mean something run the quick preset "
-        "(./reproduce.sh --quick, a few hours on a laptop CPU; reference numbers in docs/results-quick.md)."
-    )
+def preset_banner(preset: str, notebook: str | None = None) -> str:
+    """The lines at the top of every notebook: its expected time at ``preset`` (when ``notebook`` is given) and,
+    for ``smoke``, what its numbers mean."""
+    lines = [expected_time(preset, notebook)] if notebook else []
+    if preset == "smoke":
+        lines.append(
+            "smoke preset: every stage runs at a tiny scale (a few hundred env steps, a handful of episodes), so the "
+            "numbers below only check the plumbing. For results that mean something run the quick preset "
+            "(./reproduce.sh --quick, a few hours on a laptop CPU; reference numbers in docs/results.md)."
+        )
+    return "\n".join(lines)
 
 
 NOTEBOOK_TITLES = {
@@ -251,7 +255,14 @@ def _section_pretrain(d: PretrainRecord, tables: Path) -> list[str]:
         )
     if "random" in probe:
         rows.append({"encoder": "random (floor)", "probe R² (mean)": probe["random"].get("mean_r2")})
-    return [_md_table(rows), ""]
+    return [
+        _md_table(rows),
+        "",
+        "Masked top-1 acc: the share of masked frames whose reconstructed latent picks its own frame among the "
+        "batch's candidates (chance: 1 / candidates). Probe R²: a linear map from the frozen features to the drone's "
+        "state on held-out episodes (1 = perfect, 0 = no better than the mean); a random encoder gives the floor.",
+        "",
+    ]
 
 
 def _section_oracle(d: OracleRecord, tables: Path) -> list[str]:
@@ -282,16 +293,23 @@ def _section_student(d: StudentRecord, tables: Path) -> list[str]:
 
 def _section_table1(d: dict, tables: Path) -> list[str]:
     try:
-        long = table1_long(tables / "table1.csv")
+        long = pd.read_csv(tables / "table1.csv")
+        table1_long(tables / "table1.csv")  # the same check of its form as everywhere else
     except ValueError as e:
         return [f"_Table I cannot be read: {e}._", ""]
     out = [
-        "Mean [95% CI] over training seeds and evaluation episodes (two-stage bootstrap). Every method trained in "
-        "box only; every other scene is zero-shot (furniture-v0: the stress test). Full table: "
-        "[tables/table1.md](tables/table1.md); beside the paper's: "
+        "Mean [95% CI] over training seeds and evaluation episodes (two-stage bootstrap); the paper's value in "
+        "*italics*. Every method trained in box only; every other scene is zero-shot (furniture-v0: the stress "
+        "test). Every metric (NE, OS, SR, SPL, CR, TTS): [tables/table1.md](tables/table1.md); beside the paper's: "
         "[tables/table1_vs_paper.md](tables/table1_vs_paper.md).",
         "",
-        _md_table(long.to_dict("records")) if len(long) else "(empty)",
+        "Success rate (SR, %):",
+        "",
+        *wide_table(long[long.metric == "SR"]),
+        "",
+        "Collision rate (CR, %):",
+        "",
+        *wide_table(long[long.metric == "CR"]),
         "",
     ]
     s = Table1Record.read(tables) or Table1Record()
@@ -343,10 +361,18 @@ def _section_interpret(d: dict, tables: Path) -> list[str]:
         for r in dist.itertuples()
     ]
     out = ["Disturbance tests in the simulated room (SR %):", "", _md_table(rows), ""]
+    explain = {
+        "gradcam_mass.csv": "share: the Grad-CAM map's mass on obstacle pixels; obstacle_fraction: the part of the "
+        "image obstacles cover (a uniform map's share); lift = share / obstacle_fraction (1: no more than uniform); "
+        "frames_used: frames with both map mass and obstacles.",
+        "stability.csv": "rel_distance: clean-to-disturbed cosine distance of the features over that between "
+        "unrelated frames (0: the features did not move); knn_acc: the share of disturbed frames whose nearest "
+        "clean feature is their own frame; clean_disturbed, unrelated: the two mean distances.",
+    }
     for name, label in (("gradcam_mass.csv", "Grad-CAM mass on obstacles"), ("stability.csv", "Feature stability")):
         if (tables / name).exists():
             t = pd.read_csv(tables / name).round(3)
-            out += [f"{label}:", "", _md_table(t.to_dict("records")), ""]
+            out += [f"{label}:", "", _md_table(t.to_dict("records")), "", explain[name], ""]
     return out
 
 
@@ -454,11 +480,24 @@ def write_summary(cfg: Config) -> Path:
     return path
 
 
-def summary_stage(cfg: Config) -> None:
-    """CLI stage ``summary``: write the summary of ``cfg.preset`` and print it."""
+def summary_stage(cfg: Config, readme: bool = False) -> None:
+    """CLI stage ``summary``: write the summary of ``cfg.preset`` and print it; with ``readme``, rewrite the
+    README's "Results at a glance" from ``reference/<preset>/table1`` instead (:mod:`omcrl.pipeline.glance`)."""
+    if readme:
+        changed = update_readme(cfg.preset)
+        print(f"[omcrl] README.md: results at a glance {'rewritten' if changed else 'already current'}", flush=True)
+        return
     path = write_summary(cfg)
     print(path.read_text(encoding="utf-8"))
     print(f"[omcrl] summary: {path}", flush=True)
 
 
-__all__ = ["SMOKE_NOTE", "preset_banner", "summary_text", "table1_long", "write_summary"]
+__all__ = [
+    "EXPECTED_WALL_S",
+    "SMOKE_NOTE",
+    "expected_time",
+    "preset_banner",
+    "summary_text",
+    "table1_long",
+    "write_summary",
+]

@@ -650,3 +650,55 @@ def layout_to_primitives(layout: Sequence[dict]) -> list[Primitive]:
             )
         )
     return out
+
+
+@dataclass(frozen=True)
+class FixedLayout:
+    """A scene generator that always returns the same course (a user ``layout``, see :func:`layout_to_primitives`):
+    the start and goal still change with the episode's seed. Compared by value, so registering the same course
+    twice is not a conflict."""
+
+    layout: tuple
+
+    def __call__(self, rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
+        return layout_to_primitives([dict(item) for item in self.layout])
+
+
+def course_scene(
+    family: str,
+    layout: Sequence[dict],
+    *,
+    look: str = "box-v0",
+    version: int = 0,
+    difficulty: str = "medium",
+    description: str = "",
+) -> SceneSpec:
+    """Register a fixed course as a scene ``<family>-v<version>`` with the surroundings and materials of ``look``.
+
+    A registered scene is what training (``env.scene``), evaluation and Table I (``eval.scenes``) take by name,
+    and its id enters every run key and cache key, so runs on two courses never mix. ``layout``: dicts as in
+    :func:`layout_to_primitives`. Raises ValueError for a malformed layout (before anything is registered) or an id
+    already registered with another course.
+    """
+    layout_to_primitives(layout)  # a malformed course fails here, naming the entry
+    frozen = tuple(tuple(sorted((k, _frozen(v)) for k, v in item.items())) for item in layout)
+    base = scene_spec(look)
+    spec = SceneSpec(
+        family,
+        version,
+        FixedLayout(frozen),
+        stream=base.stream,
+        default_count=len(layout),
+        indoor=base.indoor,
+        floor_texture=base.floor_texture,
+        wall_texture=base.wall_texture,
+        materials=base.materials,
+        difficulty=difficulty,
+        paper_scene=None,
+        description=description or f"a fixed course of {len(layout)} obstacles in {base.id}'s surroundings",
+    )
+    return register_scene(spec)
+
+
+def _frozen(v: Any) -> Any:
+    return tuple(_frozen(x) for x in v) if isinstance(v, (list, tuple)) else v

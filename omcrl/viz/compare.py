@@ -17,7 +17,7 @@ import pandas as pd
 
 from omcrl.rl.methods import METHODS
 from omcrl.runs import metric_series
-from omcrl.scenes import PAPER_SUITE
+from omcrl.scenes import PAPER_SUITE, scene_label
 from omcrl.viz import method_color, steps_axis
 from omcrl.viz.pretrain import smooth
 from omcrl.viz.rl import TRAJECTORY_KEY, plot_trajectories
@@ -172,4 +172,45 @@ def plot_trajectory_grid(
     fig.legend([handles[n] for n in names], names, loc="lower center", ncol=min(6, len(names)), fontsize=8,
                title=TRAJECTORY_KEY.replace("\n", " "), title_fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout(rect=(0, 0.12, 1, 1))
+    return fig
+
+
+VERDICT_COLORS = {"holds": "#4daf4a", "undecided": "#f0f0f0", "reversed": "#e41a1c"}
+
+
+def plot_claim_verdicts(claims: pd.DataFrame) -> plt.Figure:
+    """The paper's orderings per scene: one row per claim (``a > b`` on SR), one column per scene, coloured by the
+    verdict (holds: the 95 % CI of the difference lies above 0; reversed: below; undecided: it spans 0), with the
+    difference in points and its CI printed in each cell.
+
+    Parameters
+    ----------
+    claims : rows ``claim, scene, diff, lo, hi, verdict`` (:func:`omcrl.eval.table1.paper_claims`), SR points.
+    """
+    from matplotlib.patches import Patch
+
+    rows = list(dict.fromkeys(claims["claim"]))
+    cols = list(dict.fromkeys(claims["scene"]))
+    fig, ax = plt.subplots(figsize=(1.9 * len(cols) + 2.2, 0.62 * len(rows) + 1.6))
+    cell = {(r.claim, r.scene): r for r in claims.itertuples()}
+    for i, claim in enumerate(rows):
+        for j, scene in enumerate(cols):
+            r = cell.get((claim, scene))
+            if r is None:
+                continue
+            ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, color=VERDICT_COLORS[r.verdict], ec="white", lw=2))
+            ax.text(j, i, f"{r.diff:+.0f}\n[{r.lo:+.0f}, {r.hi:+.0f}]", ha="center", va="center", fontsize=8,
+                    color="white" if r.verdict == "reversed" else "black")  # fmt: skip
+    ax.set_xlim(-0.5, len(cols) - 0.5)
+    ax.set_ylim(len(rows) - 0.5, -0.5)
+    ax.set_xticks(range(len(cols)), [scene_label(s).replace(" (", "\n(") for s in cols], fontsize=8)
+    ax.set_yticks(range(len(rows)), rows, fontsize=8)
+    ax.tick_params(length=0)
+    for side in ax.spines.values():
+        side.set_visible(False)
+    ax.legend(handles=[Patch(color=c, label=v) for v, c in VERDICT_COLORS.items()], loc="upper center",
+              bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=8, frameon=False,
+              title="verdict on the 95 % CI of the SR difference", title_fontsize=8)  # fmt: skip
+    ax.set_title("The paper's orderings per scene: SR difference a − b in points [95 % CI]", fontsize=9)
+    fig.tight_layout()
     return fig

@@ -1,0 +1,514 @@
+"""Reference artifacts: a preset's trained runs and their evaluations, kept in the repository under
+``reference/<preset>/`` so that Table I, notebooks 07-09 and the transfer stage run in minutes on a fresh clone,
+and so that trained runs outlast the machine that trained them.
+
+Layout of a bundle (a plain folder; nothing in it is ever unpickled: checkpoints load with ``weights_only``)::
+
+    reference/<preset>/bundle/MANIFEST.json
+                                         format, preset, seeds, methods, the commit and date that made it, the
+                                         archive's SHA-256 and every file in it with its SHA-256 and size
+    reference/<preset>/bundle/runs.tar.xz
+                                         runs/...: run folders as the run registry writes them (run.json,
+                                         config.yaml, final.pt or encoder.pt + done.json, metrics.csv; no
+                                         checkpoints, no tb/); eval/...: the evaluation cache of those runs
+    reference/<preset>/table1/           the reference Table I the README shows (:func:`promote_table`)
+
+:func:`pack_reference` makes a bundle from ``results/<preset>/``: every Table I method's finished run at the given
+seeds, the runs they were trained from (the oracle, the encoders: found by the digests their run identity records)
+and their cached evaluations. :func:`unpack_reference` verifies every file against the manifest, refuses to
+replace a different file already in ``results/<preset>/``, copies the rest in (atomically), and checks that the
+run registry of *this* code finds each run again (same configuration, same keys): a bundle made by other code is
+reported, run by run, instead of being silently retrained.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime as _dt
+import hashlib
+import io
+import json
+import lzma
+import shutil
+import subprocess
+import tarfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omcrl.config import Config, project_root
+from omcrl.eval.stage import eval_cache_dir
+from omcrl.eval.table1 import evaluate_grid
+from omcrl.pipeline.glance import reference_table_dir
+from omcrl.pipeline.storage import sha256
+from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path
+from omcrl.runs import read_identity, run_key
+from omcrl.utils.io import atomic_save_torch, atomic_write_bytes, atomic_write_text, load_torch
+
+FORMAT = 1
+MANIFEST = "MANIFEST.json"
+ARCHIVE = "runs.tar.xz"
+# A run folder's files that a later stage reads; checkpoints (optimizer state, for resuming) and TensorBoard stay out.
+RUN_FILES = ("run.json", "config.yaml", "final.pt", "encoder.pt", "done.json", "metrics.csv")
+LIMIT_MB = 60.0
+
+
+class ReferenceError(RuntimeError):
+    """A reference bundle is missing, damaged, of another preset, or would replace different data; the message
+    names the file."""
+
+
+@dataclass(repr=False)
+class ReferenceResult:
+    """What :func:`pack_reference` or :func:`unpack_reference` did.
+
+    Attributes
+    ----------
+    bundle : the bundle folder.
+    manifest : the manifest (dict, as in ``MANIFEST.json``).
+    copied, present : files written / already there with the same content (relative to the run root).
+    found : ``{"method/seed<k>": run folder}`` that the run registry finds at the current configuration.
+    not_found : ``"method/seed<k>"`` whose bundled run the registry does not find (made by other code or config).
+    """
+
+    bundle: Path
+    manifest: dict[str, Any]
+    copied: list[str] = field(default_factory=list)
+    present: list[str] = field(default_factory=list)
+    found: dict[str, Path] = field(default_factory=dict)
+    not_found: list[str] = field(default_factory=list)
+
+    @property
+    def size_mb(self) -> float:
+        """The files' size unpacked, MB."""
+        return sum(f["bytes"] for f in self.manifest["files"].values()) / 1e6
+
+    @property
+    def archive_mb(self) -> float:
+        """The archive's size in the repository, MB."""
+        return self.manifest["archive"]["bytes"] / 1e6
+
+    def __repr__(self) -> str:
+        m = self.manifest
+        lines = [
+            f"bundle: {self.bundle} ({len(m['files'])} files, {self.size_mb:.1f} MB unpacked, {self.archive_mb:.1f} MB "
+            f"archive; preset {m['preset']}, "
+            f"seeds {m['seeds']}, made at commit {m['commit'][:12]} on {m['made']})"
+        ]
+        if self.copied or self.present:
+            lines.append(f"copied {len(self.copied)} files, {len(self.present)} already there")
+        if self.found:
+            lines.append(f"the run registry finds {len(self.found)} runs: {', '.join(sorted(self.found))}")
+        if self.not_found:
+            lines.append(
+                f"NOT found at this configuration (would be retrained): {', '.join(self.not_found)} - the bundle was "
+                "made by other code or settings"
+            )
+        return "\n".join(lines)
+
+
+def default_bundle(preset: str) -> Path:
+    """``<checkout>/reference/<preset>/bundle``."""
+    return project_root() / "reference" / preset / "bundle"
+
+
+def _commit() -> str:
+    try:
+        out = subprocess.run(
+            ["git", "-C", str(project_root()), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
+        )
+        return out.stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
+
+
+def _run_artifact(run_dir: Path) -> tuple[Path, str] | None:
+    """(artifact, recorded digest) of a finished run folder, or None when it is not finished."""
+    rec = read_identity(run_dir) or {}
+    if (run_dir / "final.pt").is_file() and rec.get("artifact_digest"):
+        return run_dir / "final.pt", str(rec["artifact_digest"])
+    done = run_dir / "done.json"
+    if (run_dir / "encoder.pt").is_file() and done.is_file():
+        digest = json.loads(done.read_text(encoding="utf-8")).get("encoder_digest")
+        if digest:
+            return run_dir / "encoder.pt", str(digest)
+    return None
+
+
+def _digests_in(obj: Any) -> set[str]:
+    """Every value of a ``*_digest`` key anywhere in a run identity (the upstream artifacts it was trained on)."""
+    out: set[str] = set()
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            if isinstance(v, str) and str(k).endswith("_digest") and v:
+                out.add(v)
+            else:
+                out |= _digests_in(v)
+    elif isinstance(obj, list):
+        for v in obj:
+            out |= _digests_in(v)
+    return out
+
+
+def _runs_with_upstream(run_root: Path, roots: list[Path]) -> list[Path]:
+    """``roots`` and every run folder under ``run_root/runs`` whose artifact one of them was trained on
+    (transitively)."""
+    by_digest: dict[str, Path] = {}
+    for rec in (run_root / "runs").glob("*/*/seed*/run.json"):
+        art = _run_artifact(rec.parent)
+        if art is not None:
+            by_digest[art[1]] = rec.parent
+    keep: list[Path] = []
+    todo = list(roots)
+    while todo:
+        d = todo.pop()
+        if d in keep:
+            continue
+        keep.append(d)
+        ident = (read_identity(d) or {}).get("identity", {})
+        todo += [by_digest[g] for g in _digests_in(ident) if g in by_digest and by_digest[g] not in keep]
+    return sorted(keep)
+
+
+# Tensors at least this large (weight matrices) are rounded to float16 precision in a bundle; small ones (biases,
+# normaliser statistics, whose tiny values float16 would flush to zero) keep every bit.
+ROUND_MIN_ELEMENTS = 4096
+
+
+def _round_payload(obj: Any) -> Any:
+    """``obj`` with every large float32 tensor rounded to the nearest float16 value (stored as float32 again)."""
+    import torch
+
+    if isinstance(obj, torch.Tensor):
+        if obj.dtype == torch.float32 and obj.numel() >= ROUND_MIN_ELEMENTS:
+            r = obj.to(torch.float16).to(torch.float32)
+            return r if torch.isfinite(r).all() or not torch.isfinite(obj).all() else obj
+        return obj
+    if isinstance(obj, dict):
+        return {k: _round_payload(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_round_payload(v) for v in obj)
+    return obj
+
+
+def _replace_digests(obj: Any, new: dict[str, str]) -> Any:
+    if isinstance(obj, dict):
+        return {
+            k: (new.get(v, v) if isinstance(v, str) and str(k).endswith("_digest") else _replace_digests(v, new))
+            for k, v in obj.items()
+        }
+    if isinstance(obj, list):
+        return [_replace_digests(v, new) for v in obj]
+    return obj
+
+
+def _copy_runs(src_root: Path, dst_root: Path, run_dirs: list[Path], rounded: bool) -> dict[Path, Path]:
+    """Copy ``run_dirs`` (a closed set: every upstream run is in it) from ``src_root`` to ``dst_root``, upstream
+    first, with only the files later stages read. With ``rounded``, every artifact's large tensors are rounded to
+    float16 precision; a run whose identity names a changed upstream artifact then gets the new digest and the key
+    it gives (its folder moves with it), so the run registry finds each rounded run from the rounded files, and
+    ``run.json`` records what it was rounded from. Returns ``{source folder: copied folder}``."""
+    digest = {d: (_run_artifact(d) or (None, ""))[1] for d in run_dirs}
+    new_digest: dict[str, str] = {}
+    out: dict[Path, Path] = {}
+    pending = list(run_dirs)
+    while pending:
+        waiting = {digest[d] for d in pending}
+        ready = [d for d in pending if not (_digests_in((read_identity(d) or {}).get("identity", {})) & waiting)]
+        if not ready:
+            raise ReferenceError(f"runs that name each other's artifacts: {', '.join(map(str, pending))}")
+        for d in ready:
+            pending.remove(d)
+            rec = dict(read_identity(d) or {})
+            if (
+                run_key(rec.get("identity", {})) != rec.get("key")
+                or d.parent.name != f"{rec.get('method')}-{rec.get('key')}"
+            ):
+                raise ReferenceError(f"{d / 'run.json'}: its key does not match its identity; refusing to bundle it")
+            ident = _replace_digests(rec["identity"], new_digest)
+            key = run_key(ident)
+            target = dst_root / d.relative_to(src_root).parent.parent / f"{rec['method']}-{key}" / d.name
+            target.mkdir(parents=True, exist_ok=True)
+            for n in ("config.yaml", "metrics.csv"):
+                if (d / n).is_file():
+                    shutil.copyfile(d / n, target / n)
+            art = _run_artifact(d)
+            if art is not None:
+                path, old = art
+                if rounded:
+                    payload = _round_payload(load_torch(path, "artifact", ReferenceError))
+                    new_digest[old] = atomic_save_torch(payload, target / path.name)
+                else:
+                    shutil.copyfile(path, target / path.name)
+                    new_digest[old] = old
+            rec.pop("checkpoint_digests", None)
+            rec.update(key=key, identity=ident)
+            if art is not None and path.name == "final.pt":
+                rec["artifact_digest"] = new_digest[art[1]]
+            if rounded:
+                rec["reference"] = {"rounded_to": "float16", "min_elements": ROUND_MIN_ELEMENTS,
+                                    "from_key": d.parent.name, "from_artifact_digest": digest[d]}  # fmt: skip
+            atomic_write_text(target / "run.json", json.dumps(rec, indent=1))
+            if (d / "done.json").is_file():
+                done = json.loads((d / "done.json").read_text(encoding="utf-8"))
+                if art is not None and path.name == "encoder.pt":
+                    done["encoder_digest"] = new_digest[art[1]]
+                atomic_write_text(target / "done.json", json.dumps(done, indent=1))
+            out[d] = target
+    return out
+
+
+def _rounding_effect(before: Any, after: Any) -> dict[str, Any]:
+    """Per-episode comparison of the same evaluation episodes flown by the original and the rounded policies."""
+    key = ["method", "train_seed", "scene", "episode"]
+    m = before.merge(after, on=key, suffixes=("", "_rounded"))
+    sr = m.groupby(["method", "scene"])[["success", "success_rounded"]].mean().mul(100)
+    diff = (sr["success_rounded"] - sr["success"]).round(1)
+    return {
+        "episodes": len(m),
+        "changed_success": int((m["success"] != m["success_rounded"]).sum()),
+        "changed_collision": int((m["collision"] != m["collision_rounded"]).sum()),
+        "max_abs_sr_diff_points": float(diff.abs().max()) if len(diff) else 0.0,
+        "sr_diff_points": {f"{a}/{b}": float(v) for (a, b), v in diff.items() if v != 0},
+    }
+
+
+def pack_reference(
+    cfg: Config,
+    seeds: Sequence[int] | None = None,
+    methods: Sequence[str] | None = None,
+    out: str | Path | None = None,
+    *,
+    rounded: bool = True,
+    limit_mb: float = LIMIT_MB,
+    progress: bool = True,
+) -> ReferenceResult:
+    """Make a bundle (default ``reference/<preset>/bundle``) of the finished Table I runs of ``seeds`` (default
+    ``cfg.seeds``) in ``cfg.run_root``, the runs they were trained from, and their evaluations.
+
+    With ``rounded`` (default) the artifacts' weight matrices are rounded to float16 precision (the archive then
+    compresses to under half), the runs re-keyed to the rounded files (:func:`_copy_runs`), every learned method
+    evaluated again from the rounded runs on Table I's episodes, and the effect of the rounding recorded in the
+    manifest (``rounding``: episodes whose outcome changed, SR differences). Without it the files keep every bit
+    and their cached evaluations come along.
+
+    Raises ReferenceError when a method has no finished run at a seed, or when the archive would exceed
+    ``limit_mb`` (naming the largest files); nothing is kept then. An existing bundle is replaced only after the
+    new one is complete.
+    """
+    seeds = list(cfg.seeds if seeds is None else seeds)
+    methods = [m for m in (methods or TABLE1_METHODS) if METHODS[m].learned]
+    root = cfg.run_root
+    finals, missing = [], []
+    for m in methods:
+        for s in seeds:
+            p = final_policy_path(cfg.with_seed(s), m)
+            (finals.append(p.parent) if p is not None else missing.append(f"{m}/seed{s}"))
+    if missing:
+        raise ReferenceError(
+            f"no finished run under {root / 'runs'} for {', '.join(missing)}; train them first (notebooks 03-05 or "
+            f"python -m omcrl train --method M --preset {cfg.preset} --seed K)"
+        )
+    dest = Path(out) if out is not None else default_bundle(cfg.preset)
+    tmp = dest.with_name(dest.name + ".packing")
+    shutil.rmtree(tmp, ignore_errors=True)
+    stage = copy.deepcopy(cfg)
+    stage.results_dir = str(tmp / "results")
+    stage = stage.with_seed(cfg.seed)
+    copied = _copy_runs(root, stage.run_root, _runs_with_upstream(root, finals), rounded)
+    ev_src = eval_cache_dir(cfg, "x").parent.parent
+    rounding: dict[str, Any] = {}
+    for s in seeds:
+        for f in sorted(ev_src.glob(f"*/seed{s}/*.csv")):
+            label = f.parent.parent.name
+            # A rounded policy is another checkpoint: its episodes are flown again below; planners' stay.
+            if not rounded or not (label in METHODS and METHODS[label].learned):
+                (stage.run_root / f.relative_to(root)).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(f, stage.run_root / f.relative_to(root))
+    if rounded:
+        before, _ = evaluate_grid(cfg, methods, seeds)
+        after, _ = evaluate_grid(stage, methods, seeds, progress=progress)
+        rounding = _rounding_effect(before, after)
+    top = len(stage.run_root.parts)
+    files = [f for f in stage.run_root.rglob("*") if f.is_file() and f.parts[top] in ("runs", "eval")]
+    # xz's 64 MB window stores a repeat once: a student's final.pt holds its frozen encoder's weights again, so each
+    # encoder goes right before the runs trained on it (then the other runs, then the evaluations).
+    encoders = {(_run_artifact(d) or (None, ""))[1] for d in copied.values() if (d / "encoder.pt").is_file()}
+
+    def order(f: Path) -> tuple:
+        run = f.parent if f.parts[top] == "runs" and (f.parent / "run.json").is_file() else None
+        if run is None:
+            return ("~", 2, str(f))
+        own = (_run_artifact(run) or (None, ""))[1]
+        ups = sorted(_digests_in((read_identity(run) or {}).get("identity", {})) & encoders)
+        return (own, 0, str(f)) if own in encoders else ((ups or ["~"])[0], 1, str(f))
+
+    entries: dict[str, dict[str, Any]] = {}
+    with tarfile.open(tmp / ARCHIVE, "w:xz", preset=9) as tar:
+        for f in sorted(files, key=order):
+            rel = f.relative_to(stage.run_root).as_posix()
+            data = f.read_bytes()
+            entries[rel] = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}
+            info = tarfile.TarInfo(rel)
+            info.size, info.mtime, info.mode = len(data), 0, 0o644  # no dates or owners: the same runs, same bytes
+            tar.addfile(info, io.BytesIO(data))
+    manifest = {
+        "format": FORMAT,
+        "preset": cfg.preset,
+        "seeds": seeds,
+        "methods": methods,
+        "commit": _commit(),
+        "made": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "rounded": "float16" if rounded else None,
+        "rounding": rounding,
+        "archive": {"name": ARCHIVE, "sha256": sha256(tmp / ARCHIVE), "bytes": (tmp / ARCHIVE).stat().st_size},
+        "files": entries,
+    }
+    size = manifest["archive"]["bytes"] / 1e6
+    if size > limit_mb:
+        big = sorted(files, key=lambda f: -f.stat().st_size)[:3]
+        shutil.rmtree(tmp)
+        raise ReferenceError(
+            f"the bundle's archive would be {size:.1f} MB, over the limit of {limit_mb:g} MB; largest files: "
+            + ", ".join(f"{f.name} ({f.stat().st_size / 1e6:.1f} MB)" for f in big)
+        )
+    shutil.rmtree(tmp / "results")
+    atomic_write_text(tmp / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+    if dest.exists():
+        shutil.rmtree(dest)
+    tmp.rename(dest)
+    return ReferenceResult(dest, manifest)
+
+
+def read_manifest(bundle: str | Path, preset: str | None = None) -> dict[str, Any]:
+    """The manifest of a bundle folder, checked for its form (and its preset when given)."""
+    path = Path(bundle) / MANIFEST
+    if not path.is_file():
+        raise ReferenceError(f"{path}: no reference manifest there (expected a folder made by pack_reference)")
+    try:
+        m = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise ReferenceError(f"{path}: not a readable manifest ({e})") from None
+    if not isinstance(m, dict) or not isinstance(m.get("files"), dict):
+        raise ReferenceError(f"{path}: field 'files' missing; expected a manifest made by pack_reference")
+    if m.get("format") != FORMAT:
+        raise ReferenceError(f"{path}: field 'format' is {m.get('format')!r}, expected {FORMAT}")
+    if preset is not None and m.get("preset") != preset:
+        raise ReferenceError(f"{path}: field 'preset' is {m.get('preset')!r}, expected {preset!r}")
+    arch = m.get("archive")
+    if not isinstance(arch, dict) or arch.get("name") != ARCHIVE or not arch.get("sha256"):
+        raise ReferenceError(
+            f"{path}: field 'archive' is {arch!r}, expected {{'name': {ARCHIVE!r}, 'sha256', 'bytes'}}"
+        )
+    for rel in m["files"]:
+        p = Path(rel)
+        if p.is_absolute() or ".." in p.parts:
+            raise ReferenceError(f"{path}: file {rel!r} leaves the bundle; refusing it")
+    return m
+
+
+def verify_reference(bundle: str | Path, preset: str | None = None) -> tuple[dict[str, Any], dict[str, bytes]]:
+    """Check a bundle against its manifest and read it: the archive's SHA-256, then every file in it (listed,
+    a plain file, its size and SHA-256), and no listed file missing. Returns (manifest, {path: content}).
+
+    Nothing is extracted to disk: members are read into memory, so a crafted archive cannot write anywhere.
+    Raises ReferenceError naming the first thing that is wrong.
+    """
+    b = Path(bundle)
+    m = read_manifest(b, preset)
+    arch = b / ARCHIVE
+    if not arch.is_file():
+        raise ReferenceError(f"{arch}: listed in {b / MANIFEST} but missing")
+    if arch.stat().st_size != m["archive"].get("bytes") or sha256(arch) != m["archive"]["sha256"]:
+        raise ReferenceError(f"{arch}: does not match its SHA-256 in {b / MANIFEST} (damaged or changed)")
+    out: dict[str, bytes] = {}
+    try:
+        with tarfile.open(arch, "r:xz") as tar:
+            for member in tar:
+                name = member.name
+                where = f"{arch}: member {name!r}"
+                if name not in m["files"]:
+                    raise ReferenceError(f"{where} is not in the manifest; refusing the bundle")
+                if not member.isfile():
+                    raise ReferenceError(f"{where} is not a plain file; refusing the bundle")
+                fh = tar.extractfile(member)
+                data = fh.read() if fh is not None else b""
+                want = m["files"][name]
+                if len(data) != want["bytes"] or hashlib.sha256(data).hexdigest() != want["sha256"]:
+                    raise ReferenceError(f"{where} does not match its SHA-256 in {b / MANIFEST} (damaged or changed)")
+                out[name] = data
+    except (tarfile.TarError, EOFError, lzma.LZMAError) as e:
+        raise ReferenceError(f"{arch}: not a readable xz tar archive ({e})") from None
+    lacking = sorted(set(m["files"]) - set(out))
+    if lacking:
+        raise ReferenceError(f"{arch}: {lacking[0]} is listed in {b / MANIFEST} but not in the archive")
+    return m, out
+
+
+def registered_runs(cfg: Config, manifest: dict[str, Any]) -> tuple[dict[str, Path], list[str]]:
+    """Which of a bundle's runs the run registry finds at ``cfg`` (this code, this configuration):
+    ``({"method/seed<k>": folder}, [not found])``."""
+    found, missing = {}, []
+    for m in manifest.get("methods", []):
+        for s in manifest.get("seeds", []):
+            p = final_policy_path(cfg.with_seed(int(s)), m)
+            bundled = p is not None and p.relative_to(cfg.run_root).as_posix() in manifest["files"]
+            (found.__setitem__(f"{m}/seed{s}", p.parent) if bundled else missing.append(f"{m}/seed{s}"))
+    return found, missing
+
+
+def unpack_reference(cfg: Config, bundle: str | Path | None = None) -> ReferenceResult:
+    """Verify a bundle (default ``reference/<cfg.preset>``) and copy it into ``cfg.run_root``.
+
+    Every file is checked before anything is copied; a file already in the run root with other content is never
+    replaced (ReferenceError naming it: move it away or use another ``results_dir``). Afterwards the run
+    registry is asked for each bundled run at this configuration (:func:`registered_runs`).
+    """
+    b = Path(bundle) if bundle is not None else default_bundle(cfg.preset)
+    m, contents = verify_reference(b, cfg.preset)
+    root = cfg.run_root
+    plan, present = [], []
+    for rel, want in sorted(m["files"].items()):
+        target = root / rel
+        if target.exists():
+            if target.is_file() and sha256(target) == want["sha256"]:
+                present.append(rel)
+                continue
+            raise ReferenceError(
+                f"{target}: exists with other content than the bundle's {rel}; not replacing it (move it away, "
+                "or unpack into another results_dir)"
+            )
+        plan.append(rel)
+    for rel in plan:
+        atomic_write_bytes(root / rel, contents[rel])
+    found, missing = registered_runs(cfg, m)
+    return ReferenceResult(b, m, copied=plan, present=present, found=found, not_found=missing)
+
+
+def promote_table(cfg: Config) -> Path:
+    """Make ``results/<preset>/tables/`` (``table1.csv``, ``table1_summary.json``, ``table1.md``) the reference Table
+    I, ``reference/<preset>/table1/``, which the README shows (:mod:`omcrl.pipeline.glance`); returns that folder."""
+    src, dest = cfg.run_root / "tables", reference_table_dir(cfg.preset)
+    names = ("table1.csv", "table1_summary.json", "table1.md")
+    for n in names[:2]:
+        if not (src / n).is_file():
+            raise ReferenceError(f"{src / n}: missing; run the tables first (notebook 07 or python -m omcrl tables)")
+    for n in names:
+        if (src / n).is_file():
+            atomic_write_bytes(dest / n, (src / n).read_bytes())
+    return dest
+
+
+def reference_stage(
+    cfg: Config, *, pack: bool = False, source: str | None = None, with_table: bool = False, exact: bool = False
+) -> ReferenceResult:
+    """CLI stage ``reference``: unpack the bundle (``reference/<preset>/bundle``, or ``source``) into the run root,
+    verified; with ``pack``, make the bundle from the run root's finished runs at ``cfg.seeds`` instead (and with
+    ``with_table`` make its Table I the reference one)."""
+    if pack:
+        res = pack_reference(cfg, out=source, rounded=not exact)
+        if with_table:
+            promote_table(cfg)
+        return res
+    return unpack_reference(cfg, source)

@@ -1,0 +1,132 @@
+"""Reference bundles: verified before use, never replacing different data, refusing what is not one.
+
+The round trip on real trained runs (pack a smoke chain's runs, unpack them into a fresh results folder, Table I
+from the bundle alone) is part of ``test_notebooks.py::test_chain_smoke``, which trains them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import tarfile
+from pathlib import Path
+
+import pytest
+
+from omcrl.config import load_config
+from omcrl.pipeline.reference import ARCHIVE, MANIFEST, ReferenceError, unpack_reference, verify_reference
+from omcrl.pipeline.storage import sha256
+
+
+def _bundle(path: Path, files: dict[str, bytes], fields: dict | None = None, archive: dict | None = None) -> Path:
+    """A bundle as pack_reference writes one; ``archive`` puts other bytes in the archive than the manifest lists."""
+    path.mkdir(parents=True, exist_ok=True)
+    with tarfile.open(path / ARCHIVE, "w:xz") as tar:
+        for rel, data in (archive or files).items():
+            info = tarfile.TarInfo(rel)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+    manifest = {
+        "format": 1,
+        "preset": "smoke",
+        "seeds": [0],
+        "methods": [],
+        "commit": "0" * 40,
+        "made": "2026-12-02 00:00 UTC",
+        "archive": {"name": ARCHIVE, "sha256": sha256(path / ARCHIVE), "bytes": (path / ARCHIVE).stat().st_size},
+        "files": {rel: {"sha256": hashlib.sha256(d).hexdigest(), "bytes": len(d)} for rel, d in files.items()},
+    }
+    manifest.update(fields or {})
+    (path / MANIFEST).write_text(json.dumps(manifest))
+    return path
+
+
+FILES = {
+    "runs/rl/ppo-abc/seed0/metrics.csv": b"step,metric,value\n1,x,2\n",
+    "eval/ppo/seed0/box-v0-k.csv": b"a\n1\n",
+}
+
+
+def test_unpack_copies_verified_files_and_a_second_unpack_finds_them_there(tmp_path):
+    b = _bundle(tmp_path / "bundle", FILES)
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path / 'results'}"])
+    res = unpack_reference(cfg, b)
+    assert sorted(res.copied) == sorted(FILES) and not res.present
+    for rel, data in FILES.items():
+        assert (cfg.run_root / rel).read_bytes() == data
+    again = unpack_reference(cfg, b)
+    assert not again.copied and sorted(again.present) == sorted(FILES)
+
+
+def test_a_damaged_file_is_named_and_nothing_is_copied(tmp_path):
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path / 'results'}"])
+    # Same size, other content: only the digest can tell.
+    damaged = {**FILES, "eval/ppo/seed0/box-v0-k.csv": b"a\n2\n"}
+    b = _bundle(tmp_path / "one", FILES, archive=damaged)
+    with pytest.raises(ReferenceError, match="member 'eval/ppo/seed0/box-v0-k.csv' does not match its SHA-256"):
+        unpack_reference(cfg, b)
+    assert not cfg.run_root.exists() or not any(p.is_file() for p in cfg.run_root.rglob("*"))
+    # The archive itself changed after the manifest was written.
+    b = _bundle(tmp_path / "two", FILES)
+    raw = bytearray((b / ARCHIVE).read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    (b / ARCHIVE).write_bytes(bytes(raw))
+    with pytest.raises(ReferenceError, match="runs.tar.xz: does not match its SHA-256"):
+        verify_reference(b)
+    # A file the manifest lists is not in the archive; one in the archive is not listed.
+    b = _bundle(
+        tmp_path / "three",
+        FILES,
+        archive={"runs/rl/ppo-abc/seed0/metrics.csv": FILES["runs/rl/ppo-abc/seed0/metrics.csv"]},
+    )
+    with pytest.raises(ReferenceError, match="box-v0-k.csv is listed in .* but not in the archive"):
+        verify_reference(b)
+    b = _bundle(tmp_path / "four", FILES, archive={**FILES, "../../outside.txt": b"x"})
+    with pytest.raises(ReferenceError, match="member '../../outside.txt' is not in the manifest"):
+        verify_reference(b)
+    (b / ARCHIVE).unlink()
+    with pytest.raises(ReferenceError, match="runs.tar.xz: listed in .* but missing"):
+        verify_reference(b)
+
+
+def test_different_data_already_there_is_never_replaced(tmp_path):
+    b = _bundle(tmp_path / "bundle", FILES)
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path / 'results'}"])
+    mine = cfg.run_root / "runs/rl/ppo-abc/seed0/metrics.csv"
+    mine.parent.mkdir(parents=True)
+    mine.write_bytes(b"my own run\n")
+    with pytest.raises(ReferenceError, match="metrics.csv: exists with other content .* not replacing it"):
+        unpack_reference(cfg, b)
+    assert mine.read_bytes() == b"my own run\n"
+    assert not (cfg.run_root / "eval").exists()  # checked before anything was copied
+
+
+@pytest.mark.parametrize(
+    ("fields", "match"),
+    [
+        ({"preset": "quick"}, "field 'preset' is 'quick', expected 'smoke'"),
+        ({"format": 7}, "field 'format' is 7, expected 1"),
+        ({"files": {"../outside.txt": {"sha256": "0", "bytes": 1}}}, "leaves the bundle"),
+        ({"archive": None}, "field 'archive' is None"),
+    ],
+)
+def test_a_manifest_of_another_preset_format_or_with_escaping_paths_is_refused(tmp_path, fields, match):
+    b = _bundle(tmp_path / "bundle", FILES, fields)
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path / 'results'}"])
+    with pytest.raises(ReferenceError, match=match):
+        unpack_reference(cfg, b)
+
+
+def test_a_folder_without_a_manifest_is_named(tmp_path):
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path / 'results'}"])
+    with pytest.raises(ReferenceError, match="no reference manifest there"):
+        unpack_reference(cfg, tmp_path)
+
+
+def test_cli_names_the_problem_in_one_line(tmp_path, capsys):
+    from omcrl.__main__ import main
+
+    rc = main(["reference", "--preset", "smoke", "--from", str(tmp_path), "--set", f"results_dir={tmp_path / 'r'}"])
+    err = capsys.readouterr().err
+    assert rc == 1 and err.startswith("error: ") and "no reference manifest there" in err
