@@ -35,18 +35,18 @@ GRIDS: dict[str, tuple[Variant, ...]] = {
     # Table II: sequential input for CURL.
     "sequential": (Variant("CURL", "curl"), Variant("CURL-cons", "curl-cons")),
     # Fig. 8: the Transformer on both branches.
-    "dual-transformer": (Variant("ours", "ours"), Variant("ours-dualT", "ours-dualT")),
+    "dual-transformer": (Variant("Ours", "ours"), Variant("Ours-dualT", "ours-dualT")),
     # Fig. 9: the projection φ.
     "projection": (
-        Variant("ours", "ours"),
-        Variant("ours w/o phi", "ours-noPhi"),
+        Variant("Ours", "ours"),
+        Variant("Ours w/o phi", "ours-noPhi"),
         Variant("CURL", "curl"),
         Variant("CURL w/ phi", "curl-phi"),
     ),
     # Fig. 10: the oracle teacher.
     "oracle-teacher": (
-        Variant("ours", "ours"),
-        Variant("ours w/o OT", "ours-noOT"),
+        Variant("Ours", "ours"),
+        Variant("Ours w/o OT", "ours-noOT"),
         Variant("NPE", "npe"),
         Variant("NPE w/ OT", "npe-ot"),
     ),
@@ -59,7 +59,7 @@ GRIDS: dict[str, tuple[Variant, ...]] = {
         Variant("fixed", "ours", student_only=("rl.alpha_schedule=fixed",)),
     ),
     # The smallest grid (CI): one frozen-encoder method and one end-to-end method.
-    "smoke": (Variant("ours w/o OT", "ours-noOT"), Variant("PPO", "ppo")),
+    "smoke": (Variant("Ours w/o OT", "ours-noOT"), Variant("PPO", "ppo")),
 }
 
 

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from omcrl.eval.table1 import HIGHER_IS_BETTER
+from omcrl.viz import is_method, method_color
 
 FIG_METRICS = ("NE", "SR", "SPL", "CR")
 
@@ -99,8 +100,11 @@ def plot_bars(table: pd.DataFrame, metric: str = "SR", title: str = "") -> plt.F
         y = np.array([table.loc[(v, s), metric] for s in scenes])
         err = np.array([[y[j] - table.loc[(v, s), f"{metric}_lo"], table.loc[(v, s), f"{metric}_hi"] - y[j]]
                         for j, s in enumerate(scenes)]).T  # fmt: skip
-        ax.bar(x, y, w, yerr=err, capsize=3, label=v)
+        # A variant that is a method of the comparison keeps its colour from every other figure.
+        ax.bar(x, y, w, yerr=err, capsize=3, label=v, color=method_color(v) if is_method(v) else None)
     ax.set_xticks(np.arange(len(scenes)), scenes)
+    if metric in ("SR", "CR", "OS"):  # percentages: the full scale, also when every bar is 0 (a smoke run)
+        ax.set_ylim(0, 105)
     ax.set_xlabel("evaluation scene (trained in box only)")
     ax.set_ylabel(UNIT_LABEL.get(metric, metric))
     ax.legend(fontsize=7, title="variant; bars: 95 % CI", title_fontsize=7)
