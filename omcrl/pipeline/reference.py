@@ -320,7 +320,7 @@ def pack_reference(
     ev_src = eval_cache_dir(cfg, "x").parent.parent
     rounding: dict[str, Any] = {}
     for s in seeds:
-        for f in sorted(ev_src.glob(f"*/seed{s}/*.csv")):
+        for f in sorted(p for p in ev_src.glob(f"*/seed{s}/*") if p.is_file()):  # episodes and their cache record
             label = f.parent.parent.name
             # A rounded policy is another checkpoint: its episodes are flown again below; planners' stay.
             if not rounded or not (label in METHODS and METHODS[label].learned):

@@ -673,7 +673,7 @@ def course_scene(
     difficulty: str = "medium",
     description: str = "",
 ) -> SceneSpec:
-    """Register a fixed course as a scene ``<family>-v<version>`` with the surroundings and materials of ``look``.
+    """Register a fixed course as a scene ``<family>-v<version>`` in the surroundings (floor, walls) of ``look``.
 
     A registered scene is what training (``env.scene``), evaluation and Table I (``eval.scenes``) take by name,
     and its id enters every run key and cache key, so runs on two courses never mix. ``layout``: dicts as in
@@ -692,7 +692,7 @@ def course_scene(
         indoor=base.indoor,
         floor_texture=base.floor_texture,
         wall_texture=base.wall_texture,
-        materials=base.materials,
+        materials=(),  # a course's obstacles carry their own colour or texture (layout_to_primitives)
         difficulty=difficulty,
         paper_scene=None,
         description=description or f"a fixed course of {len(layout)} obstacles in {base.id}'s surroundings",
