@@ -172,10 +172,15 @@ def _write_cache(folder: Path, stem: str, key: str, df: pd.DataFrame) -> None:
     atomic_write_text(path.with_suffix(".json"), json.dumps(meta))
 
 
+def eval_cache_root(cfg: Config) -> Path:
+    """``<run_root>/eval``: every evaluation :func:`evaluate_methods` caches, one folder per label."""
+    return cfg.run_root / "eval"
+
+
 def eval_cache_dir(cfg: Config, label: str) -> Path:
     """Where :func:`evaluate_methods` caches ``label``'s episodes at ``cfg.seed``:
     ``<run_root>/eval/<label>/seed<k>``."""
-    return cfg.run_root / "eval" / label.replace("/", "_") / f"seed{cfg.seed}"
+    return eval_cache_root(cfg) / label.replace("/", "_") / f"seed{cfg.seed}"
 
 
 def evaluate_methods(

@@ -109,6 +109,22 @@ def evaluate_grid(
     return df, missing
 
 
+# Columns of ``tables/table1.csv`` (:func:`write_table1`), one row per method, scene and metric.
+TABLE1_COLUMNS = ("method", "scene", "metric", "mean", "lo", "hi", "seeds", "episodes")
+
+
+def read_table1_csv(path: str | Path) -> pd.DataFrame:
+    """Table I's long rows as :func:`write_table1` writes them; ValueError naming the file when it is not that."""
+    df = pd.read_csv(path)
+    missing = sorted(set(TABLE1_COLUMNS) - set(df.columns))
+    if missing:
+        raise ValueError(
+            f"{path}: not Table I's long form (columns {missing} missing); it is written by `python -m omcrl tables` "
+            "(notebook 07)"
+        )
+    return df
+
+
 def paper_table1() -> pd.DataFrame:
     """The paper's Table I values (long: method, scene, NE OS SR SPL CR TTS), method names as in the kit."""
     return pd.read_csv(PAPER_TABLE1, comment="#")

@@ -9,14 +9,14 @@ claims). ``python -m omcrl summary --preset quick --readme`` rewrites the block 
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import pandas as pd
 
 from omcrl.config import project_root
-from omcrl.eval.table1 import paper_table1
+from omcrl.eval.table1 import paper_table1, read_table1_csv
+from omcrl.pipeline.records import Table1Record
 from omcrl.rl.methods import METHODS
 from omcrl.scenes import scene_label, scene_spec
 from omcrl.utils.io import atomic_write_text
@@ -34,16 +34,16 @@ def reference_table_dir(preset: str) -> Path:
     return project_root() / "reference" / preset / "table1"
 
 
-def _read(table_dir: Path) -> tuple[pd.DataFrame, dict]:
-    csv, js = table_dir / "table1.csv", table_dir / "table1_summary.json"
+def _read(table_dir: Path) -> tuple[pd.DataFrame, Table1Record]:
+    csv, js = table_dir / "table1.csv", table_dir / Table1Record.FILE
     for f in (csv, js):
         if not f.is_file():
             raise GlanceError(f"{f}: missing; the reference Table I is made by python -m omcrl reference --pack")
-    table = pd.read_csv(csv)
-    need = {"method", "scene", "metric", "mean", "lo", "hi", "seeds", "episodes"}
-    if not need <= set(table.columns):
-        raise GlanceError(f"{csv}: columns {sorted(table.columns)}, expected {sorted(need)}")
-    return table[table.metric == "SR"], json.loads(js.read_text(encoding="utf-8"))
+    try:
+        table, record = read_table1_csv(csv), Table1Record.read(table_dir)
+    except ValueError as e:  # CorruptFile included
+        raise GlanceError(str(e)) from None
+    return table[table.metric == "SR"], record
 
 
 def _signed(x: float) -> str:
@@ -96,7 +96,7 @@ def render_glance(table_dir: str | Path, figure: str = "docs/figures/quick/v1/fi
         "",
         *wide_table(sr),
     ]
-    claims = pd.DataFrame(record.get("claims", []))
+    claims = pd.DataFrame(record.claims)
     if len(claims):
         lines += ["", "The paper's orderings (SR difference in points [95 % CI]; a verdict where the CI excludes 0):"]
         lines.append("")

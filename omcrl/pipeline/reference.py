@@ -30,7 +30,6 @@ import io
 import json
 import lzma
 import shutil
-import subprocess
 import tarfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -38,19 +37,22 @@ from pathlib import Path
 from typing import Any
 
 from omcrl.config import Config, project_root
-from omcrl.eval.stage import eval_cache_dir
+from omcrl.eval.stage import eval_cache_root
 from omcrl.eval.table1 import evaluate_grid
 from omcrl.pipeline.glance import reference_table_dir
 from omcrl.pipeline.storage import sha256
+from omcrl.pipeline.summary import code_commit
 from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path
-from omcrl.runs import read_identity, run_key
+from omcrl.runs import DIGEST_FIELDS, read_identity, recorded_digest, run_key
 from omcrl.utils.io import atomic_save_torch, atomic_write_bytes, atomic_write_text, load_torch
 
 FORMAT = 1
 MANIFEST = "MANIFEST.json"
 ARCHIVE = "runs.tar.xz"
-# A run folder's files that a later stage reads; checkpoints (optimizer state, for resuming) and TensorBoard stay out.
-RUN_FILES = ("run.json", "config.yaml", "final.pt", "encoder.pt", "done.json", "metrics.csv")
+# Besides its artifact and the records of it (run.json, done.json), what later stages read of a run; checkpoints
+# (optimizer state, for resuming) and TensorBoard stay out.
+RUN_EXTRAS = ("config.yaml", "metrics.csv")
+ARTIFACTS = ("final.pt", "encoder.pt")
 LIMIT_MB = 60.0
 
 
@@ -113,26 +115,14 @@ def default_bundle(preset: str) -> Path:
     return project_root() / "reference" / preset / "bundle"
 
 
-def _commit() -> str:
-    try:
-        out = subprocess.run(
-            ["git", "-C", str(project_root()), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
-        )
-        return out.stdout.strip() or "unknown"
-    except OSError:
-        return "unknown"
-
-
 def _run_artifact(run_dir: Path) -> tuple[Path, str] | None:
-    """(artifact, recorded digest) of a finished run folder, or None when it is not finished."""
-    rec = read_identity(run_dir) or {}
-    if (run_dir / "final.pt").is_file() and rec.get("artifact_digest"):
-        return run_dir / "final.pt", str(rec["artifact_digest"])
-    done = run_dir / "done.json"
-    if (run_dir / "encoder.pt").is_file() and done.is_file():
-        digest = json.loads(done.read_text(encoding="utf-8")).get("encoder_digest")
+    """(artifact, the digest its run recorded: :data:`omcrl.runs.DIGEST_FIELDS`) of a finished run folder, or None
+    when it is not finished."""
+    for name in ARTIFACTS:
+        path = run_dir / name
+        digest = recorded_digest(path) if path.is_file() else None
         if digest:
-            return run_dir / "encoder.pt", str(digest)
+            return path, digest
     return None
 
 
@@ -209,7 +199,8 @@ def _copy_runs(src_root: Path, dst_root: Path, run_dirs: list[Path], rounded: bo
     float16 precision; a run whose identity names a changed upstream artifact then gets the new digest and the key
     it gives (its folder moves with it), so the run registry finds each rounded run from the rounded files, and
     ``run.json`` records what it was rounded from. Returns ``{source folder: copied folder}``."""
-    digest = {d: (_run_artifact(d) or (None, ""))[1] for d in run_dirs}
+    arts = {d: _run_artifact(d) for d in run_dirs}
+    digest = {d: a[1] if a else "" for d, a in arts.items()}
     new_digest: dict[str, str] = {}
     out: dict[Path, Path] = {}
     pending = list(run_dirs)
@@ -220,7 +211,11 @@ def _copy_runs(src_root: Path, dst_root: Path, run_dirs: list[Path], rounded: bo
             raise ReferenceError(f"runs that name each other's artifacts: {', '.join(map(str, pending))}")
         for d in ready:
             pending.remove(d)
-            rec = dict(read_identity(d) or {})
+            # The records a run keeps of itself: run.json always, done.json for an encoder.
+            records = {"run.json": dict(read_identity(d) or {})}
+            if (d / "done.json").is_file():
+                records["done.json"] = json.loads((d / "done.json").read_text(encoding="utf-8"))
+            rec = records["run.json"]
             if (
                 run_key(rec.get("identity", {})) != rec.get("key")
                 or d.parent.name != f"{rec.get('method')}-{rec.get('key')}"
@@ -230,31 +225,26 @@ def _copy_runs(src_root: Path, dst_root: Path, run_dirs: list[Path], rounded: bo
             key = run_key(ident)
             target = dst_root / d.relative_to(src_root).parent.parent / f"{rec['method']}-{key}" / d.name
             target.mkdir(parents=True, exist_ok=True)
-            for n in ("config.yaml", "metrics.csv"):
+            for n in RUN_EXTRAS:
                 if (d / n).is_file():
                     shutil.copyfile(d / n, target / n)
-            art = _run_artifact(d)
-            if art is not None:
-                path, old = art
+            if arts[d] is not None:
+                path, old = arts[d]
                 if rounded:
                     payload = _round_payload(load_torch(path, "artifact", ReferenceError))
                     new_digest[old] = atomic_save_torch(payload, target / path.name)
                 else:
                     shutil.copyfile(path, target / path.name)
                     new_digest[old] = old
+                record, fld = DIGEST_FIELDS[path.name]
+                records[record][fld] = new_digest[old]
             rec.pop("checkpoint_digests", None)
             rec.update(key=key, identity=ident)
-            if art is not None and path.name == "final.pt":
-                rec["artifact_digest"] = new_digest[art[1]]
             if rounded:
                 rec["reference"] = {"rounded_to": "float16", "min_elements": ROUND_MIN_ELEMENTS,
                                     "from_key": d.parent.name, "from_artifact_digest": digest[d]}  # fmt: skip
-            atomic_write_text(target / "run.json", json.dumps(rec, indent=1))
-            if (d / "done.json").is_file():
-                done = json.loads((d / "done.json").read_text(encoding="utf-8"))
-                if art is not None and path.name == "encoder.pt":
-                    done["encoder_digest"] = new_digest[art[1]]
-                atomic_write_text(target / "done.json", json.dumps(done, indent=1))
+            for name, content in records.items():
+                atomic_write_text(target / name, json.dumps(content, indent=1))
             out[d] = target
     return out
 
@@ -317,7 +307,7 @@ def pack_reference(
     stage.results_dir = str(tmp / "results")
     stage = stage.with_seed(cfg.seed)
     copied = _copy_runs(root, stage.run_root, _runs_with_upstream(root, finals), rounded)
-    ev_src = eval_cache_dir(cfg, "x").parent.parent
+    ev_src = eval_cache_root(cfg)
     rounding: dict[str, Any] = {}
     for s in seeds:
         for f in sorted(p for p in ev_src.glob(f"*/seed{s}/*") if p.is_file()):  # episodes and their cache record
@@ -358,7 +348,7 @@ def pack_reference(
         "preset": cfg.preset,
         "seeds": seeds,
         "methods": methods,
-        "commit": _commit(),
+        "commit": code_commit(short=False),
         "made": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "rounded": "float16" if rounded else None,
         "rounding": rounding,

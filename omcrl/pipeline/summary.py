@@ -20,7 +20,8 @@ import pandas as pd
 from omcrl.config import Config
 from omcrl.eval.ablation import findings_summary
 from omcrl.eval.metrics import glossary_markdown
-from omcrl.pipeline.expected import EXPECTED_WALL_S, expected_time
+from omcrl.eval.table1 import read_table1_csv
+from omcrl.pipeline.expected import expected_time
 from omcrl.pipeline.glance import update_readme, wide_table
 from omcrl.pipeline.records import DataRecord, DeployRecord, OracleRecord, PretrainRecord, StudentRecord, Table1Record
 from omcrl.utils.io import atomic_write_text
@@ -69,13 +70,17 @@ def _read_json(path: Path) -> dict | None:
         return None
 
 
-def _commit() -> str:
-    """``<short sha>`` of the checkout the running ``omcrl`` code comes from (not of the results folder, which
-    ``OMCRL_ROOT`` may put elsewhere), ``+ local changes`` when dirty; ``unknown`` outside git."""
+def code_commit(short: bool = True) -> str:
+    """``<sha>`` (``short``: abbreviated) of the checkout the running ``omcrl`` code comes from (not of the results
+    folder, which ``OMCRL_ROOT`` may put elsewhere), ``+ local changes`` when dirty; ``unknown`` outside git."""
     root = Path(__file__).resolve().parents[2]
     try:
         sha = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10
+            ["git", "rev-parse", *(["--short"] if short else []), "HEAD"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
         ).stdout.strip()
         dirty = subprocess.run(
             ["git", "status", "--porcelain", "--untracked-files=no"],
@@ -132,13 +137,7 @@ def table1_long(csv_path: Path, metrics: tuple[str, ...] = ("SR", "SPL", "CR", "
     csv_path : ``tables/table1.csv`` (columns method, scene, metric, mean, lo, hi, seeds, episodes).
     metrics : which metrics to show, in this order.
     """
-    df = pd.read_csv(csv_path)
-    need = {"method", "scene", "metric", "mean", "lo", "hi", "seeds", "episodes"}
-    if not need <= set(df.columns):
-        raise ValueError(
-            f"{csv_path}: not Table I's long form (columns {sorted(need - set(df.columns))} missing); it is written "
-            "by `python -m omcrl tables` (notebook 07)"
-        )
+    df = read_table1_csv(csv_path)
     df = df[df["metric"].isin(metrics)]
     rows = []
     # Scenes, then methods, in the order the table file lists them (training scene first, ours early).
@@ -168,7 +167,7 @@ def summary_text(cfg: Config) -> str:
     if cfg.preset == "smoke":
         out += [SMOKE_NOTE, ""]
     out += [
-        f"Written {time.strftime('%Y-%m-%d %H:%M %Z')} · commit {_commit()} · {_machine()}",
+        f"Written {time.strftime('%Y-%m-%d %H:%M %Z')} · commit {code_commit()} · {_machine()}",
         f"Results folder: `{root}` · training seeds {cfg.seeds} · {cfg.rl.total_steps:,} env steps per learned "
         f"method · {cfg.pretrain.iterations:,} pretraining iterations · {cfg.eval.episodes} evaluation episodes "
         "per scene",
@@ -293,8 +292,7 @@ def _section_student(d: StudentRecord, tables: Path) -> list[str]:
 
 def _section_table1(d: dict, tables: Path) -> list[str]:
     try:
-        long = pd.read_csv(tables / "table1.csv")
-        table1_long(tables / "table1.csv")  # the same check of its form as everywhere else
+        long = read_table1_csv(tables / "table1.csv")
     except ValueError as e:
         return [f"_Table I cannot be read: {e}._", ""]
     out = [
@@ -493,9 +491,8 @@ def summary_stage(cfg: Config, readme: bool = False) -> None:
 
 
 __all__ = [
-    "EXPECTED_WALL_S",
     "SMOKE_NOTE",
-    "expected_time",
+    "code_commit",
     "preset_banner",
     "summary_text",
     "table1_long",
