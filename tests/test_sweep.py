@@ -275,6 +275,21 @@ def test_ablation_findings_give_verdicts_in_the_unseen_scenes():
     assert findings_summary(same).iloc[0].verdict == "undecided"
 
 
+def test_stress_scenes_are_counted_apart_from_the_paper_suite():
+    from omcrl.eval.ablation import ablation_findings, findings_summary
+
+    ep = _synthetic_episodes(["linear", "exp"], scenes=("box", "tree-v0", "furniture-v0"), n=30)
+    # In the stress room exp always fails (linear > exp holds there); in tree the two are equal.
+    ep.loc[(ep.label == "exp") & (ep.scene == "furniture-v0"), "success"] = False
+    f = ablation_findings({"decay": ep}, reps=300)
+    assert set(f.scene) == {"tree-v0", "furniture-v0"}
+    s = findings_summary(f).iloc[0]
+    assert (s.checks, s.holds, s.verdict) == (1, 0, "undecided")  # the stress test does not decide the verdict
+    assert (s.stress, s["stress verdict"]) == ("1 / 0 / 0", "holds")
+    only = findings_summary(f[f.scene == "furniture-v0"]).iloc[0]
+    assert (only.checks, only.verdict) == (0, "not checked")
+
+
 def test_findings_are_written(tmp_path):
     from omcrl.eval.ablation import write_findings
 
@@ -543,3 +558,15 @@ def test_embedded_ray_starts_its_own_even_beside_a_running_cluster(tmp_path):
         assert not res.failed and res.counts() == {"done": 6}
     finally:
         subprocess.run([ray_bin, "stop", "--force"], capture_output=True, env=env)
+
+
+def test_sweep_episodes_list_variants_in_the_grid_order_not_the_finishing_order():
+    from omcrl.pipeline.plan import Job
+    from omcrl.pipeline.sweep import _in_grid_order
+
+    jobs = [Job(f"evaluate:{lab}:t", "evaluate", "ours", 0, (), (), lab) for lab in ("rho=0.1", "rho=0.5", "CURL")]
+    finished = _synthetic_episodes(["CURL", "rho=0.5", "rho=0.1"], seeds=(1, 0), n=2)
+    out = _in_grid_order(finished, jobs)
+    assert list(dict.fromkeys(out.label)) == ["rho=0.1", "rho=0.5", "CURL"]
+    assert out[out.label == "CURL"].train_seed.tolist()[:4] == [0, 0, 0, 0]  # then by seed
+    assert len(out) == len(finished) and _in_grid_order(finished.iloc[:0], jobs).empty

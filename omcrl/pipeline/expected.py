@@ -24,7 +24,8 @@ EXPECTED_WALL_S: dict[str, dict[str, float]] = {
         "08_interpretability": 30,
         "09_deploy_tello": 24,
     },
-    # 2026-12-02, `./reproduce.sh --quick --skip 06` from a fresh clone; 06 from nothing trained on 2026-11-24.
+    # 2026-12-02, `./reproduce.sh --quick --skip 06` from a fresh clone; 06 the same day, `--only 06` after
+    # `--from-reference` (no ablation run can be reused from the bundle: the sweep trains at its own budgets).
     "quick": {
         "00_scenes": 88,
         "01_collect_data": 11,
@@ -32,7 +33,7 @@ EXPECTED_WALL_S: dict[str, dict[str, float]] = {
         "03_train_oracle": 663,
         "04_train_student": 729,
         "05_train_baselines": 2392,
-        "06_ablations": 5089,
+        "06_ablations": 3922,
         "07_tables": 220,
         "08_interpretability": 208,
         "09_deploy_tello": 34,

@@ -195,6 +195,21 @@ def upstream(jobs: Sequence[Job]) -> dict[str, list[str]]:
     return out
 
 
+def _in_grid_order(episodes: pd.DataFrame, jobs: list[Job]) -> pd.DataFrame:
+    """``episodes`` with variants in the grid's order (then by training seed), not in the order the jobs finished,
+    so that tables and figures list the variants the same way on every run."""
+    if episodes.empty or "label" not in episodes:
+        return episodes
+    rank = {lab: i for i, lab in enumerate(dict.fromkeys(j.label for j in jobs if j.kind == "evaluate"))}
+    key = episodes["label"].map(rank).fillna(len(rank))
+    return (
+        episodes.assign(_rank=key)
+        .sort_values(["_rank", "train_seed"], kind="stable")
+        .drop(columns="_rank")
+        .reset_index(drop=True)
+    )
+
+
 def run_sweep(
     cfg: Config,
     grid: str,
@@ -256,7 +271,7 @@ def run_sweep(
         done = [j for j in jobs if j.kind != "collect" and res.status.get(j.id) in ("done", "skipped")]
         store.pull([shares[j.id]["key"] for j in done])
     res.wall_s = time.perf_counter() - t0
-    res.episodes = pd.DataFrame(rows)
+    res.episodes = _in_grid_order(pd.DataFrame(rows), jobs)
     _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
     return res
 
