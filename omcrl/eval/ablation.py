@@ -14,7 +14,7 @@ import pandas as pd
 from omcrl.eval.stage import to_markdown
 from omcrl.eval.stats import aggregate, compare_sr
 from omcrl.eval.table1 import _latex, _markdown, table1_frames
-from omcrl.scenes import is_unseen, scene_spec
+from omcrl.scenes import is_stress, is_unseen
 from omcrl.utils.io import atomic_write_text
 
 PAPER_TABLES = {"sequential": "table2", "decay": "table3"}
@@ -122,10 +122,9 @@ def findings_summary(findings: pd.DataFrame) -> pd.DataFrame:
     verdict ``not checked``.
     """
     cols = ["finding", "checks", "holds", "reversed", "undecided", "verdict", "stress", "stress verdict"]
-    stress = findings["scene"].map(lambda s: scene_spec(s).difficulty == "stress").astype(bool)
     out = []
-    for finding, g in findings.groupby("finding", sort=False):
-        main, st = g[~stress[g.index]], g[stress[g.index]]
+    for finding, g in findings.assign(_stress=findings["scene"].map(is_stress)).groupby("finding", sort=False):
+        main, st = g[~g["_stress"]], g[g["_stress"]]
         h, r, u, verdict = _verdict(main) if len(main) else (0, 0, 0, "not checked")
         sh, sr_, su, sv = _verdict(st) if len(st) else (0, 0, 0, "–")
         out.append({"finding": finding, "checks": len(main), "holds": h, "reversed": r, "undecided": u,

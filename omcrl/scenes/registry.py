@@ -135,6 +135,11 @@ def is_unseen(name: str) -> bool:
     return scene_spec(name).difficulty != "training"
 
 
+def is_stress(name: str) -> bool:
+    """True for a stress test beside the paper's suite (furniture-v0's unseen room), not one of the paper's scenes."""
+    return scene_spec(name).difficulty == "stress"
+
+
 def scene_label(name: str) -> str:
     """A scene's id with its role, for tables and figures: ``furniture-v1 (easy)``."""
     spec = scene_spec(name)

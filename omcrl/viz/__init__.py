@@ -10,7 +10,7 @@ import importlib
 from pathlib import Path
 from typing import Any
 
-__all__ = ["METHOD_COLORS", "is_method", "method_color", "save_figure", "steps_axis"]
+__all__ = ["METHOD_COLORS", "method_color", "save_figure", "steps_axis"]
 
 
 def save_figure(fig: Any, directory: str | Path, name: str, dpi: int = 120) -> Path:
@@ -40,27 +40,17 @@ METHOD_COLORS = {
 }
 
 
-def _method_of(name: str) -> str | None:
-    """The kit name of a method given by kit name or label, when it has a colour of its own; else None."""
-    if name in METHOD_COLORS:
-        return name
+def method_color(method: str, default: str | None = "#4c72b0") -> str | None:
+    """The colour of ``method`` (a kit name such as ``ours-noOT`` or its label such as ``Ours w/o OT``) in every
+    figure; ``default`` (a stable grey-blue, or the caller's own cycle colour) for names without a colour of their
+    own, such as ablation variants that are not methods of the comparison."""
+    if method in METHOD_COLORS:
+        return METHOD_COLORS[method]
     # Only for a label: `import omcrl.viz` stays free of PyTorch (0.05 s, against ~1.4 s with omcrl.rl).
     from omcrl.rl.methods import METHODS
 
-    kit = next((n for n, s in METHODS.items() if s.label == name), None)
-    return kit if kit in METHOD_COLORS else None
-
-
-def method_color(method: str) -> str:
-    """The colour of ``method`` (a kit name such as ``ours-noOT`` or its label such as ``Ours w/o OT``) in every
-    figure; a stable grey-blue for names the kit does not know."""
-    kit = _method_of(method)
-    return METHOD_COLORS[kit] if kit else "#4c72b0"
-
-
-def is_method(name: str) -> bool:
-    """Whether ``name`` is a method of the comparison (a kit name or its label), i.e. has a colour of its own."""
-    return _method_of(name) is not None
+    kit = next((n for n, s in METHODS.items() if s.label == method), None)
+    return METHOD_COLORS.get(kit, default) if kit else default
 
 
 def steps_axis(axis: Any) -> None:

@@ -14,22 +14,13 @@ import pandas as pd
 
 from omcrl.eval.table1 import HIGHER_IS_BETTER
 from omcrl.scenes import scene_label
-from omcrl.viz import is_method, method_color
+from omcrl.viz import method_color
 
 FIG_METRICS = ("NE", "SR", "SPL", "CR")
 
 
 def _scenes(table: pd.DataFrame) -> list[str]:
     return list(dict.fromkeys(table.index.get_level_values("scene")))
-
-
-def _label(scene: str) -> str:
-    """``furniture-v1 (easy)``: the scene's version and role (a stress test reads as one); a scene the registry
-    does not know keeps its name."""
-    try:
-        return scene_label(scene)
-    except ValueError:
-        return scene
 
 
 def _variants(table: pd.DataFrame) -> list[str]:
@@ -47,7 +38,7 @@ def plot_mask_prob(table: pd.DataFrame, reference: str = "CURL") -> plt.Figure:
             lo = [table.loc[(v, sc), f"{metric}_lo"] for v in order]
             hi = [table.loc[(v, sc), f"{metric}_hi"] for v in order]
             x = [rho[v] for v in order]
-            ax.plot(x, y, "o-", color=f"C{i}", label=_label(sc))
+            ax.plot(x, y, "o-", color=f"C{i}", label=scene_label(sc))
             ax.fill_between(x, lo, hi, color=f"C{i}", alpha=0.15)
             if (reference, sc) in table.index:
                 ax.axhline(table.loc[(reference, sc), metric], color=f"C{i}", ls="--", lw=1)
@@ -86,12 +77,12 @@ def plot_radar(table: pd.DataFrame) -> plt.Figure:
     for ax, sc in zip(np.atleast_1d(axes), scenes):
         for i, v in enumerate(norm.index):
             r = [norm.loc[v, (sc, m)] for m in FIG_METRICS]
-            c = method_color(v) if is_method(v) else f"C{i}"  # a method keeps its colour from every figure
+            c = method_color(v, default=f"C{i}")  # a method keeps its colour from every figure
             ax.plot(np.r_[ang, ang[0]], np.r_[r, r[0]], color=c, label=v)
             ax.fill(np.r_[ang, ang[0]], np.r_[r, r[0]], color=c, alpha=0.1)
         ax.set_xticks(ang, FIG_METRICS, fontsize=7)
         ax.set_yticks([])
-        ax.set_title(_label(sc), fontsize=9)
+        ax.set_title(scene_label(sc), fontsize=9)
     np.atleast_1d(axes)[0].legend(fontsize=7, loc="lower left", bbox_to_anchor=(-0.3, -0.3))
     fig.tight_layout()
     return fig
@@ -112,8 +103,8 @@ def plot_bars(table: pd.DataFrame, metric: str = "SR", title: str = "") -> plt.F
         err = np.array([[y[j] - table.loc[(v, s), f"{metric}_lo"], table.loc[(v, s), f"{metric}_hi"] - y[j]]
                         for j, s in enumerate(scenes)]).T  # fmt: skip
         # A variant that is a method of the comparison keeps its colour from every other figure.
-        ax.bar(x, y, w, yerr=err, capsize=3, label=v, color=method_color(v) if is_method(v) else None)
-    ax.set_xticks(np.arange(len(scenes)), [_label(s) for s in scenes], fontsize=7)
+        ax.bar(x, y, w, yerr=err, capsize=3, label=v, color=method_color(v, default=None))
+    ax.set_xticks(np.arange(len(scenes)), [scene_label(s) for s in scenes], fontsize=7)
     if metric in ("SR", "CR", "OS"):  # percentages: the full scale, also when every bar is 0 (a smoke run)
         ax.set_ylim(0, 105)
     ax.set_xlabel("evaluation scene (trained in box only)")
@@ -141,7 +132,7 @@ def plot_heatmap(table: pd.DataFrame) -> plt.Figure:
     groups = list(dict.fromkeys(sc for sc, _ in norm.columns))
     for sc in groups:
         cols = [j for j, (s, _) in enumerate(norm.columns) if s == sc]
-        ax.text(np.mean(cols), -0.06, _label(sc), transform=ax.get_xaxis_transform(), ha="center", va="top",
+        ax.text(np.mean(cols), -0.06, scene_label(sc), transform=ax.get_xaxis_transform(), ha="center", va="top",
                 fontsize=7)  # fmt: skip
         if cols[0] > 0:
             ax.axvline(cols[0] - 0.5, color="w", lw=2)
