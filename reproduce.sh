@@ -169,6 +169,11 @@ case "$mode" in
     if [[ -n "$from_ref" ]]; then
       say "unpacking the reference runs of preset $preset (verified against their manifest)"
       "$PY" -m omcrl reference --preset "$preset" ${ref_path:+--from "$ref_path"}
+      # The bundle's runs belong to one scene suite (v1 for bundles made before v2): the notebooks use its scenes.
+      while IFS= read -r line; do
+        [[ -n "$line" ]] && set -- "$@" --set "$line"
+      done < <("$PY" -c 'import sys; from omcrl.pipeline.reference import bundle_overrides as b
+print("\n".join(b(sys.argv[1], sys.argv[2] or None)))' "$preset" "$ref_path")
       chosen=""
       for arg in "$@"; do [[ "$arg" == --only* || "$arg" == --skip* ]] && chosen=1; done
       # The trained runs are there: the tables, interpretability and deployment need no training.

@@ -23,7 +23,7 @@ from typing import Any
 
 import yaml
 
-from omcrl.scenes import PAPER_SUITE, SCENE_SPECS, STRESS_SCENES, families, scene_id
+from omcrl.scenes import PAPER_SUITE, SCENE_SPECS, STRESS_SCENES, SUITES, families, scene_id
 from omcrl.utils.errors import ConfigError
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.precision import PRECISIONS
@@ -88,8 +88,8 @@ class EnvConfig:
     """The simulated flight task (paper V-A, V-D). Units: metres, seconds, radians unless stated."""
 
     scene: str = _f(
-        "box-v0",
-        doc="scene id (box-v0, furniture-v1, ...) or family (its latest version), stored as the id; omcrl.scenes",
+        PAPER_SUITE[0],
+        doc="scene id (box-v2, furniture-v1, ...) or family (its latest version), stored as the id; omcrl.scenes",
     )
     image_size: int = _f(64, lo=16, hi=512, doc="square camera image side (px)")
     frame_stack: int = _f(3, lo=1, hi=16, doc="L, frames per observation stack")
@@ -131,7 +131,7 @@ class EnvConfig:
 class DataConfig:
     """Trajectory collection for upstream pretraining (paper IV-B)."""
 
-    scene: str = _f("box-v0", doc="scene the data is flown in: an id or a family, as env.scene")
+    scene: str = _f(PAPER_SUITE[0], doc="scene the data is flown in: an id or a family, as env.scene")
     episodes: int = _f(60, lo=1, hi=1000000, doc="episodes to collect")
     n_envs: int = _f(2, lo=1, hi=64, doc="parallel environments")
     mix: dict = _f(
@@ -349,6 +349,18 @@ class Config:
         out.seed = int(seed)
         return validate(out)
 
+    def with_suite(self, suite: str) -> Config:
+        """A copy of this config that trains in ``suite``'s box and evaluates in its scenes (and the stress scenes),
+        as :func:`omcrl.scenes.suite_overrides` says; ``"v1"`` reproduces the v1 suite's runs."""
+        import copy
+
+        if suite not in SUITES:
+            raise ConfigError(f"suite: got {suite!r}, expected one of {list(SUITES)}")
+        out = copy.deepcopy(self)
+        out.env.scene = out.data.scene = SUITES[suite][0]
+        out.eval.scenes = [*SUITES[suite], *STRESS_SCENES]
+        return validate(out)
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
@@ -525,7 +537,7 @@ def validate(cfg: Config) -> Config:
 
 
 def _scene_id(path: str, name: Any) -> str:
-    """The canonical id of a scene name (``furniture`` -> ``furniture-v1``), or a ConfigError naming ``path``."""
+    """The canonical id of a scene name (``furniture`` -> ``furniture-v2``), or a ConfigError naming ``path``."""
     try:
         return scene_id(name)
     except ValueError:

@@ -85,7 +85,7 @@ def test_save_and_load_round_trip(tmp_path):
     )
     path = save_config(cfg, tmp_path / "run")
     assert path == tmp_path / "run" / "config.yaml"
-    assert yaml.safe_load(path.read_text())["env"]["scene"] == "tree-v0"
+    assert yaml.safe_load(path.read_text())["env"]["scene"] == "tree-v2"  # a family is stored as its latest id
     again = load_config("smoke", path=path)
     assert again == cfg
     assert again.to_dict() == cfg.to_dict()

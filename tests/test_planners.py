@@ -12,7 +12,7 @@ import pytest
 from omcrl.config import load_config
 from omcrl.envs import make_env
 from omcrl.eval.stage import _load, planner_for
-from omcrl.planners import HybridAPF, LocalAPF, PerceptiveHybridAPF
+from omcrl.planners import BlindPilot, HybridAPF, LocalAPF, PerceptiveHybridAPF
 from omcrl.rl.methods import METHODS, PlannerRecipe
 
 # A U-shaped pocket open towards the start, the goal behind its bottom wall: the straight line to the goal runs
@@ -77,3 +77,24 @@ def test_local_apf_uses_only_what_the_camera_sees():
     clear = planner.act(far_obs, {k: v for k, v in info.items() if k != "path"})
     env.close()
     assert clear[0] > near[0]  # it slows (or backs off) only for the wall it sees
+
+
+def test_the_blind_pilot_flies_the_straight_line_and_senses_nothing():
+    """Open line: it reaches the goal as the Hybrid APF would; a wall across the line: it flies into it. Its action
+    never depends on the observation (depth, RGB, privileged vector)."""
+    env = make_env("box-v0", seed=0, image_size=32, layout=[])
+    clear = _fly(BlindPilot(env.cfg), env, {"start": (-3.0, 0.3, 0.0), "goal": (3.0, 0.3)})
+    env.close()
+    assert clear["success"] and clear["path_length"] == pytest.approx(6.0, abs=0.35)
+    env = make_env("box-v0", seed=0, image_size=32, layout=POCKET)
+    blocked = _fly(BlindPilot(env.cfg), env, {"start": (-2.5, 0.3, 0.0), "goal": (3.5, 0.0)})
+    obs, info = env.reset(seed=0, options={"start": (0.3, 0.0, 0.0), "goal": (3.0, 0.0)})
+    pilot = BlindPilot(env.cfg)
+    pilot.reset(info)
+    a = pilot.act(obs, info)
+    pilot.reset(info)
+    blank = {k: np.zeros_like(v) for k, v in obs.items()}
+    np.testing.assert_array_equal(a, pilot.act(blank, info))
+    env.close()
+    assert blocked["collision"] and not blocked["success"]
+    assert type(planner_for("blind")) is BlindPilot

@@ -130,3 +130,22 @@ def test_cli_names_the_problem_in_one_line(tmp_path, capsys):
     rc = main(["reference", "--preset", "smoke", "--from", str(tmp_path), "--set", f"results_dir={tmp_path / 'r'}"])
     err = capsys.readouterr().err
     assert rc == 1 and err.startswith("error: ") and "no reference manifest there" in err
+
+
+def test_a_bundle_names_its_scene_suite_and_one_from_before_v2_holds_v1_runs(tmp_path):
+    """The runs of a bundle are found under its suite's scenes: the shipped quick bundle predates v2 (no `suite`
+    field) and holds v1 runs, so `--from-reference` passes v1's overrides; a bundle of another suite says so."""
+    from omcrl.pipeline.reference import bundle_overrides, bundle_suite, config_suite
+    from omcrl.scenes import suite_overrides
+
+    shipped = json.loads((Path(__file__).parents[1] / "reference" / "quick" / "bundle" / MANIFEST).read_text())
+    assert "suite" not in shipped and bundle_suite(shipped) == "v1"
+    assert bundle_overrides("quick") == suite_overrides("v1")
+    b = _bundle(tmp_path / "b", FILES, {"suite": "v2"})
+    assert bundle_overrides("smoke", b) == suite_overrides("v2")
+    with pytest.raises(ReferenceError, match="'suite' is 'v9'"):
+        bundle_suite({"suite": "v9"})
+    cfg = load_config("smoke")
+    assert config_suite(cfg) == "v2" and config_suite(cfg.with_suite("v1")) == "v1"
+    with pytest.raises(ReferenceError, match="training scene of no suite"):
+        config_suite(load_config("smoke", overrides=["env.scene=tree-v2"]))

@@ -16,6 +16,7 @@ from omcrl.envs.nav_env import appearance_materials
 from omcrl.scenes import (
     PAPER_SUITE,
     SCENE_SPECS,
+    SUITES,
     SceneSpec,
     decor,
     generate_scene,
@@ -23,6 +24,7 @@ from omcrl.scenes import (
     scene_id,
     scene_key,
     scene_spec,
+    suite_overrides,
 )
 
 # Made from the scenes as they were before versions (main at 5b7ae87), by the same code as _pins() below.
@@ -56,16 +58,23 @@ def test_v0_scenes_are_todays_scenes(key):
 
 
 def test_names_resolve_as_in_gymnasium():
-    assert scene_id("furniture") == "furniture-v1" and scene_id("furniture-v0") == "furniture-v0"
-    assert scene_id("box") == "box-v0" and scene_key("box-v0") == "box" and scene_key("furniture-v1") == "furniture-v1"
+    # A family means its latest version (v2); every published id keeps its meaning and its key.
+    assert scene_id("furniture") == "furniture-v2" and scene_id("furniture-v0") == "furniture-v0"
+    assert scene_id("box") == "box-v2" and scene_key("box-v0") == "box" and scene_key("furniture-v1") == "furniture-v1"
+    assert scene_id("barrier") == "barrier-v2" and scene_id("tree") == "tree-v2" and scene_key("tree-v2") == "tree-v2"
     with pytest.raises(ValueError, match="furniture-v7"):
         scene_spec("furniture-v7")
     cfg = load_config("smoke", overrides=["env.scene=furniture", "eval.scenes=[box, furniture-v0, furniture-v0]"])
-    assert cfg.env.scene == "furniture-v1" and cfg.eval.scenes == ["box-v0", "furniture-v0"]
+    assert cfg.env.scene == "furniture-v2" and cfg.eval.scenes == ["box-v2", "furniture-v0"]
     for bad in ("env.scene=sofa", "eval.scenes=[box, Furniture]", "data.scene=tree-v9"):
         with pytest.raises(ConfigError, match="expected a scene id"):
             load_config("smoke", overrides=[bad])
     assert load_config("quick").eval.scenes == [*PAPER_SUITE, "furniture-v0"]
+    assert PAPER_SUITE == SUITES["v2"] == ("box-v2", "furniture-v2", "barrier-v2", "tree-v2")
+    v1 = load_config("quick", overrides=suite_overrides("v1"))
+    assert (v1.env.scene, v1.data.scene) == ("box-v0", "box-v0")
+    assert v1.eval.scenes == ["box-v0", "furniture-v1", "barrier-v0", "tree-v0", "furniture-v0"]
+    assert load_config("quick").env.scene == "box-v2"
 
 
 def test_every_scene_has_a_gymnasium_id_and_v0_keeps_its_meaning():
@@ -74,6 +83,56 @@ def test_every_scene_has_a_gymnasium_id_and_v0_keeps_its_meaning():
         env = gym.make(gid, image_size=16)
         assert env.unwrapped.scene == sid
         env.close()
+
+
+def test_tree_v2_is_a_gymnasium_env_that_passes_check_env():
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make("omcrl/Tree-v2", image_size=16)
+    assert env.unwrapped.scene == "tree-v2"
+    check_env(env.unwrapped, skip_render_check=True)
+    env.close()
+
+
+def _line_blocked(scene: str, seeds) -> list[bool]:
+    env = make_env(scene, image_size=16)
+    out = []
+    for s in seeds:
+        _, info = env.reset(seed=s)
+        out.append(not env.grid.line_of_sight(info["pose"][:2], info["goal"]))
+    env.close()
+    return out
+
+
+def test_v2_episodes_put_the_goal_behind_an_obstacle():
+    """SceneSpec.line_blocked: every sampled episode of the unseen v2 scenes has its straight line blocked, box-v2
+    that share of its episodes (a clear line in the others); v1's scenes draw as before (not asked)."""
+    for scene in ("furniture-v2", "barrier-v2", "tree-v2"):
+        assert SCENE_SPECS[scene].line_blocked == 1.0
+        assert all(_line_blocked(scene, range(100, 108))), scene
+    share = SCENE_SPECS["box-v2"].line_blocked
+    assert 0.5 < share < 1.0
+    blocked = _line_blocked("box-v2", range(200, 260))
+    assert abs(np.mean(blocked) - share) < 0.15  # 60 Bernoulli draws: 3 standard errors
+    assert all(SCENE_SPECS[s].line_blocked == 0.0 for s in SUITES["v1"])
+    # Explicit start and goal are the caller's, whatever the scene asks.
+    env = make_env("tree-v2", image_size=16)
+    _, info = env.reset(seed=1, options={"start": (-7.0, -7.0, 0.0), "goal": (-6.0, -7.0)})
+    assert np.allclose(info["goal"], (-6.0, -7.0))
+    env.close()
+
+
+def test_v2_keeps_the_v1_looks():
+    for v2, v1 in (("box-v2", "box-v0"), ("furniture-v2", "furniture-v1"), ("barrier-v2", "barrier-v0"),
+                   ("tree-v2", "tree-v0")):  # fmt: skip
+        a, b = SCENE_SPECS[v2], SCENE_SPECS[v1]
+        assert (a.indoor, a.floor_texture, a.wall_texture, a.materials) == (b.indoor, b.floor_texture,
+                                                                            b.wall_texture, b.materials)  # fmt: skip
+        assert _digest(decor(v2, 8.0)) == _digest(decor(v1, 8.0))
+        assert a.difficulty == b.difficulty and a.paper_scene == b.paper_scene
+    # box-v2's crates are box-v0's crate: one size, colour and texture.
+    crates = {(p.size, p.rgba, p.texture) for p in generate_scene("box-v2", 3, 8.0)}
+    assert crates == {(p.size, p.rgba, p.texture) for p in generate_scene("box-v0", 3, 8.0)}
 
 
 def test_a_published_scene_cannot_change_and_a_new_version_can_be_added():

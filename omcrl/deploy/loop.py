@@ -18,7 +18,11 @@ motors: a pose, frame, state, policy output or command that is not finite (or no
 with reason ``bad_pose`` / ``bad_frame`` / ``bad_state`` / ``bad_action`` / ``bad_command`` before it is used:
 the drone hovers (a zero command) and lands. Before take-off a preflight check refuses to fly without a fresh,
 finite pose and frame; in flight a watchdog process (:mod:`omcrl.deploy.watchdog`) lands a drone whose loop
-stops beating. Every tick is appended to a CSV flight log and flushed, so a crash loses nothing.
+stops beating, in every phase (the loop beats from a thread while it waits seconds on a Tello's ``takeoff`` and
+``land``), and the loop lands when its watchdog dies (``watchdog_lost``). A policy output beyond ``ACTION_FAULT``
+is a fault (``bad_action``); within it the command is clamped. An unacknowledged ``land`` is given
+:data:`omcrl.deploy.timing.LAND_FALLBACK_S` before ``emergency``, by the loop and the watchdog alike. Every tick
+is appended to a CSV flight log and flushed, so a crash loses nothing.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from omcrl.deploy.camera import CameraView
+from omcrl.deploy.timing import LAND_FALLBACK_S
 
 
 class Drone(Protocol):
@@ -88,7 +93,8 @@ class Safety:
 @dataclass
 class FlightResult:
     """How a flight ended: ``reason`` is arrived | video_lost | pose_lost | geofence | timeout | error |
-    interrupted | bad_frame | bad_pose | bad_state | bad_action | bad_command | battery_low | preflight (nothing was
+    interrupted | bad_frame | bad_pose | bad_state | bad_action | bad_command | battery_low | watchdog_lost |
+    preflight (nothing was
     sent; ``error`` says why); ``final_distance`` (m) from the last valid pose to the goal; ``poses`` the
     (x, y, z) of every tick."""
 
@@ -112,8 +118,16 @@ def _resize(frame: np.ndarray, size: int) -> np.ndarray:
     return np.asarray(img, np.uint8).transpose(2, 0, 1)
 
 
-# How often the streams' freshness is checked between control ticks (s).
+# How often the streams' freshness (and the geofence) is checked between control ticks (s).
 WATCH_S = 0.02
+# The watchdog lands the drone when no heartbeat came for this long (s). The loop beats every tick and every WATCH_S
+# between ticks, and from a thread while it waits on takeoff or land, so a live loop beats every ~20 ms; a dead or
+# frozen one gets `land` within this plus the watchdog's 20 ms poll, under half a second.
+WATCHDOG_TIMEOUT_S = 0.3
+# A policy output beyond this (the action range is [-1, 1]) is a fault, not an action to clamp: the flight stops
+# with bad_action. Within it the command is clamped, as the simulator clips an action (PPO's Gaussian means can
+# leave [-1, 1] a little).
+ACTION_FAULT = 10.0
 
 # Signals that end a flight (the drone hovers and lands): Ctrl-C, a kill (SIGTERM) and a closed terminal (SIGHUP).
 STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
@@ -129,11 +143,39 @@ def _finite(values: Any, size: int) -> bool:
 
 
 def _beat(dog: Any, what: bytes) -> None:
+    if dog is None:
+        return
     try:
         dog.stdin.write(what)
         dog.stdin.flush()
     except (OSError, ValueError):  # the watchdog already acted (or was stopped): nothing to tell it
         pass
+
+
+class _Beating:
+    """Heartbeats to the watchdog (``phase`` bytes every WATCH_S) from a thread, while the loop waits on a
+    blocking drone call (``takeoff``, ``land``: a Tello answers them when the manoeuvre is done, seconds later).
+    The thread lives in the loop's process, so it dies and freezes with it: the watchdog still notices."""
+
+    def __init__(self, dog: Any, phase: bytes) -> None:
+        self.dog, self.phase = dog, phase
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            _beat(self.dog, self.phase)
+            self._stop.wait(WATCH_S)
+
+    def __enter__(self) -> _Beating:
+        if self.dog is not None:
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(1.0)
 
 
 def _reading(drone: Any, name: str) -> float | None:
@@ -304,9 +346,8 @@ class ControlLoop:
             return "bad_pose"
         if pose is None or now - pose[1] > s.stale_s:
             return "pose_lost"
-        x, y, z = float(pose[0][0]), float(pose[0][1]), float(pose[0][2])
-        xmin, xmax, ymin, ymax = s.geofence
-        if not (xmin <= x <= xmax and ymin <= y <= ymax and z <= s.max_altitude):
+        x, y = float(pose[0][0]), float(pose[0][1])
+        if self._outside(pose[0]):
             return "geofence"
         if math.hypot(x - self.goal[0], y - self.goal[1]) <= s.goal_radius:
             return "arrived"
@@ -324,19 +365,19 @@ class ControlLoop:
         import sys
 
         host, port = address()
-        timeout = max(0.5, 3 * self.dt)
         # The script itself, not ``-m omcrl...``: it imports only the standard library and starts in milliseconds.
         script = Path(__file__).with_name("watchdog.py")
         return subprocess.Popen(
-            [sys.executable, str(script), host, str(port), str(timeout)],
+            [sys.executable, str(script), host, str(port), str(WATCHDOG_TIMEOUT_S), str(LAND_FALLBACK_S)],
             stdin=subprocess.PIPE,
             start_new_session=True,  # a Ctrl-C or SIGHUP to the loop's process group must not end it
         )
 
-    def _wait(self, until: float) -> str | None:
-        """Sleep until the next tick, watching the streams every ``WATCH_S``: a video or pose that goes stale, or a
-        non-finite sample, is seen within that, not at the next tick (``video_lost`` / ``pose_lost`` /
-        ``bad_frame`` / ``bad_pose``, else None)."""
+    def _wait(self, until: float, dog: Any = None) -> str | None:
+        """Sleep until the next tick, watching every ``WATCH_S``: a video or pose that goes stale, a non-finite
+        sample, a pose outside the geofence or a watchdog that died is seen within that, not at the next tick
+        (``video_lost`` / ``pose_lost`` / ``bad_frame`` / ``bad_pose`` / ``geofence`` / ``watchdog_lost``, else
+        None). Each watch is also a heartbeat to the watchdog ``dog``."""
         s = self.safety
         while True:
             now = self.clock()
@@ -344,6 +385,10 @@ class ControlLoop:
                 return None
             self.sleep(min(WATCH_S, until - now))
             now = self.clock()
+            if dog is not None:
+                if dog.poll() is not None:
+                    return "watchdog_lost"
+                _beat(dog, b".")
             frame, pose = self.video.read(), self.pose.read()
             if frame is not None and not _finite(frame[1], 1):
                 return "bad_frame"
@@ -352,6 +397,14 @@ class ControlLoop:
             for name, got in (("video_lost", frame), ("pose_lost", pose)):
                 if got is None or now - got[1] > s.stale_s:
                     return name
+            if self._outside(pose[0]):
+                return "geofence"
+
+    def _outside(self, p: Any) -> bool:
+        """The pose (6,) lies outside the geofence or above its ceiling."""
+        xmin, xmax, ymin, ymax = self.safety.geofence
+        x, y, z = float(p[0]), float(p[1]), float(p[2])
+        return not (xmin <= x <= xmax and ymin <= y <= ymax and z <= self.safety.max_altitude)
 
     def preflight(self) -> str | None:
         """What forbids takeoff, or None: the battery below ``min_battery``, no fresh finite pose from the mocap
@@ -390,11 +443,14 @@ class ControlLoop:
         # the background by a non-interactive shell inherits SIGINT as ignored) and however often they come: the
         # first stops the flight, later ones during landing are logged and do not interrupt it.
         previous: dict[int, Any] = {}
-        stopping = {"landing": False, "signals": 0}
+        stopping = {"raised": False, "signals": 0}
 
         def on_signal(signum: int, _frame: Any) -> None:
+            # Only the first signal interrupts: one arriving between the interruption and the landing code (or
+            # during the landing) must not cut the hover and land short.
             stopping["signals"] += 1
-            if not stopping["landing"]:
+            if not stopping["raised"]:
+                stopping["raised"] = True
                 raise KeyboardInterrupt(signal.Signals(signum).name)
 
         if threading.current_thread() is threading.main_thread():
@@ -410,7 +466,8 @@ class ControlLoop:
             return FlightResult("preflight", False, 0, 0.0, self.log_path, math.inf, why, [])
         dog = self._start_watchdog()
         try:
-            self.drone.takeoff()
+            with _Beating(dog, b"t"):  # the takeoff takes seconds; the watchdog is told the loop is alive
+                self.drone.takeoff()
             t_start = self.clock()
             next_tick = t_start
             while True:
@@ -418,6 +475,8 @@ class ControlLoop:
                 frame, pose = self.video.read(), self.pose.read()
                 last_pose = pose if pose is not None and _finite(pose[0], 6) else last_pose
                 stop = self._check(now, t_start, frame, pose)
+                if stop is None and dog is not None and dog.poll() is not None:
+                    stop = "watchdog_lost"  # nothing would land the drone if this process died now
                 battery = _reading(self.drone, "battery")
                 if stop is None and battery is not None and battery < self.safety.min_battery:
                     stop = "battery_low"
@@ -430,6 +489,8 @@ class ControlLoop:
                 rgb, st = self.observation(frame[0], state)
                 action = np.asarray(self.policy.run(rgb, st))[0] if _finite(state, 12) else None
                 bad = "bad_state" if action is None else None if _finite(action, 3) else "bad_action"
+                if bad is None and float(np.max(np.abs(action))) > ACTION_FAULT:
+                    bad = "bad_action"  # finite but absurd (a broken model), not a command to clamp
                 cmd = self.command(action) if bad is None else None
                 if bad is None and not (_finite(cmd, 3) and self._within_clamps(cmd)):
                     bad = "bad_command"
@@ -442,10 +503,9 @@ class ControlLoop:
                 poses.append(np.asarray(pose[0][:3], float).tolist())
                 self._log(writer, fh, now - t_start, tick, pose, frame, now, cmd, latency, "", state, action)
                 tick += 1
-                if dog is not None:
-                    _beat(dog, b".")
+                _beat(dog, b".")
                 next_tick += self.dt
-                lost = self._wait(next_tick)
+                lost = self._wait(next_tick, dog)
                 if lost is not None:
                     reason = lost
                     now = self.clock()
@@ -457,13 +517,16 @@ class ControlLoop:
         except Exception as e:  # any failure: land first, report after
             reason, error = "error", f"{type(e).__name__}: {e}"
         finally:
-            stopping["landing"] = True
+            stopping["raised"] = True  # no later signal interrupts the hover and the landing
             try:
                 self.drone.send_velocity(0.0, 0.0, 0.0)
             except Exception as e:  # the link may be gone: still try to land
                 error = error or f"hover command failed: {type(e).__name__}: {e}"
             try:
-                self.drone.land()
+                # The Tello answers `land` when it is down (seconds); meanwhile the watchdog hears the loop is alive
+                # and landing, so it never cuts the motors of a landing that goes on normally.
+                with _Beating(dog, b"l"):
+                    self.drone.land()
                 event = "land"
             except Exception as e:
                 event = f"land failed: {type(e).__name__}: {e}"

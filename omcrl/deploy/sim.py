@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import EnvConfig
+from omcrl.deploy.timing import LAND_S, TAKEOFF_S
 from omcrl.envs import make_env
 
 
@@ -32,6 +33,17 @@ class SimulatedDrone:
     speed : real-time factor (2.0 runs the physics twice as fast as the wall clock).
     camera : a :class:`~omcrl.deploy.camera.CameraIntrinsics` to render frames through (e.g. the Tello's at a
         reduced resolution, for the fake Tello's stream); None: the simulator's own square camera.
+    takeoff_s, land_s : how long :meth:`takeoff` and :meth:`land` take (s; they block that long, as djitellopy's
+        calls do, while the height rises to or falls from the flight altitude); defaults a Tello's
+        (:mod:`omcrl.deploy.timing`); 0: instant, for tests that do not test timing.
+
+    Attributes
+    ----------
+    flying : the drone moves horizontally (between the end of a takeoff and the start of a landing).
+    height : m above the floor now (0 on the ground, ``env.altitude`` in flight; the pose's z).
+    landed_at : when the landing began (``land()`` or ``emergency()`` was received), ``time.monotonic()``.
+    touchdown_at : when the height reached 0.
+    motors_cut : ``emergency()`` was received (the drone dropped).
     """
 
     def __init__(
@@ -45,6 +57,8 @@ class SimulatedDrone:
         disturbance: Any = None,
         speed: float = 1.0,
         camera: Any = None,
+        takeoff_s: float = TAKEOFF_S,
+        land_s: float = LAND_S,
     ) -> None:
 
         cfg = dataclasses.replace(env_config, max_steps=10**6)
@@ -56,10 +70,15 @@ class SimulatedDrone:
         self.camera_intrinsics = camera  # None: the simulator's own square camera
         self._lock = threading.Lock()
         self._cmd = np.zeros(3)
+        self.takeoff_s, self.land_s = float(takeoff_s), float(land_s)
         self.flying = False
         self.crashed = False
         self.motors_cut = False
+        self.height = 0.0
         self.landed_at: float | None = None
+        self.touchdown_at: float | None = None
+        self._landing = threading.Event()  # set once a landing (or the motor cut) began: a takeoff stops climbing
+        self._cut = threading.Event()  # set by the motor cut: a descent stops where it is, the drone drops
         self._set(obs, info)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -71,7 +90,7 @@ class SimulatedDrone:
         roll, pitch = float(obs["state"][6]), float(obs["state"][7])
         with self._lock:
             self._frame = (self._render(), now)
-            self._pose = (np.array([x, y, self.cfg.altitude, roll, pitch, yaw]), now)
+            self._pose = (np.array([x, y, self.height, roll, pitch, yaw]), now)
 
     def _render(self) -> np.ndarray:
         k = self.camera_intrinsics
@@ -94,15 +113,38 @@ class SimulatedDrone:
                     self.crashed, self.flying = True, False
             else:
                 now = time.monotonic()
-                with self._lock:  # on the ground or landed: same picture and pose, fresh timestamps
+                with self._lock:  # on the ground, climbing or descending: same picture, fresh timestamps
                     self._frame = (self._frame[0], now)
-                    self._pose = (self._pose[0], now)
+                    pose = self._pose[0].copy()
+                    pose[2] = self.height
+                    self._pose = (pose, now)
             nxt += self.dt / self.speed
             time.sleep(max(0.0, nxt - time.monotonic()))
 
     # ---------------------------------------------------------------- the Drone interface
+    def _ramp(self, target: float, duration: float, stop: threading.Event | None = None) -> bool:
+        """Move the height to ``target`` m linearly over ``duration`` s (scaled by the share of the full climb
+        left), returning False when ``stop`` was set on the way."""
+        start, h0 = time.monotonic(), self.height
+        span = duration * abs(target - h0) / max(self.cfg.altitude, 1e-9)
+        while True:
+            if stop is not None and stop.is_set():
+                return False
+            f = 1.0 if span <= 0 else min(1.0, (time.monotonic() - start) / span)
+            self.height = h0 + (target - h0) * f
+            if f >= 1.0:
+                return True
+            time.sleep(min(0.02, span / 10))
+
     def takeoff(self) -> None:
-        self.flying = True
+        """Climb to the flight altitude over ``takeoff_s`` (blocking, as a Tello acknowledges ``takeoff`` when it is
+        up); a landing or motor cut received meanwhile ends the climb. A new takeoff starts a new flight
+        (``landed_at`` and ``touchdown_at`` cleared; ``motors_cut`` stays as the record of an emergency)."""
+        self._landing.clear()
+        self._cut.clear()
+        self.landed_at = self.touchdown_at = None
+        if self._ramp(self.cfg.altitude, self.takeoff_s, self._landing) and not self._landing.is_set():
+            self.flying = True
 
     def send_velocity(self, vx: float, vy: float, wz: float) -> None:
         """Body-frame command: m/s forward, m/s left, rad/s counter-clockwise."""
@@ -112,14 +154,26 @@ class SimulatedDrone:
             self._cmd[:] = (vx, vy, wz)
 
     def emergency(self) -> None:
-        """Motors cut (the Tello's ``emergency``): the drone stops where it is and drops; recorded as such."""
+        """Motors cut (the Tello's ``emergency``): the drone stops where it is and drops at once; recorded as such."""
         self.motors_cut = True
-        self.land()
+        self._cut.set()
+        self._begin_landing()
+        self.height = 0.0
+        self.touchdown_at = self.touchdown_at or time.monotonic()
 
-    def land(self) -> None:
+    def _begin_landing(self) -> None:
         self.flying = False
         if self.landed_at is None:
             self.landed_at = time.monotonic()
+        self._landing.set()
+
+    def land(self) -> None:
+        """Stop moving and descend to the floor over ``land_s`` (blocking, as a Tello acknowledges ``land`` when it
+        is down)."""
+        self._begin_landing()
+        self._ramp(0.0, self.land_s, self._cut)
+        self.height = 0.0
+        self.touchdown_at = self.touchdown_at or time.monotonic()
 
     @property
     def pose(self) -> np.ndarray:
@@ -138,6 +192,7 @@ class SimulatedDrone:
         return SimulatedMocap(self)
 
     def close(self) -> None:
+        self.land_s = 0.0  # whatever was in the air is put down at once: the simulation ends
         self.land()
         self._stop.set()
         self._thread.join(timeout=2.0)

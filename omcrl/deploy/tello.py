@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from omcrl.deploy.camera import TELLO
+from omcrl.deploy.timing import LAND_FALLBACK_S
 
 
 class TelloDrone:
@@ -107,10 +108,10 @@ class TelloDrone:
     def send_velocity(self, vx: float, vy: float, wz: float) -> None:
         self.tello.send_rc_control(*self.rc(vx, vy, wz))
 
-    def land(self, timeout_s: float = 3.0) -> None:
-        """Land; if the drone does not acknowledge within ``timeout_s`` (one try instead of djitellopy's 3 × 7 s),
-        cut the motors with ``emergency`` (logged by the caller through the raised error) rather than leave it
-        flying."""
+    def land(self, timeout_s: float = LAND_FALLBACK_S) -> None:
+        """Land; if the drone does not acknowledge within ``timeout_s`` (one try instead of djitellopy's 3 × 7 s;
+        default :data:`omcrl.deploy.timing.LAND_FALLBACK_S`, longer than a normal landing), cut the motors with
+        ``emergency`` (logged by the caller through the raised error) rather than leave it flying."""
         self.tello.retry_count, retries = 1, self.tello.retry_count
         try:
             self.tello.send_control_command("land", timeout=max(1, math.ceil(timeout_s)))
@@ -272,8 +273,14 @@ def quat_to_rpy(w: float, x: float, y: float, z: float) -> tuple[float, float, f
 class FakeTello:
     """TEST DOUBLE of a DJI Tello on 127.0.0.1, speaking the SDK's text protocol, flown by a simulated drone.
 
-    It answers SDK commands on ``command_port`` (``command``, ``takeoff``, ``land``, ``streamon``, ``streamoff``,
-    ``port <state> <video>``, ``rc a b c d`` (no reply, as the real drone), anything else ``ok``), sends state
+    It answers SDK commands on ``command_port`` (``command``, ``takeoff``, ``land``, ``emergency``, ``streamon``,
+    ``streamoff``, ``port <state> <video>``, ``rc a b c d`` (no reply, as the real drone), anything else ``ok``).
+    As a Tello does, it answers ``takeoff`` and ``land`` only when the manoeuvre is done: the simulated drone climbs
+    and descends over its ``takeoff_s`` / ``land_s`` (:mod:`omcrl.deploy.timing`; 0 on the drone gives an instant
+    fake), while other commands are still received and answered; a ``land`` during the takeoff
+    turns it into a landing, one during a landing is answered when it is down, ``emergency`` drops the drone at
+    once. Every command is recorded in ``received`` and, with its arrival time (``time.monotonic()``), in
+    ``log``. It sends state
     packets to the client's port 8890 at ``state_hz`` and, after ``streamon``, the simulated camera as an H.264
     stream (PyAV, libx264) in 1,460-byte UDP datagrams to the client's video port (11111 unless the ``port``
     command changed it), as the drone does. :meth:`cut_video` stops
@@ -309,6 +316,10 @@ class FakeTello:
         self.sock.settimeout(0.2)
         self.command_port = self.sock.getsockname()[1]
         self.received: list[str] = []
+        self.log: list[tuple[float, str]] = []  # (arrival time, command), as the drone receives them
+        self._send_lock = threading.Lock()
+        self._landing: threading.Thread | None = None
+        self._land_waiters: list[Any] = []
         self._stop = threading.Event()
         self._video_on = threading.Event()
         self._video_cut = threading.Event()
@@ -327,11 +338,12 @@ class FakeTello:
             except (TimeoutError, OSError):
                 if self.drone.flying and time.monotonic() - self._last_cmd > self.auto_land_s:
                     self.auto_landed = True
-                    self.drone.land()
+                    self._land(None)
                 continue
             cmd = data.decode("utf-8", "replace").strip()
-            self.received.append(cmd)
             self._last_cmd = time.monotonic()
+            self.log.append((self._last_cmd, cmd))
+            self.received.append(cmd)
             reply = "ok"
             if cmd.startswith("rc "):
                 a, b, _, d = (int(v) for v in cmd.split()[1:5])
@@ -341,11 +353,14 @@ class FakeTello:
                 self.drone.send_velocity(vx, vy, wz)
                 continue  # rc gets no reply
             if cmd == "takeoff":
-                self.drone.takeoff()
+                # Answered when the drone is up (or not at all when a landing cut the climb short).
+                threading.Thread(target=self._takeoff, args=(addr,), daemon=True).start()
+                continue
             elif cmd == "land":
                 if not self.acknowledge_land:
                     continue  # no reply, and the drone keeps flying
-                self.drone.land()
+                self._land(addr)
+                continue
             elif cmd == "emergency":
                 self.drone.emergency()
             elif cmd.startswith("port "):
@@ -354,7 +369,36 @@ class FakeTello:
                 self._video_on.set()
             elif cmd == "streamoff":
                 self._video_on.clear()
-            self.sock.sendto(reply.encode(), addr)
+            self._reply(reply, addr)
+
+    def _reply(self, text: str, addr: Any) -> None:
+        with self._send_lock:
+            try:
+                self.sock.sendto(text.encode(), addr)
+            except OSError:  # closed meanwhile
+                pass
+
+    def _takeoff(self, addr: Any) -> None:
+        self.drone.takeoff()
+        if self.drone.flying:
+            self._reply("ok", addr)
+
+    def _land(self, addr: Any) -> None:
+        """Start the landing (once) and answer every ``land`` received until it is down, when it is down."""
+        with self._send_lock:
+            self._land_waiters.append(addr)
+            if self._landing is not None:
+                return
+            self._landing = threading.Thread(target=self._descend, daemon=True)
+        self._landing.start()
+
+    def _descend(self) -> None:
+        self.drone.land()
+        with self._send_lock:
+            waiters, self._land_waiters, self._landing = self._land_waiters, [], None
+        for addr in dict.fromkeys(waiters):
+            if addr is not None:  # None: the firmware's own auto-land, which nobody asked for
+                self._reply("ok", addr)
 
     def _state(self) -> None:
         out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -14,7 +14,7 @@ import numpy as np
 
 from omcrl.envs.dynamics import _wrap
 from omcrl.envs.grid import OccupancyGrid, build_grid, components, shortest_path
-from omcrl.scenes import generate_scene
+from omcrl.scenes import generate_scene, scene_spec
 from omcrl.scenes.geometry import Geometry, Primitive
 
 
@@ -127,6 +127,11 @@ class EpisodePlanner:
             if not math.isfinite(length):
                 raise ValueError(f"reset options: goal {tuple(goal)} is not reachable from start {tuple(start[:2])}")
             return start, goal, path, length
+        # Scenes that ask for it (SceneSpec.line_blocked) take only pairs whose straight line is blocked in that
+        # share of episodes, and only pairs with a clear line in the others; at 0 (v0, v1) nothing is asked and
+        # nothing drawn, so those scenes keep their random streams.
+        share = scene_spec(self.scene).line_blocked if self.layout is None else 0.0
+        want_blocked = None if share <= 0.0 else share >= 1.0 or bool(rng.random() < share)
         labels = components(grid)
         axis = grid.to_world(np.arange(grid.size))
         # Cells too near the arena edge would make "leaving the arena" an instant failure.
@@ -162,6 +167,8 @@ class EpisodePlanner:
                 continue
             other = grid.to_world(oij)
             s_xy, g_xy = (other, goal) if goal is not None and start is None else (anchor, other)
+            if want_blocked is not None and grid.line_of_sight(s_xy, g_xy) == want_blocked:
+                continue  # the scene asks for the other kind of pair (a blocked or a clear straight line)
             path, length = shortest_path(grid, s_xy, g_xy)
             if not math.isfinite(length):
                 continue

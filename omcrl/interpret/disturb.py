@@ -34,6 +34,7 @@ from omcrl.rl.policy import CheckpointError, load_policy
 from omcrl.utils.io import file_digest
 
 # A room of 7 m x 7 m with six crates: the size of a motion-capture lab where a Tello flies.
+ROOM_SCENE = "box-v0"
 ROOM = {"arena_half": 3.5, "n_obstacles": 6, "goal_distance": (3.0, 5.5), "goal_radius": 0.5}
 
 CONDITIONS: dict[str, dict] = {
@@ -61,7 +62,9 @@ def room_config(env: EnvConfig) -> EnvConfig:
     out = copy.deepcopy(env)
     for k, v in ROOM.items():
         setattr(out, k, v)
-    out.scene = "box"
+    # The room's crates are box-v0's (six loose crates in a small room, published with v0); box-v2's walls would not
+    # fit its 7 m arena.
+    out.scene = ROOM_SCENE
     return validate_env(out)
 
 
@@ -128,7 +131,7 @@ def disturbance_episodes(
                 if df is None:
                     df = evaluate(
                         pol,
-                        "box",
+                        ROOM_SCENE,
                         episodes,
                         0,
                         seed_offset=SEED_OFFSET,

@@ -44,6 +44,7 @@ from omcrl.pipeline.storage import sha256
 from omcrl.pipeline.summary import code_commit
 from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path
 from omcrl.runs import DIGEST_FIELDS, read_identity, recorded_digest, run_key
+from omcrl.scenes import SUITES, suite_overrides
 from omcrl.utils.io import atomic_save_torch, atomic_write_bytes, atomic_write_text, load_torch
 
 FORMAT = 1
@@ -346,6 +347,7 @@ def pack_reference(
     manifest = {
         "format": FORMAT,
         "preset": cfg.preset,
+        "suite": config_suite(cfg),
         "seeds": seeds,
         "methods": methods,
         "commit": code_commit(short=False),
@@ -369,6 +371,31 @@ def pack_reference(
         shutil.rmtree(dest)
     tmp.rename(dest)
     return ReferenceResult(dest, manifest)
+
+
+def config_suite(cfg: Config) -> str:
+    """The scene suite (a key of :data:`omcrl.scenes.SUITES`) whose box ``cfg`` trains in; ReferenceError for a
+    training scene of no suite (such runs are not the paper's comparison)."""
+    for suite, scenes in SUITES.items():
+        if cfg.env.scene == scenes[0]:
+            return suite
+    raise ReferenceError(f"env.scene {cfg.env.scene!r} is the training scene of no suite {dict(SUITES)}")
+
+
+def bundle_suite(manifest: dict[str, Any]) -> str:
+    """The suite a bundle's runs were trained and evaluated in: its manifest's ``suite``; bundles made before the
+    field existed hold v1 runs."""
+    suite = manifest.get("suite", "v1")
+    if suite not in SUITES:
+        raise ReferenceError(f"{MANIFEST}: field 'suite' is {suite!r}, expected one of {list(SUITES)}")
+    return suite
+
+
+def bundle_overrides(preset: str, bundle: str | Path | None = None) -> list[str]:
+    """The ``--set`` overrides under which a bundle's runs are found (:func:`omcrl.scenes.suite_overrides` of
+    its suite): ``reproduce.sh --from-reference`` passes them to the notebooks it runs."""
+    b = Path(bundle) if bundle is not None else default_bundle(preset)
+    return suite_overrides(bundle_suite(read_manifest(b, preset)))
 
 
 def read_manifest(bundle: str | Path, preset: str | None = None) -> dict[str, Any]:
@@ -457,6 +484,7 @@ def unpack_reference(cfg: Config, bundle: str | Path | None = None) -> Reference
     """
     b = Path(bundle) if bundle is not None else default_bundle(cfg.preset)
     m, contents = verify_reference(b, cfg.preset)
+    cfg = cfg.with_suite(bundle_suite(m))  # its runs are found where they were trained
     root = cfg.run_root
     plan, present = [], []
     for rel, want in sorted(m["files"].items()):

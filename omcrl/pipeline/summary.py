@@ -24,6 +24,7 @@ from omcrl.eval.table1 import read_table1_csv
 from omcrl.pipeline.expected import expected_time
 from omcrl.pipeline.glance import update_readme, wide_table
 from omcrl.pipeline.records import DataRecord, DeployRecord, OracleRecord, PretrainRecord, StudentRecord, Table1Record
+from omcrl.scenes import PAPER_SUITE
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import format_duration
 from omcrl.utils.runtime import machine_info
@@ -421,17 +422,20 @@ def _section_transfer(d: dict, tables: Path) -> list[str]:
 
 # (heading, file in tables/ whose presence means the stage ran, what, notebook, renderer)
 def _section_gradient(_: Any, tables: Path) -> list[str]:
+    suite = ", ".join(PAPER_SUITE)
     out = [
-        "Scenes as versioned specs; the paper's suite is box-v0, furniture-v1, barrier-v0, tree-v0, with "
-        "furniture-v0 (an unseen room) as a stress test. Shift from box with nothing learned, and navigation "
-        "(`tables/scene_gradient.md`):",
+        f"Scenes as versioned specs; the paper's suite is {suite}, with furniture-v0 (an unseen room) as a stress "
+        "test. Shift from box with nothing learned, and navigation (`tables/scene_gradient.md`):",
         "",
         (tables / "scene_gradient.md").read_text(encoding="utf-8").strip(),
         "",
     ]
     order = tables / "scene_gradient_order.md"
     if order.exists():
-        out += ["Does each measure rise box < furniture-v1 < barrier-v0 < tree-v0?", "", order.read_text().strip(), ""]
+        out += [f"Does each measure rise {' < '.join(PAPER_SUITE)}?", "", order.read_text().strip(), ""]
+    for name, what in (("scene_navigation.md", "Navigation per suite"), ("scene_criteria.md", "Suite criteria")):
+        if (tables / name).exists():
+            out += [f"{what} (`tables/{name}`):", "", (tables / name).read_text(encoding="utf-8").strip(), ""]
     return out
 
 

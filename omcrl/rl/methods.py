@@ -329,6 +329,7 @@ class PlannerRecipe(Recipe):
         "hybrid-apf": "HybridAPF",
         "hybrid-apf-perceptive": "PerceptiveHybridAPF",
         "local-apf": "LocalAPF",
+        "blind": "BlindPilot",
     }
 
     def needs(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> list[Need]:

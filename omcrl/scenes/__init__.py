@@ -4,11 +4,13 @@ they are made of. No simulator here: the config validates scene names against th
 
 from omcrl.scenes.geometry import Geometry, Primitive
 from omcrl.scenes.registry import (
+    DEFAULT_SUITE,
     FURNITURE,
     PAPER_SUITE,
     SCENE_SPECS,
     SCENES,
     STRESS_SCENES,
+    SUITES,
     FixedLayout,
     SceneSpec,
     course_scene,
@@ -23,14 +25,17 @@ from omcrl.scenes.registry import (
     scene_key,
     scene_label,
     scene_spec,
+    suite_overrides,
 )
 
 __all__ = [
+    "DEFAULT_SUITE",
     "FURNITURE",
     "PAPER_SUITE",
     "SCENES",
     "SCENE_SPECS",
     "STRESS_SCENES",
+    "SUITES",
     "FixedLayout",
     "Geometry",
     "Primitive",
@@ -47,4 +52,5 @@ __all__ = [
     "scene_key",
     "scene_label",
     "scene_spec",
+    "suite_overrides",
 ]

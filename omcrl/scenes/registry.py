@@ -15,9 +15,21 @@ here is a :class:`SceneSpec` in one registry, named as Gymnasium names environme
 * ``tree-v0`` — an outdoor forest: trunks of varied radius and bark, canopies (spheres or stacked cones), low
   bushes, grass and sky.
 
-A bare family name (``"furniture"``) means its latest version, as in Gymnasium. Versions of one family share
-their generator and random stream, so a seed gives the same geometry in every version of a family. In run and
-cache identities a v0 scene keeps its bare name (:func:`scene_key`), so runs from before versions keep their keys.
+The v2 suite (the default, :data:`SUITES`) keeps the v1 suite's looks and makes layouts that need sight
+(docs/DEVIATIONS.md, "Scenes v2"): a blind pilot fails, the map planner succeeds, box holds detours.
+
+* ``box-v2`` — box-v0's crates, loose and in walls of 4-8, tees and pockets; 80 % of its episodes have the
+  straight start-goal line blocked (:attr:`SceneSpec.line_blocked`), 20 % a clear one.
+* ``furniture-v2`` — furniture-v1's pieces, more of them and more often tall ones, plus shelf rows, in box's room.
+* ``barrier-v2`` — barrier-v0's walls, spaced wider with wider doors, in its hall.
+* ``tree-v2`` — tree-v0's trees and bushes, 55 instead of 34.
+
+In the unseen v2 scenes every episode has its straight line blocked.
+
+A bare family name (``"furniture"``) means its latest version, as in Gymnasium. furniture-v0 and -v1 share their
+generator and random stream, so a seed gives the same geometry in both; v2 scenes draw from streams of their own. In
+run and cache identities a v0 scene keeps its bare name (:func:`scene_key`), so runs from before versions keep
+their keys.
 
 A scene is a list of :class:`~omcrl.scenes.geometry.Primitive`; decor (floor, walls beyond the arena, ceiling,
 sky) is ``visual_only``. Generators place structures by rejection sampling with a spacing margin so that the
@@ -48,8 +60,8 @@ class SceneSpec:
     family : ``box`` | ``furniture`` | ``barrier`` | ``tree`` (or a user's own).
     version : integer; ``id`` is ``f"{family}-v{version}"``.
     generator : ``(rng, arena_half m, n) -> [Primitive]``, obstacles with their materials.
-    stream : index of the random stream (``default_rng([seed, stream])``); shared by a family's versions, so a
-        seed gives the same layout in each.
+    stream : index of the random stream (``default_rng([seed, stream])``); versions that share it (furniture-v0
+        and -v1) give the same layout for a seed.
     default_count : structures placed when ``env.n_obstacles`` is 0.
     indoor : a room (walls and ceiling) or the outdoors (sky).
     floor_texture, wall_texture : surroundings (``kind:variant`` of :mod:`omcrl.envs.textures`); no walls
@@ -58,6 +70,10 @@ class SceneSpec:
     difficulty : the paper's label (Table I): ``training``, ``easy``, ``medium``, ``hard``, or ``stress``.
     paper_scene : the column of the paper's Table I this scene stands for, or None (a stress test).
     description : one line for tables and ``--help``.
+    line_blocked : the share (0-1) of episodes drawn so that the straight start–goal segment crosses the blocked
+        map (obstacles inflated by the drone radius): in those a pilot that flies straight at the goal collides, so
+        they need sight. 0 draws start and goal as v0 did; 1 blocks every episode. Only sampled starts and goals
+        are redrawn; ``reset(options=...)`` keeps the caller's.
     """
 
     family: str
@@ -72,6 +88,7 @@ class SceneSpec:
     difficulty: str
     paper_scene: str | None
     description: str
+    line_blocked: float = 0.0
 
     @property
     def id(self) -> str:
@@ -157,6 +174,21 @@ class _Placer:
     def __init__(self, rng: np.random.Generator, arena_half: float, gap: float) -> None:
         self.rng, self.a, self.gap = rng, arena_half, gap
         self.discs: list[tuple[float, float, float]] = []
+
+    def place_group(self, offsets: Sequence[tuple[float, float]], radius: float, tries: int = 60) -> tuple | None:
+        """Place a rigid group of discs (``offsets`` m from its centre, each of ``radius`` m) at a random centre
+        and yaw, every disc ``gap`` m clear of all placed ones; returns (x, y, yaw) or None."""
+        reach = max(math.hypot(x, y) for x, y in offsets)
+        for _ in range(tries):
+            x, y = self.rng.uniform(-self.a + 0.5, self.a - 0.5, 2)
+            yaw = float(self.rng.uniform(0, math.pi))
+            pts = [(x + u, y + v) for u, v in (_rot(ox, oy, yaw) for ox, oy in offsets)]
+            if reach > 0 and not all(abs(px) <= self.a and abs(py) <= self.a for px, py in pts):
+                continue
+            if all(math.hypot(px - u, py - v) > radius + r + self.gap for px, py in pts for u, v, r in self.discs):
+                self.discs += [(px, py, radius) for px, py in pts]
+                return float(x), float(y), yaw
+        return None
 
     def place(self, radius: float, tries: int = 60) -> tuple[float, float] | None:
         for _ in range(tries):
@@ -341,8 +373,12 @@ def gen_furniture(rng: np.random.Generator, arena_half: float, n: int) -> list[P
     return out
 
 
-def gen_barrier(rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
-    placer = _Placer(rng, arena_half, gap=1.0)
+def gen_barrier(
+    rng: np.random.Generator, arena_half: float, n: int, spacing: float = 1.0, door: tuple[float, float] = (0.45, 0.6)
+) -> list[Primitive]:
+    """Irregular walls (straight, L, U, walls with a door, zigzags), ``spacing`` m apart at least (footprint discs),
+    doors of half width ``door`` m (v0's defaults)."""
+    placer = _Placer(rng, arena_half, gap=spacing)
     out: list[Primitive] = []
     h = 2.4
     shapes = ["U", "L", "gap", "straight", "U", "zigzag"]
@@ -373,7 +409,7 @@ def gen_barrier(rng: np.random.Generator, arena_half: float, n: int) -> list[Pri
                 _part(x, y, yaw, depth, -size + t, (depth, t), (0, hh), **kw),
             ]
         elif shape == "gap":
-            g = float(rng.uniform(0.45, 0.6))  # half gap: passable for a 0.15 m drone
+            g = float(rng.uniform(*door))  # half gap: passable for a 0.15 m drone
             seg = size
             out += [
                 _part(x, y, yaw, 0, g + seg / 2, (t, seg / 2), (0, hh), **kw),
@@ -390,6 +426,11 @@ def gen_barrier(rng: np.random.Generator, arena_half: float, n: int) -> list[Pri
                 out.append(_part(x + ox, y + oy, ang, 0, 0, (seg, t), (0, hh), **kw))
                 px, py = cx + math.cos(ang) * seg, cy + math.sin(ang) * seg
     return out
+
+
+def gen_barrier_v2(rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
+    """barrier-v2: barrier-v0's walls with wider spacing and doors (:data:`BARRIER_V2_SPACING`, ``_DOOR``)."""
+    return gen_barrier(rng, arena_half, n, spacing=BARRIER_V2_SPACING, door=BARRIER_V2_DOOR)
 
 
 def gen_tree(rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
@@ -442,6 +483,99 @@ def gen_tree(rng: np.random.Generator, arena_half: float, n: int) -> list[Primit
                 )
     return out
 
+
+# ------------------------------------------------------------------ v2 generators: layouts that need sight
+# Crate groups of box-v2, in crate units (1 m, the crates touch): a local offset per crate. Rows and corners make
+# walls a straight flight cannot pass; the U is a pocket (a local minimum for a potential field).
+_CRATE_GROUPS: dict[str, tuple[tuple[float, float], ...]] = {
+    "single": ((0.0, 0.0),),
+    "row4": tuple((i - 1.5, 0.0) for i in range(4)),
+    "row6": tuple((i - 2.5, 0.0) for i in range(6)),
+    "row8": tuple((i - 3.5, 0.0) for i in range(8)),
+    "tee": ((-1, 0), (0, 0), (1, 0), (0, 1), (0, 2)),
+    "pocket": ((-1, -0.5), (0, -0.5), (1, -0.5), (-1, 0.5), (1, 0.5)),
+    "big_pocket": ((-1.5, -1), (-0.5, -1), (0.5, -1), (1.5, -1), (-1.5, 0), (1.5, 0), (-1.5, 1), (1.5, 1)),
+}
+# Chance of each group per draw: loose crates (small detours a reactive controller can fly round) and walls
+# (detours it cannot), in the proportion that meets the v2 criteria (docs/DEVIATIONS.md, "Scenes v2").
+_CRATE_GROUP_P = {
+    "single": 0.3,
+    "row4": 0.14,
+    "row6": 0.175,
+    "row8": 0.105,
+    "tee": 0.105,
+    "pocket": 0.105,
+    "big_pocket": 0.07,
+}
+
+
+def gen_box_v2(rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
+    """box-v2: ``n`` identical crates (box-v0's size, colour and texture), loose or in touching groups with a
+    random yaw each — walls of 4, 6 or 8 crates, tees and pockets (:data:`_CRATE_GROUPS`) — every crate
+    ``BOX_V2_GAP`` m clear of the crates of other groups (box-v0's spacing)."""
+    placer = _Placer(rng, arena_half, gap=BOX_V2_GAP)
+    names = list(_CRATE_GROUP_P)
+    p = np.array([_CRATE_GROUP_P[k] for k in names])
+    out: list[Primitive] = []
+    misses = 0
+    while len(out) < n and misses < 40:
+        offsets = _CRATE_GROUPS[names[int(rng.choice(len(names), p=p))]][: n - len(out)]
+        pos = placer.place_group(offsets, 0.71)
+        if pos is None:
+            misses += 1
+            continue
+        yaw = pos[2]
+        for lx, ly in offsets:
+            out.append(_part(pos[0], pos[1], yaw, lx, ly, (0.5, 0.5), (0.0, 2.5), rgba=(1, 1, 1, 1), texture="crate:0"))
+    return out
+
+
+# furniture-v2 draws the tall pieces (at or above flight altitude) more often than v1, and adds shelf rows.
+_FURN_V2_P = {
+    "table": 0.05,
+    "round_table": 0.04,
+    "chair": 0.1,
+    "shelf": 0.17,
+    "sofa": 0.05,
+    "lamp": 0.1,
+    "cabinet": 0.17,
+    "plant": 0.17,
+    "coffee_table": 0.03,
+    "shelf_row": 0.12,
+}
+
+
+def gen_furniture_v2(rng: np.random.Generator, arena_half: float, n: int) -> list[Primitive]:
+    """furniture-v2: ``n`` pieces of furniture-v1's kinds (every kind once, then drawn with :data:`_FURN_V2_P`,
+    which favours pieces that reach flight altitude), and rows of 2-3 shelves back to back as room dividers."""
+    placer = _Placer(rng, arena_half, gap=0.7)
+    names = list(_FURN_V2_P)
+    p = np.array([_FURN_V2_P[k] for k in names])
+    kinds = list(FURNITURE) + [names[int(i)] for i in rng.choice(len(names), size=max(0, n - len(FURNITURE)), p=p)]
+    out: list[Primitive] = []
+    for kind in kinds[:n]:
+        yaw = float(rng.uniform(0, 2 * math.pi))
+        if kind == "shelf_row":
+            k = int(rng.integers(2, 4))
+            pos = placer.place(0.8 * k)
+            if pos is None:
+                continue
+            for i in range(k):  # shelves side by side along their width (local y), 1.6 m apart
+                ox, oy = _rot(0.0, (i - (k - 1) / 2) * 1.6, yaw)
+                out += _furniture_piece("shelf", rng, pos[0] + ox, pos[1] + oy, yaw)
+            continue
+        pos = placer.place(_FURN_RADIUS[kind])
+        if pos is not None:
+            out += _furniture_piece(kind, rng, pos[0], pos[1], yaw)
+    return out
+
+
+# Default structure counts of the v2 scenes (crates, furniture pieces, walls, trees and bushes).
+BOX_V2_GAP = 0.9  # m between crate groups' footprints
+BOX_V2_COUNT, FURNITURE_V2_COUNT, BARRIER_V2_COUNT, TREE_V2_COUNT = 54, 26, 12, 55
+BARRIER_V2_SPACING, BARRIER_V2_DOOR = 1.5, (0.6, 0.8)
+# box-v2 is the training scene: 80 % of its episodes need a detour, 20 % keep a clear line (docs/DEVIATIONS.md).
+BOX_V2_BLOCKED = 0.8
 
 _BOX_ROOM = {"indoor": True, "floor_texture": "tiles:0", "wall_texture": "paint:0"}
 _FURNITURE = {
@@ -511,13 +645,87 @@ for _spec in (
         paper_scene=None,
         description="furniture-v1's layouts in a room of its own (wood floor, other paint): an unseen room",
     ),
+    # v2: the same looks as the v1 suite, layouts that need sight (docs/DEVIATIONS.md, "Scenes v2").
+    SceneSpec(
+        "box",
+        2,
+        gen_box_v2,
+        10,
+        BOX_V2_COUNT,
+        **_BOX_ROOM,
+        materials=("crate",),
+        difficulty="training",
+        paper_scene=None,
+        description="identical crates, loose and in walls, tees and pockets; most goals behind one (training)",
+        line_blocked=BOX_V2_BLOCKED,
+    ),
+    SceneSpec(
+        "furniture",
+        2,
+        gen_furniture_v2,
+        11,
+        FURNITURE_V2_COUNT,
+        **_BOX_ROOM,
+        materials=_FURNITURE["materials"],
+        difficulty="easy",
+        paper_scene="furniture",
+        description="denser, taller furniture and shelf rows in box's room; every goal behind an obstacle",
+        line_blocked=1.0,
+    ),
+    SceneSpec(
+        "barrier",
+        2,
+        gen_barrier_v2,
+        12,
+        BARRIER_V2_COUNT,
+        True,
+        "concrete:floor",
+        "brick:room",
+        ("brick", "concrete", "paint"),
+        difficulty="medium",
+        paper_scene="barrier",
+        description="barrier-v0's walls, more of them, in its hall; every goal behind a wall",
+        line_blocked=1.0,
+    ),
+    SceneSpec(
+        "tree",
+        2,
+        gen_tree,
+        13,
+        TREE_V2_COUNT,
+        False,
+        "grass:0",
+        None,
+        ("bark", "leaves"),
+        difficulty="hard",
+        paper_scene="tree",
+        description="a denser forest of tree-v0's trunks, canopies and bushes; every goal behind a tree",
+        line_blocked=1.0,
+    ),
 ):
     register_scene(_spec)
 
 # Scene families, as in the public API; each name means its latest version.
 SCENES = families()
-# The paper's four scenes (training scene first), and the stress tests beside them (docs/generalization.md).
-PAPER_SUITE = tuple(s.id for s in SCENE_SPECS.values() if s.difficulty != "stress")
+# The paper's four scenes (training scene first) in each published suite; v2 is the default (Table I's columns).
+SUITES: dict[str, tuple[str, ...]] = {
+    "v1": ("box-v0", "furniture-v1", "barrier-v0", "tree-v0"),
+    "v2": ("box-v2", "furniture-v2", "barrier-v2", "tree-v2"),
+}
+DEFAULT_SUITE = "v2"
+PAPER_SUITE = SUITES[DEFAULT_SUITE]
+
+
+def suite_overrides(suite: str) -> list[str]:
+    """Config overrides (``--set`` strings) that train in ``suite``'s box and evaluate in its four scenes plus
+    the stress scenes: ``suite_overrides("v1")`` reproduces the v1 suite's runs and Table I."""
+    if suite not in SUITES:
+        raise ValueError(f"suite: got {suite!r}, expected one of {list(SUITES)}")
+    scenes = ", ".join([*SUITES[suite], *STRESS_SCENES])
+    return [f"env.scene={SUITES[suite][0]}", f"data.scene={SUITES[suite][0]}", f"eval.scenes=[{scenes}]"]
+
+
+# Stress tests beside the paper's suite (docs/generalization.md): furniture-v0's unseen room.
 STRESS_SCENES = tuple(s.id for s in SCENE_SPECS.values() if s.difficulty == "stress")
 
 
