@@ -65,7 +65,7 @@ def test_collect_writes_resumes_and_refuses_mismatch(tmp_path):
         assert ds.read(0, "depth").shape == (ds.episode_lengths[0], 32, 32)
         assert ds.read_stacks(0, [0, 1]).shape == (2, 3 * cfg.env.frame_stack, 32, 32)
         assert ds.read(0, "done")[-1] and not ds.read(0, "done")[:-1].any()
-        assert ds.episode_attrs(0)["scene"] == "box-v0"
+        assert ds.episode_attrs(0)["scene"] == "box-v2"  # data.scene: the default suite's training scene
         acts = np.concatenate([ds.read(e, "action") for e in range(4)])
         assert np.all(np.abs(acts) <= 1.0) and acts.std() > 0
         assert len(episode_outcomes(ds)) == 4

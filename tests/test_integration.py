@@ -22,6 +22,7 @@ from omcrl.planners import HybridAPF
 from omcrl.rl import CheckpointError, load_policy, train_oracle, train_student
 from omcrl.rl.policy import make_oracle_features, policy_payload
 from omcrl.rl.ppo import ActorCritic
+from omcrl.scenes import scene_key
 
 torch.set_num_threads(1)
 # The module, not the function ``omcrl.rl.train`` that the package re-exports under the same name.
@@ -170,7 +171,7 @@ def test_evaluate_binds_hybrid_apf_to_the_eval_env():
     cfg = load_config("smoke")
     planner = HybridAPF(cfg.env)
     df = evaluate(planner, "barrier", 1, seed_offset=cfg.eval.seed_offset, config=cfg.env)
-    assert planner._env is not None and planner._env.scene == "barrier-v0"
+    assert planner._env is not None and planner._env.scene == "barrier-v2"  # a family is its latest version
     assert len(planner.path) >= 2 and len(df) == 1
 
 
@@ -206,11 +207,11 @@ def test_evaluate_stage_finds_policies_writes_tables_and_caches(chain, monkeypat
     )
     assert list(stage.find_policies(cfg)) == ["oracle", "ours"]
     res = stage.evaluate_stage(cfg, progress=False)
-    assert list(res.table.index) == [(m, s) for m in ("oracle", "ours", "HybridAPF") for s in ("box-v0", "barrier-v0")]
+    assert list(res.table.index) == [(m, s) for m in ("oracle", "ours", "HybridAPF") for s in ("box-v2", "barrier-v2")]
     wide = res.wide()
-    assert list(wide.columns.get_level_values(0).unique()) == ["box-v0", "barrier-v0"]  # paper order, not sorted
+    assert list(wide.columns.get_level_values(0).unique()) == ["box-v2", "barrier-v2"]  # paper order, not sorted
     md = res.paths["md"].read_text()
-    assert "| method | box-v0 NE | box-v0 OS | box-v0 SR |" in md and md.count("\n| ") == 4
+    assert "| method | box-v2 NE | box-v2 OS | box-v2 SR |" in md and md.count("\n| ") == 4
     # One writer per table file: evaluate writes its one-seed table under its own name, never Table I's.
     tables = chain["root"] / "smoke" / "tables"
     assert res.paths["md"] == tables / "evaluate_seed0.md" and not list(tables.glob("table1*"))
@@ -226,7 +227,7 @@ def test_evaluate_stage_finds_policies_writes_tables_and_caches(chain, monkeypat
     assert len(df) == len(pd.read_csv(res.paths["episodes"])) == 12
     # Every method flies the same evaluation layouts.
     assert df.groupby("method").eval_seed.apply(tuple).nunique() == 1
-    s = summarize(df[(df.method == "HybridAPF") & (df.scene == "box-v0")])
+    s = summarize(df[(df.method == "HybridAPF") & (df.scene == "box-v2")])
     assert s["episodes"] == 2 and 0.0 <= s["SR"] <= 100.0 and math.isfinite(s["NE"])
     # A second run reads every (method, scene) from the cache instead of flying the episodes again.
     monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))
@@ -254,9 +255,10 @@ def test_evaluation_cache_reads_files_written_before_the_key_was_in_the_name(cha
     cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", "eval.scenes=[box]", "eval.episodes=2"])
     first = stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path})
     folder = cfg.run_root / "eval" / "ours" / "seed0"
-    (new,) = folder.glob("box-*.csv")
-    new.rename(folder / "box.csv")
-    new.with_suffix(".json").rename(folder / "box.json")
+    stem = scene_key(cfg.eval.scenes[0])  # the name of the scene in cache files ("box-v2")
+    (new,) = folder.glob(f"{stem}-*.csv")
+    new.rename(folder / f"{stem}.csv")
+    new.with_suffix(".json").rename(folder / f"{stem}.json")
     monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))
     _same_episodes(stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path}), first)
 

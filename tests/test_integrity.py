@@ -303,7 +303,7 @@ def test_a_truncated_evaluation_cache_is_evaluated_again(tmp_path):
 
     cfg = load_config("smoke", overrides={"results_dir": str(tmp_path), "eval": {"workers": 1}})
     first = evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["box"], 3)
-    (csv,) = (tmp_path / "smoke" / "eval" / "hybrid-apf" / "seed0").glob("box-v0-*.csv")
+    (csv,) = (tmp_path / "smoke" / "eval" / "hybrid-apf" / "seed0").glob("box-v2-*.csv")
     lines = csv.read_text().splitlines()
     csv.write_text("\n".join(lines[:2]) + "\n")  # header and one episode
     with pytest.warns(UserWarning, match=r"damaged evaluation cache \(its content does not match"):
@@ -337,7 +337,7 @@ def _smoke_artifacts(root):
     part = pretrain(cfg.with_seed(1), progress=False, stop_after=10)
     ppo = train_method(cfg, "ppo", progress=False)
     evaluate_methods(cfg, {"ppo": ppo.final_path}, ["box"], 2)
-    (cache,) = (root / "smoke" / "eval" / "ppo" / "seed0").glob("box-v0-*.csv")
+    (cache,) = (root / "smoke" / "eval" / "ppo" / "seed0").glob("box-v2-*.csv")
     return cfg, {
         "policy final.pt": ppo.final_path,
         "run.json": ppo.run_dir / "run.json",

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from omcrl.config import ConfigError, load_config
+from omcrl.scenes import suite_overrides
 from omcrl.utils import precision as prec
 
 
@@ -51,13 +52,14 @@ def test_bf16_and_fp32_runs_have_different_keys_and_fp32_keeps_its_key(monkeypat
     monkeypatch.setattr(prec, "cpu_flags", lambda: frozenset({"amx_bf16"}))
     keys = {}
     for p in ("fp32", "bf16", "auto"):
-        cfg = load_config("quick", overrides=[f"rl.precision={p}", f"pretrain.precision={p}"])
+        # The pinned fp32 keys are the v1 suite's (trained in box-v0): v2's runs have keys of their own.
+        cfg = load_config("quick", overrides=[f"rl.precision={p}", f"pretrain.precision={p}", *suite_overrides("v1")])
         keys[p] = (oracle_run(cfg).dir.parent.name, pretrain_run(cfg).dir.parent.name)
     assert keys["fp32"] != keys["bf16"] == keys["auto"]
     # The keys of fp32 runs are those from before the field existed (main at 5b7ae87).
     assert keys["fp32"] == ("oracle-680410e396", "omc-a77659c620")
     monkeypatch.setattr(prec, "cpu_flags", lambda: frozenset())
-    cfg = load_config("quick", overrides=["rl.precision=auto", "pretrain.precision=auto"])
+    cfg = load_config("quick", overrides=["rl.precision=auto", "pretrain.precision=auto", *suite_overrides("v1")])
     assert (oracle_run(cfg).dir.parent.name, pretrain_run(cfg).dir.parent.name) == keys["fp32"]
 
 

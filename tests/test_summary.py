@@ -56,7 +56,7 @@ def test_summary_lists_every_figure_and_the_table(tmp_path, preset):
     for f in (cfg.run_root / "figures").glob("*.png"):
         assert f"(figures/{f.name})" in text
     # Table I compact: a row per method, a column per scene, the paper's value in italics where it has one.
-    assert "| method | box-v0 (training) | tree-v0 (hard) |" in text
+    assert "| method | box-v2 (training) | tree-v2 (hard) |" in text  # families: their latest version
     assert "| CURL | 90 [81, 99] | 90 [81, 99] *0* |" in text and "| Ours | 5 [4, 6] | 5 [4, 6] *8* |" in text
     assert "19m02s" in text and "19m08s" in text  # notebook 02 and the total
     assert "| 412 MB |" in text and text.count("| 1,830 MB |") == 2  # notebook 02 and the total's peak

@@ -294,3 +294,36 @@ def test_the_geofence_is_watched_between_ticks():
     res = loop.fly()
     assert res.reason == "geofence"
     assert 0.65 <= res.duration_s <= 0.8, res.duration_s  # crossed at 0.70 s: seen within 20 ms, not at the 1.0 s tick
+
+
+def test_a_dead_watchdog_lands_the_drone():
+    """The watchdog process dies in flight: nothing would land the drone if the loop died next, so the loop lands
+    (``watchdog_lost``) within a watch period."""
+    import threading
+
+    from omcrl.deploy.tello import FakeTello
+
+    sim = _sim(takeoff_s=0.0, land_s=0.0)
+    fake = FakeTello(sim)
+
+    class Commanded(_Drone):
+        def watchdog_address(self):
+            return "127.0.0.1", fake.command_port
+
+    loop = ControlLoop(_Policy([0.1, 0.0, 0.0]), Commanded(), _Fresh(np.zeros((8, 8, 3), np.uint8)),
+                       _Fresh(np.array([0, 0, 1.0, 0, 0, 0])), (40.0, 0.0),
+                       safety=Safety(max_time_s=10.0, geofence=(-50.0, 50.0, -50.0, 50.0)))  # fmt: skip
+    dogs = []
+    start = loop._start_watchdog
+    loop._start_watchdog = lambda: dogs.append(start()) or dogs[-1]
+    killed = {}
+    timer = threading.Timer(0.5, lambda: (killed.setdefault("t", time.monotonic()), dogs[0].kill()))
+    timer.start()
+    try:
+        res = loop.fly()
+    finally:
+        timer.cancel()
+        fake.close()
+        sim.close()
+    assert res.reason == "watchdog_lost" and loop.drone.landed == 1
+    assert res.duration_s - 0.5 < 0.2  # seen within a watch period or a tick of the kill

@@ -23,6 +23,7 @@ import pandas as pd
 
 from omcrl.config import EnvConfig
 from omcrl.envs.grid import OccupancyGrid
+from omcrl.envs.nav_env import make_env
 from omcrl.scenes.geometry import Geometry
 
 COLUMNS = ("scene", "seed", "straight_line_m", "shortest_path_m", "detour", "corridor_m", "occlusion", "turning_rad_m")
@@ -142,8 +143,6 @@ def difficulty_stats(scene: str, seeds: Sequence[int], config: EnvConfig | None 
     ``corridor_m`` (:func:`narrowest_corridor`, m), ``occlusion`` (:func:`view_occlusion`, 0-1) and
     ``turning_rad_m`` (:func:`turning_per_metre`, rad/m), all on the env's shortest path.
     """
-    from omcrl.envs.nav_env import make_env
-
     env = make_env(scene, seed=None, config=config)
     c = env.unwrapped.cfg
     rows = []

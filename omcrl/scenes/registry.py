@@ -157,6 +157,12 @@ def is_stress(name: str) -> bool:
     return scene_spec(name).difficulty == "stress"
 
 
+def paper_unseen(scenes: Sequence[str]) -> tuple[str, ...]:
+    """The ids of ``scenes`` that stand for the paper's unseen scenes (no training scene, no stress test), in
+    order: the columns of the paper's zero-shot claims."""
+    return tuple(scene_id(s) for s in scenes if is_unseen(s) and not is_stress(s))
+
+
 def scene_label(name: str) -> str:
     """A scene's id with its role, for tables and figures: ``furniture-v1 (easy)``."""
     spec = scene_spec(name)
