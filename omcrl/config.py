@@ -31,18 +31,6 @@ from omcrl.utils.precision import PRECISIONS
 PRESETS = ("smoke", "quick", "paper")
 PRESET_DIR = Path(__file__).parent / "presets"
 ROOT_ENV = "OMCRL_ROOT"
-# Fields added after runs existed, with the value that means "as before": at that value they are left out of run
-# identities and hashes, so existing runs keep their keys (see omcrl.pretrain.train.pretrain_run).
-NEUTRAL_DEFAULTS: dict[str, dict[str, Any]] = {
-    "data": {"look": "own", "policy": "none"},
-    "pretrain": {"color_jitter": 0.0, "seq_stride": 1},
-}
-
-
-def drop_neutral(section: str, values: dict) -> dict:
-    """``values`` (a config section as a dict) without the fields that sit at their neutral default."""
-    neutral = NEUTRAL_DEFAULTS.get(section, {})
-    return {k: v for k, v in values.items() if not (k in neutral and v == neutral[k])}
 
 
 def project_root() -> Path:
@@ -74,10 +62,15 @@ def _f(
     hi: float | None = None,
     choices: tuple | None = None,
     doc: str = "",
+    execution: bool = False,
     **kw: Any,
 ) -> Any:
-    """Declare a dataclass field with validation metadata (inclusive bounds ``lo``/``hi``, or ``choices``)."""
-    md = {"lo": lo, "hi": hi, "choices": choices, "doc": doc}
+    """Declare a dataclass field with validation metadata (inclusive bounds ``lo``/``hi``, or ``choices``).
+
+    ``execution``: the field says where or how fast work runs (devices, threads, workers, checkpoint cadence, a
+    file's location), not what it computes, so it never enters a run's identity (:func:`section_identity`).
+    """
+    md = {"lo": lo, "hi": hi, "choices": choices, "doc": doc, "execution": execution}
     if isinstance(default, (list, dict, tuple)) and not isinstance(default, tuple):
         return field(default_factory=lambda d=default: type(d)(d), metadata=md, **kw)
     return field(default=default, metadata=md, **kw)
@@ -142,7 +135,11 @@ class DataConfig:
     detour_prob: float = _f(0.1, lo=0.0, hi=1.0, doc="chance per pilot episode of a detour (a turn in place)")
     random_corr: float = _f(0.9, lo=0.0, hi=0.9999, doc="AR(1) correlation of random exploration actions")
     max_steps: int = _f(200, lo=1, hi=100000, doc="cap on steps per collected episode")
-    file: str = _f("data/{preset}/box.h5", doc="HDF5 path; {preset} is substituted")
+    file: str = _f(
+        "data/{preset}/box.h5",
+        doc="HDF5 path; {preset} is substituted (a location: the data's content is fingerprinted instead)",
+        execution=True,
+    )
     look: str = _f(
         "own",
         choices=("own", "randomized"),
@@ -189,12 +186,13 @@ class PretrainConfig:
         hi=0.9,
         doc="OMC: per-view colour gains in [1-s, 1+s] (query and keys jittered differently; a deviation, §3); 0 off",
     )
-    checkpoint_every: int = _f(200, lo=1, hi=100000000, doc="iterations between checkpoints")
-    num_threads: int = _f(2, lo=1, hi=256, doc="torch intra-op threads")
+    checkpoint_every: int = _f(200, lo=1, hi=100000000, doc="iterations between checkpoints", execution=True)
+    num_threads: int = _f(2, lo=1, hi=256, doc="torch intra-op threads", execution=True)
     device: str = _f(
         "auto",
         choices=("auto", "cpu", "cuda"),
         doc="where the learner runs: CUDA when available (auto), or cpu / cuda; not part of a run's identity",
+        execution=True,
     )
     precision: str = _f(
         "fp32",
@@ -235,13 +233,14 @@ class RLConfig:
         choices=("apf", "none"),
         doc="oracle PPO guided early by HybridAPF through the KL term ('none': pure PPO)",
     )
-    checkpoint_every: int = _f(20480, lo=1, hi=10**10, doc="env steps between checkpoints")
-    num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads while the envs step (rollouts)")
+    checkpoint_every: int = _f(20480, lo=1, hi=10**10, doc="env steps between checkpoints", execution=True)
+    num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads while the envs step (rollouts)", execution=True)
     device: str = _f(
         "auto",
         choices=("auto", "cpu", "cuda"),
         doc="where the networks run: CUDA when available (auto), or cpu / cuda. An execution setting: not part "
         "of a run's identity (a run may resume on another device)",
+        execution=True,
     )
     precision: str = _f(
         "fp32",
@@ -257,6 +256,7 @@ class RLConfig:
         doc="torch intra-op threads during PPO updates, when the env workers sleep; 0: one per core. An "
         "execution setting like the machine: not part of a run's identity (results are bit-identical for a "
         "fixed count, and differ in rounding between counts)",
+        execution=True,
     )
 
 
@@ -276,6 +276,7 @@ class EvalConfig:
         lo=0,
         hi=256,
         doc="processes running evaluation episodes in parallel; 0: one per core (results do not depend on it)",
+        execution=True,
     )
     lanes: int = _f(
         8,
@@ -653,6 +654,43 @@ def _plain(x: Any) -> Any:
     if isinstance(x, (list, tuple)):
         return [_plain(v) for v in x]
     return x
+
+
+def field_default(section: Any, name: str) -> Any:
+    """The declared default of field ``name`` of a config section (a class or an instance)."""
+    for f in fields(section):
+        if f.name == name:
+            return f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[misc]
+    raise ConfigError(f"{getattr(section, '__name__', type(section).__name__)} has no field {name!r}")
+
+
+def section_identity(section: Any, **resolved: Any) -> dict:
+    """The identity of a config section: every field whose value differs from its default, less the fields
+    declared execution-only (``_f(..., execution=True)``).
+
+    This is the one rule every run and cache key follows. A field added later at its default changes no key; a
+    changed field always does. ``resolved`` replaces values that the machine decides before they are compared
+    (``renderer="tiny"`` for ``auto``, ``precision="fp32"``): an ``auto`` default is never a resolved value, so a
+    resolved field is in the identity whatever the machine, and two machines share a key exactly when they
+    resolve alike.
+
+    Returns
+    -------
+    ``{field: value}`` in declaration order, tuples as lists (JSON-able).
+    """
+    if not dataclasses.is_dataclass(section):
+        raise TypeError(f"section_identity: expected a config section (a dataclass), got {type(section).__name__}")
+    unknown = set(resolved) - {f.name for f in fields(section)}
+    if unknown:
+        raise ConfigError(f"section_identity: {type(section).__name__} has no field(s) {sorted(unknown)}")
+    out = {}
+    for f in fields(section):
+        if f.metadata.get("execution"):
+            continue
+        value = resolved.get(f.name, getattr(section, f.name))
+        if _plain(value) != _plain(field_default(section, f.name)):
+            out[f.name] = _plain(value)
+    return out
 
 
 def config_hash(section: Any) -> str:

@@ -38,6 +38,32 @@ from omcrl.utils.progress import Progress
 
 RUN_FILE = "run.json"
 
+# The behaviour version of each component whose code decides results. A change that alters what a component
+# computes (trained weights, collected frames, episode outcomes) bumps its number in the same commit: every run and
+# cached evaluation that depends on it then has a new key and is made again instead of being reused stale.
+BEHAVIOUR: dict[str, int] = {
+    "env": 1,  # omcrl.envs and omcrl.scenes: flight model, scenes, rewards, rendering, episode seeds
+    "data": 1,  # omcrl.data: the collection pilots and what a dataset stores
+    "pretrain": 1,  # omcrl.pretrain and the encoder networks of omcrl.models: objectives, sampler, augmentation
+    "rl": 1,  # omcrl.rl and the policy networks of omcrl.models: PPO, rollouts, guidance, features, inference
+    "planners": 1,  # omcrl.planners: the APF planners and pilots (guides and planner methods)
+    "eval": 1,  # omcrl.eval: the evaluation loop and its per-episode metrics
+}
+# The components each kind of artifact depends on (a student's upstream encoder and oracle enter by digest).
+DEPENDS: dict[str, tuple[str, ...]] = {
+    "pretrain": ("env", "data", "pretrain"),
+    "rl": ("env", "planners", "rl"),
+    "eval-policy": ("env", "rl", "eval"),
+    "eval-planner": ("env", "planners", "eval"),
+}
+
+
+def behaviour(kind: str) -> dict[str, int]:
+    """``{component: version}`` of the components an artifact of ``kind`` (a key of :data:`DEPENDS`) depends on."""
+    if kind not in DEPENDS:
+        raise KeyError(f"behaviour: unknown kind {kind!r}, expected one of {list(DEPENDS)}")
+    return {c: BEHAVIOUR[c] for c in DEPENDS[kind]}
+
 
 class RunConfigMismatch(RuntimeError):
     """A run folder holds a run of a different identity (configuration, method or seed)."""
@@ -257,10 +283,12 @@ def run_key(identity: dict) -> str:
 def make_run(cfg: Config, stage: str, method: str, identity: dict) -> Run:
     """The :class:`Run` of ``method`` at ``cfg.seed`` whose artifact is determined by ``identity``.
 
-    ``identity`` must hold every config field and upstream digest that changes the artifact; the seed and
-    method are added here. It is stored as given (plain JSON) in ``run.json``.
+    ``identity``: the :func:`~omcrl.config.section_identity` of every config section the run reads (resolved for
+    the method) and the digests of its upstream artifacts. The stage, the method and the behaviour versions of the
+    components the stage depends on (:func:`behaviour`) are added here; the seed is the folder's. It is stored as
+    given (plain JSON) in ``run.json``.
     """
-    ident = _plain({"stage": stage, "method": method, **identity})
+    ident = _plain({"stage": stage, "method": method, **identity, "versions": behaviour(stage)})
     key = run_key(ident)
     d = cfg.run_root / "runs" / stage / f"{method}-{key}" / f"seed{cfg.seed}"
     return Run(stage, method, int(cfg.seed), key, ident, d)

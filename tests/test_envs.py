@@ -415,8 +415,8 @@ def test_renderers_agree_on_size_and_depth_in_metres():
     assert auto_name == resolve_renderer("auto") == "tiny"
     for a, b in zip(tiny, auto):
         assert np.array_equal(a["rgb"], b["rgb"]) and np.array_equal(a["depth"], b["depth"])
-    # Run keys: TinyRenderer leaves the field out (old keys hold); another renderer is part of the key.
-    assert "renderer" not in env_identity(EnvConfig(renderer="auto"))
+    # Run keys hold the resolved renderer: auto and tiny are one run here, EGL another.
+    assert env_identity(EnvConfig(renderer="auto")) == env_identity(EnvConfig(renderer="tiny")) == {"renderer": "tiny"}
     assert env_identity(EnvConfig(renderer="egl"))["renderer"] == "egl"
     try:
         egl_name, egl = frames("egl")

@@ -7,7 +7,7 @@ import re
 import pandas as pd
 
 from omcrl.runs import read_identity
-from omcrl.scenes import SCENE_SPECS, generate_scene, scene_key
+from omcrl.scenes import SCENE_SPECS, generate_scene
 
 
 def _runnable_blocks(text: str) -> list[str]:
@@ -29,7 +29,7 @@ def test_your_own_course_trains_evaluates_and_tabulates(repo_root, tmp_path, cap
 
 def _check(ns: dict) -> None:
     table, ppo = ns["table"], ns["ppo"]
-    assert read_identity(ppo.run_dir)["identity"]["env"]["scene"] == scene_key("slalom-v0")  # in the run's identity
+    assert read_identity(ppo.run_dir)["identity"]["env"]["scene"] == "slalom-v0"  # in the run's identity
     sr = table["SR"]
     assert set(sr.index.get_level_values("scene")) == {"box-v0", "slalom-v0"}
     assert set(sr.index.get_level_values("method")) == {"ppo", "hybrid-apf"}

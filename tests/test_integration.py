@@ -22,7 +22,6 @@ from omcrl.planners import HybridAPF
 from omcrl.rl import CheckpointError, load_policy, train_oracle, train_student
 from omcrl.rl.policy import make_oracle_features, policy_payload
 from omcrl.rl.ppo import ActorCritic
-from omcrl.scenes import scene_key
 
 torch.set_num_threads(1)
 # The module, not the function ``omcrl.rl.train`` that the package re-exports under the same name.
@@ -247,20 +246,6 @@ def test_evaluation_cache_keeps_each_checkpoint_under_one_label(chain, monkeypat
     monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))
     _same_episodes(stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path}), first)
     _same_episodes(stage.evaluate_methods(cfg, {"ours": chain["student"].final_path}), second)
-
-
-def test_evaluation_cache_reads_files_written_before_the_key_was_in_the_name(chain, monkeypatch, tmp_path):
-    import omcrl.eval.stage as stage
-
-    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", "eval.scenes=[box]", "eval.episodes=2"])
-    first = stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path})
-    folder = cfg.run_root / "eval" / "ours" / "seed0"
-    stem = scene_key(cfg.eval.scenes[0])  # the name of the scene in cache files ("box-v2")
-    (new,) = folder.glob(f"{stem}-*.csv")
-    new.rename(folder / f"{stem}.csv")
-    new.with_suffix(".json").rename(folder / f"{stem}.json")
-    monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))
-    _same_episodes(stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path}), first)
 
 
 def _same_episodes(cached: pd.DataFrame, fresh: pd.DataFrame) -> None:

@@ -7,7 +7,6 @@ import pytest
 import torch
 
 from omcrl.config import ConfigError, load_config
-from omcrl.scenes import suite_overrides
 from omcrl.utils import precision as prec
 
 
@@ -45,21 +44,22 @@ def test_training_passes_run_in_bf16_inference_in_fp32_outputs_float32():
     assert agent.spec()["precision"] == "bf16" and "precision" not in ActorCritic(IdentityFeatures(5), 3).spec()
 
 
-def test_bf16_and_fp32_runs_have_different_keys_and_fp32_keeps_its_key(monkeypatch):
+def test_bf16_and_fp32_runs_have_different_keys_and_auto_is_what_it_resolves_to(monkeypatch):
     from omcrl.pretrain.train import pretrain_run
     from omcrl.rl.train import oracle_run
 
     monkeypatch.setattr(prec, "cpu_flags", lambda: frozenset({"amx_bf16"}))
-    keys = {}
+    keys, runs = {}, {}
     for p in ("fp32", "bf16", "auto"):
-        # The pinned fp32 keys are the v1 suite's (trained in box-v0): v2's runs have keys of their own.
-        cfg = load_config("quick", overrides=[f"rl.precision={p}", f"pretrain.precision={p}", *suite_overrides("v1")])
-        keys[p] = (oracle_run(cfg).dir.parent.name, pretrain_run(cfg).dir.parent.name)
+        cfg = load_config("quick", overrides=[f"rl.precision={p}", f"pretrain.precision={p}"])
+        runs[p] = (oracle_run(cfg), pretrain_run(cfg))
+        keys[p] = tuple(r.dir.parent.name for r in runs[p])
     assert keys["fp32"] != keys["bf16"] == keys["auto"]
-    # The keys of fp32 runs are those from before the field existed (main at 5b7ae87).
-    assert keys["fp32"] == ("oracle-680410e396", "omc-a77659c620")
+    # fp32 is the default: its identities hold no precision; bf16 ones hold the resolved value.
+    assert "precision" not in runs["fp32"][0].identity["rl"] and runs["auto"][0].identity["rl"]["precision"] == "bf16"
+    assert runs["auto"][1].identity["pretrain"]["precision"] == "bf16"
     monkeypatch.setattr(prec, "cpu_flags", lambda: frozenset())
-    cfg = load_config("quick", overrides=["rl.precision=auto", "pretrain.precision=auto", *suite_overrides("v1")])
+    cfg = load_config("quick", overrides=["rl.precision=auto", "pretrain.precision=auto"])
     assert (oracle_run(cfg).dir.parent.name, pretrain_run(cfg).dir.parent.name) == keys["fp32"]
 
 

@@ -133,13 +133,15 @@ def test_cli_names_the_problem_in_one_line(tmp_path, capsys):
 
 
 def test_a_bundle_names_its_scene_suite_and_one_from_before_v2_holds_v1_runs(tmp_path):
-    """The runs of a bundle are found under its suite's scenes: the shipped quick bundle predates v2 (no `suite`
-    field) and holds v1 runs, so `--from-reference` passes v1's overrides; a bundle of another suite says so."""
+    """The runs of a bundle are found under its suite's scenes: the shipped quick bundle holds v1 runs (re-keyed by
+    scripts/rekey_reference.py), so `--from-reference` passes v1's overrides; a manifest from before v2 (no `suite`
+    field) holds v1 runs; a bundle of another suite says so."""
     from omcrl.pipeline.reference import bundle_overrides, bundle_suite, config_suite
     from omcrl.scenes import suite_overrides
 
     shipped = json.loads((Path(__file__).parents[1] / "reference" / "quick" / "bundle" / MANIFEST).read_text())
-    assert "suite" not in shipped and bundle_suite(shipped) == "v1"
+    assert shipped["suite"] == "v1" and shipped["rekeyed"]["runs"] and bundle_suite(shipped) == "v1"
+    assert bundle_suite({k: v for k, v in shipped.items() if k != "suite"}) == "v1"
     assert bundle_overrides("quick") == suite_overrides("v1")
     b = _bundle(tmp_path / "b", FILES, {"suite": "v2"})
     assert bundle_overrides("smoke", b) == suite_overrides("v2")
@@ -149,3 +151,13 @@ def test_a_bundle_names_its_scene_suite_and_one_from_before_v2_holds_v1_runs(tmp
     assert config_suite(cfg) == "v2" and config_suite(cfg.with_suite("v1")) == "v1"
     with pytest.raises(ReferenceError, match="training scene of no suite"):
         config_suite(load_config("smoke", overrides=["env.scene=tree-v2"]))
+
+
+def test_the_shipped_bundle_is_found_by_this_codes_registry(tmp_path):
+    """Every run of reference/quick/bundle is where the run registry of this code looks for it: a change of run
+    identity that would orphan the shipped runs fails here (re-key them once with scripts/rekey_reference.py)."""
+    from omcrl.pipeline.reference import bundle_overrides, default_bundle
+
+    cfg = load_config("quick", overrides=[f"results_dir={tmp_path}", *bundle_overrides("quick")])
+    res = unpack_reference(cfg, default_bundle("quick"))
+    assert not res.not_found and len(res.found) == len(res.manifest["methods"]) * len(res.manifest["seeds"])

@@ -257,6 +257,11 @@ def _open_existing(path: Path, cfg: Config) -> int:
         ) from None
 
 
+def collection_env(cfg: Config) -> Any:
+    """The env section data is flown in: ``cfg.env`` in ``data.scene`` with ``data.max_steps`` as its horizon."""
+    return dataclasses.replace(cfg.env, scene=cfg.data.scene, max_steps=cfg.data.max_steps)
+
+
 def collect_dataset(cfg: Config, policy: Policy | None = None, *, progress: bool = True) -> CollectResult:
     """Collect ``cfg.data.episodes`` episodes into ``cfg.data.file`` (appending to a shorter existing file).
 
@@ -288,7 +293,7 @@ def collect_dataset(cfg: Config, policy: Policy | None = None, *, progress: bool
         return CollectResult(path, have, 0, skipped=True, wall_time_s=time.perf_counter() - t_start)
     n_new = d.episodes - have
     sources = assign_sources(d.mix, d.episodes, cfg.seed)[have:]
-    env_cfg = dataclasses.replace(cfg.env, scene=d.scene, max_steps=d.max_steps)
+    env_cfg = collection_env(cfg)
     # Seeds depend on where this call starts, so an appended batch of episodes gets new layouts.
     ss = np.random.SeedSequence([cfg.seed, have])
     env_seed = int(ss.generate_state(1)[0] % (2**31 - 1 - d.n_envs))

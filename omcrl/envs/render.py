@@ -4,19 +4,17 @@
 env's client and renders with ``ER_BULLET_HARDWARE_OPENGL`` (an error naming the cause when it cannot load);
 ``auto`` uses EGL when a CUDA GPU is present and the plugin loads, TinyRenderer otherwise. Both give images of
 ``env.image_size`` px and depth converted from the same OpenGL z-buffer convention to metres; their pixels
-differ (shading and rasterisation are not the same code), so the resolved renderer is part of a run's identity
-whenever it is not TinyRenderer (:func:`env_identity`).
+differ (shading and rasterisation are not the same code), so the resolved renderer is part of every run's and
+evaluation's identity (:func:`env_identity`).
 """
 
 from __future__ import annotations
 
 import functools
 import warnings
-from dataclasses import asdict
 from typing import Any
 
-from omcrl.config import ConfigError
-from omcrl.scenes import scene_key
+from omcrl.config import ConfigError, section_identity
 from omcrl.utils.quiet import import_quietly
 
 # PyBullet is imported inside the functions that render: resolving a renderer name for a run's identity needs
@@ -96,12 +94,6 @@ def pybullet_renderer(resolved: str) -> int:
 
 
 def env_identity(env_cfg: Any) -> dict:
-    """The env config as it enters run and evaluation keys: ``renderer`` resolved, and left out when it is
-    TinyRenderer (the renderer every run used before the field existed), so CPU runs keep their keys; the scene
-    as :func:`~omcrl.scenes.scene_key` names it."""
-    d = asdict(env_cfg)
-    d["scene"] = scene_key(d["scene"])  # a v0 scene keeps its bare name: runs from before versions keep their keys
-    resolved = resolve_renderer(d.pop("renderer", "tiny"))
-    if resolved != "tiny":
-        d["renderer"] = resolved
-    return d
+    """The env section as it enters run and evaluation keys: :func:`~omcrl.config.section_identity` with the
+    renderer resolved (so a run keyed on a GPU with EGL never shares a key with a TinyRenderer run)."""
+    return section_identity(env_cfg, renderer=resolve_renderer(env_cfg.renderer))

@@ -16,13 +16,12 @@ the episodes, so the notebooks and the CLI share results.
 
 from __future__ import annotations
 
-import inspect
 import json
 import time
 import warnings
 from collections.abc import Mapping, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,8 +34,8 @@ from omcrl.eval.metrics import format_table, summary_table
 from omcrl.eval.runner import EvalPool, evaluate
 from omcrl.rl import load_policy
 from omcrl.rl.methods import PlannerRecipe
-from omcrl.runs import find_runs
-from omcrl.scenes import scene_id, scene_key
+from omcrl.runs import behaviour, find_runs
+from omcrl.scenes import scene_id
 from omcrl.utils.io import atomic_write_text, file_digest
 
 HYBRID_APF = "HybridAPF"
@@ -92,9 +91,8 @@ def _load(method: str, source: Any) -> tuple[Any, str]:
     """A policy object and a cache key for ``source``: a checkpoint path, a planner name or a policy."""
 
     if isinstance(source, str) and source in PLANNERS:
-        # Planners are code, not files: their cache key is the digest of the module that implements the class.
-        planner = planner_for(source)
-        return planner, f"{source}:{file_digest(Path(inspect.getfile(type(planner))))}"
+        # Planners are code, not files: their name, with the planners' behaviour version in the cache identity.
+        return planner_for(source), source
     if isinstance(source, (str, Path)):
         return load_policy(source, name=method), file_digest(Path(source))
     # An object: only cached under its explicit checkpoint, if it names one.
@@ -109,56 +107,79 @@ def _cache_file(folder: Path, stem: str, key: str) -> Path:
     return folder / f"{stem}-{key[:12]}.csv"
 
 
-def _read_cache(
-    folder: Path, stem: str, key: str, old_stem: str | None = None, rows: int | None = None
-) -> pd.DataFrame | None:
-    """The cached episodes of ``key`` under ``folder``, or None. Also reads the key-less ``<stem>.csv`` of
-    caches written before the key entered the name, when its stored key matches, and both under ``old_stem``
-    (a name the same evaluation had before).
+def evaluation_identity(
+    cfg: Config,
+    policy_key: str,
+    env: Any,
+    episodes: int,
+    *,
+    planner: bool,
+    lanes: int,
+    seed_offset: int | None = None,
+    disturbance: Mapping[str, Any] | None = None,
+) -> dict:
+    """The identity of one cached evaluation (``<run_root>/eval/...`` and the disturbance tests alike).
+
+    ``policy_key``: the policy file's digest, or a planner's name; ``env``: the env section it is flown in (its
+    scene set), by :func:`~omcrl.envs.render.env_identity`; the episodes, their seeds (``seed_offset``, default
+    ``cfg.eval.seed_offset``), the lanes stepped in lock-step (1 for planners), the disturbance, and the
+    behaviour versions of the code that decides the episodes (:func:`omcrl.runs.behaviour`).
+    """
+    return {
+        "policy": policy_key,
+        "env": env_identity(env),
+        "episodes": int(episodes),
+        "seed_offset": int(cfg.eval.seed_offset if seed_offset is None else seed_offset),
+        "lanes": int(lanes),
+        **({"disturbance": dict(disturbance)} if disturbance else {}),
+        "versions": behaviour("eval-planner" if planner else "eval-policy"),
+    }
+
+
+def _read_cache(folder: Path, stem: str, key: str, rows: int | None = None) -> pd.DataFrame | None:
+    """The cached episodes of ``key`` under ``folder``, or None.
 
     A cache is trusted only whole: its CSV must match the digest and row count recorded beside it (and ``rows``,
     the episodes asked for, when given); a damaged one is reported (a warning naming the file) and evaluated
     again, never used."""
     if not key:
         return None
-    stems = dict.fromkeys([stem, old_stem or stem])
-    for path in [p for st in stems for p in (_cache_file(folder, st, key), folder / f"{st}.csv")]:
-        meta_path = path.with_suffix(".json")
-        if not (path.exists() and meta_path.exists()):
-            continue
+    path = _cache_file(folder, stem, key)
+    meta_path = path.with_suffix(".json")
+    if not (path.exists() and meta_path.exists()):
+        return None
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        if not isinstance(meta, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as e:
+        warnings.warn(f"{meta_path}: damaged evaluation cache record ({e}); evaluating again", stacklevel=3)
+        return None
+    if meta.get("key") != key:
+        return None
+    problem = None
+    if meta.get("digest") is not None and file_digest(path) != meta["digest"]:
+        problem = "its content does not match the digest recorded when it was written"
+    try:
+        df = pd.read_csv(path)
+    except (OSError, ValueError, UnicodeDecodeError) as e:
+        df, problem = None, problem or f"unreadable ({type(e).__name__})"
+    want = meta.get("rows", rows)
+    if df is not None and problem is None and want is not None and len(df) != int(want):
+        problem = f"{len(df)} rows, expected {int(want)}"
+    if problem is not None:
+        warnings.warn(f"{path}: damaged evaluation cache ({problem}); evaluating again", stacklevel=3)
+        return None
+    # CSV writes "" and NaN alike; a planner's empty checkpoint must come back as "", like a fresh row.
+    if "checkpoint" in df:
+        df["checkpoint"] = ["" if pd.isna(v) else str(v) for v in df["checkpoint"]]
+    if "trajectory" in df:
         try:
-            meta = json.loads(meta_path.read_text(encoding="utf-8"))
-            if not isinstance(meta, dict):
-                raise ValueError("not a JSON object")
-        except (OSError, ValueError) as e:
-            warnings.warn(f"{meta_path}: damaged evaluation cache record ({e}); evaluating again", stacklevel=3)
+            df["trajectory"] = [[tuple(p) for p in json.loads(t)] for t in df["trajectory"]]
+        except (TypeError, ValueError):
+            warnings.warn(f"{path}: damaged evaluation cache (trajectories); evaluating again", stacklevel=3)
             return None
-        if meta.get("key") != key:
-            continue
-        problem = None
-        if meta.get("digest") is not None and file_digest(path) != meta["digest"]:
-            problem = "its content does not match the digest recorded when it was written"
-        try:
-            df = pd.read_csv(path)
-        except (OSError, ValueError, UnicodeDecodeError) as e:
-            df, problem = None, problem or f"unreadable ({type(e).__name__})"
-        want = meta.get("rows", rows)
-        if df is not None and problem is None and want is not None and len(df) != int(want):
-            problem = f"{len(df)} rows, expected {int(want)}"
-        if problem is not None:
-            warnings.warn(f"{path}: damaged evaluation cache ({problem}); evaluating again", stacklevel=3)
-            return None
-        # CSV writes "" and NaN alike; a planner's empty checkpoint must come back as "", like a fresh row.
-        if "checkpoint" in df:
-            df["checkpoint"] = ["" if pd.isna(v) else str(v) for v in df["checkpoint"]]
-        if "trajectory" in df:
-            try:
-                df["trajectory"] = [[tuple(p) for p in json.loads(t)] for t in df["trajectory"]]
-            except (TypeError, ValueError):
-                warnings.warn(f"{path}: damaged evaluation cache (trajectories); evaluating again", stacklevel=3)
-                return None
-        return df
-    return None
+    return df
 
 
 def _write_cache(folder: Path, stem: str, key: str, df: pd.DataFrame) -> None:
@@ -224,8 +245,6 @@ def evaluate_methods(
     scenes = [scene_id(s) for s in (scenes if scenes is not None else cfg.eval.scenes)]
     episodes = int(episodes if episodes is not None else cfg.eval.episodes)
 
-    env_key = env_identity(cfg.env)
-    env_key.pop("scene")
     frames = []
     with ExitStack() as stack:
         if pool is None and cfg.eval.workers != 1:  # workers start on the first uncached evaluation
@@ -233,18 +252,21 @@ def evaluate_methods(
         for label, source in methods.items():
             policy, pkey = _load(label, source)
             for scene in scenes:
-                ident = {"policy": pkey, "env": env_key, "scene": scene_key(scene), "episodes": episodes}
-                if disturbance:  # only when set: undisturbed evaluations keep their keys
-                    ident["disturbance"] = dict(disturbance)
-                if cfg.eval.lanes != 1 and callable(getattr(policy, "act_batch", None)):
-                    ident["lanes"] = cfg.eval.lanes  # likewise: one env at a time (and planners) keep their keys
-                key = config_hash({**ident, "seed_offset": cfg.eval.seed_offset}) if pkey else ""
+                lanes = cfg.eval.lanes if callable(getattr(policy, "act_batch", None)) else 1
+                ident = evaluation_identity(
+                    cfg,
+                    pkey,
+                    replace(cfg.env, scene=scene),
+                    episodes,
+                    planner=isinstance(source, str) and source in PLANNERS,
+                    lanes=lanes,
+                    disturbance=disturbance,
+                )
+                key = config_hash(ident) if pkey else ""
                 folder = eval_cache_dir(cfg, label)
                 tail = "" if not disturbance else "-" + "-".join(f"{v}" for v in disturbance.values())
                 stem = scene + tail
-                # Caches written before scenes had versions are named by the bare family (v0, same key).
-                old_stem = scene_key(scene) + tail
-                df = _read_cache(folder, stem, key, old_stem, rows=episodes) if cache else None
+                df = _read_cache(folder, stem, key, rows=episodes) if cache else None
                 if stats is not None:
                     k = "cached" if df is not None else "evaluated"
                     stats[k] = stats.get(k, 0) + 1

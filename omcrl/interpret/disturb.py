@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Sequence
-from dataclasses import asdict
 from typing import Any
 
 import numpy as np
@@ -27,7 +26,7 @@ import pandas as pd
 
 from omcrl.config import Config, ConfigError, EnvConfig, config_hash, validate_env
 from omcrl.eval.runner import EvalPool, evaluate
-from omcrl.eval.stage import _read_cache, _write_cache
+from omcrl.eval.stage import _read_cache, _write_cache, evaluation_identity
 from omcrl.eval.stats import mean_ci
 from omcrl.rl.methods import final_policy_path, get_method
 from omcrl.rl.policy import CheckpointError, load_policy
@@ -116,15 +115,16 @@ def disturbance_episodes(
     with EvalPool(cfg.eval.workers) as pool:
         for m, pol in policies.items():
             for c, dist in dists.items():
-                ident = {
-                    "policy": file_digest(pol.checkpoint),
-                    "env": asdict(room),
-                    "disturbance": dist,
-                    "episodes": episodes,
-                    "offset": SEED_OFFSET,
-                }
-                if cfg.eval.lanes != 1:  # only when set: evaluations one env at a time keep their keys
-                    ident["lanes"] = cfg.eval.lanes
+                ident = evaluation_identity(
+                    cfg,
+                    file_digest(pol.checkpoint),
+                    room,
+                    episodes,
+                    planner=False,
+                    lanes=cfg.eval.lanes,
+                    seed_offset=SEED_OFFSET,
+                    disturbance=dist,
+                )
                 key = config_hash(ident)
                 folder = cfg.run_root / "interpret" / "disturbance" / m / f"seed{cfg.seed}"
                 df = _read_cache(folder, c, key, rows=episodes) if cache else None

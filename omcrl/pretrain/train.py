@@ -15,7 +15,6 @@ as an uninterrupted one (all random generators are checkpointed).
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 import logging
 import math
@@ -26,23 +25,20 @@ from typing import Any
 
 import torch
 
-from omcrl.config import Config, PretrainConfig, config_hash, drop_neutral, save_config
+from omcrl.config import Config, PretrainConfig, save_config, section_identity
+from omcrl.data.collect import collection_env
 from omcrl.data.dataset import DatasetError, open_dataset
 from omcrl.data.sampler import SequenceSampler
+from omcrl.envs.render import env_identity
 from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
 from omcrl.runs import ArtifactMismatch, Run, StopAfter, Trainer, TrainingLoop, make_run, verify_artifact
-from omcrl.scenes import scene_key
 from omcrl.utils.io import atomic_write_text, file_digest, load_torch
 from omcrl.utils.precision import section_precision
 from omcrl.utils.runtime import resolve_device, set_threads
 
 log = logging.getLogger(__name__)
 
-# Fields that do not change what is learned up to a given step (a run may be extended or resumed across them).
-_RESUMABLE = ("iterations", "checkpoint_every", "num_threads")
-# Where and how fast the arithmetic runs, not what it computes (rounding aside): never part of a run's identity.
-_EXECUTION = ("checkpoint_every", "num_threads", "device")
 _CACHE_BYTES = 256 * 2**20  # cache all frames in RAM below this size
 
 
@@ -89,24 +85,16 @@ def method_name(p: PretrainConfig) -> str:
 def pretrain_run(cfg: Config) -> Run:
     """The :class:`omcrl.runs.Run` of this pretraining configuration.
 
-    Its identity is everything that changes the encoder: the pretraining fields (less ``checkpoint_every``,
-    ``num_threads`` and ``device``), the data collection settings (less the file's path), the frame stack and
-    the image size; the dataset's content fingerprint is checked separately (``done.json``), so re-collected
-    data retrains the same run.
+    Its identity is the sections it reads, by :func:`~omcrl.config.section_identity`: the pretraining section
+    (precision resolved), the data collection section (its file is a location, execution-only) and the env the
+    data is flown in (:func:`~omcrl.data.collect.collection_env`). The dataset's content fingerprint is the
+    upstream digest; it is checked when a run finishes or resumes (``done.json``, the checkpoint) rather than
+    keyed, so the encoder's path is known before the data is collected, and re-collected data retrains the run.
     """
-    p = {k: v for k, v in dataclasses.asdict(cfg.pretrain).items() if k not in _EXECUTION}
-    p = drop_neutral("pretrain", p)
-    _resolved_precision(cfg, p)
-    # The data file's path is not identity (moving the data must not orphan the run); its content is checked
-    # against the fingerprint recorded in done.json.
-    # Fields added after runs existed are identity only when set: at their default they keep the runs' keys.
-    data = drop_neutral("data", {k: v for k, v in dataclasses.asdict(cfg.data).items() if k != "file"})
-    data["scene"] = scene_key(data["scene"])  # v0 by its bare name, as before scenes had versions
     ident = {
-        "pretrain": p,
-        "data": data,
-        "frame_stack": cfg.env.frame_stack,
-        "image_size": cfg.env.image_size,
+        "pretrain": section_identity(cfg.pretrain, precision=section_precision(cfg.pretrain)),
+        "data": section_identity(cfg.data),
+        "env": env_identity(collection_env(cfg)),
     }
     return make_run(cfg, "pretrain", method_name(cfg.pretrain), ident)
 
@@ -140,21 +128,9 @@ def _read_done(path: Path) -> dict:
         ) from None
 
 
-def _resolved_precision(cfg: Config, p: dict) -> None:
-    """Put the resolved precision in the identity dict ``p`` when it is bf16; fp32 runs keep their keys."""
-    p.pop("precision", None)
-    if section_precision(cfg.pretrain) != "fp32":
-        p["precision"] = section_precision(cfg.pretrain)
-
-
-def _hashes(cfg: Config, fingerprint: str) -> tuple[str, str]:
-    p = drop_neutral("pretrain", dataclasses.asdict(cfg.pretrain))
-    for k in ("num_threads", "device"):
-        p.pop(k)
-    _resolved_precision(cfg, p)
-    base = {"pretrain": p, "frame_stack": cfg.env.frame_stack, "seed": cfg.seed, "dataset": fingerprint}
-    compat = {**base, "pretrain": {k: v for k, v in p.items() if k not in _RESUMABLE}}
-    return config_hash(base), config_hash(compat)
+def _made_of(run: Run, fingerprint: str) -> dict:
+    """What a finished encoder or a checkpoint was made of: the run's key and the dataset's fingerprint."""
+    return {"key": run.key, "dataset_fingerprint": fingerprint}
 
 
 def _read_metrics(path: Path, upto: int) -> list[tuple[int, str, float]]:
@@ -168,9 +144,9 @@ class _Iterations(Trainer):
     """Pretraining as a :class:`omcrl.runs.Trainer`: one step is one iteration (a batch of sequences for OMC,
     of stack pairs for CURL), its metrics the loss terms and learning rates."""
 
-    def __init__(self, p: Any, learner: Any, opt: Any, sampler: Any, gen: Any, start: int, compat: str) -> None:
+    def __init__(self, p: Any, learner: Any, opt: Any, sampler: Any, gen: Any, start: int, made_of: dict) -> None:
         self.p, self.learner, self.opt, self.sampler, self.gen = p, learner, opt, sampler, gen
-        self.it, self.compat = start, compat
+        self.it, self.made_of = start, made_of
         # CURL sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
         self.n_pairs = p.batch_size * p.seq_len
         self.stride = p.cons_stride if p.method == "curl_cons" else 0
@@ -200,7 +176,7 @@ class _Iterations(Trainer):
     def state(self, step: int) -> dict:
         return {
             "step": step,
-            "compat": self.compat,
+            **self.made_of,
             "learner": self.learner.state_dict(),
             "optim": self.opt.state_dict(),
             "sampler_rng": json.dumps(self.sampler.rng.bit_generator.state),
@@ -250,10 +226,10 @@ def pretrain_encoder(
             )
         ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
         fp = ds.fingerprint
-    full_hash, compat_hash = _hashes(cfg, fp)
     if done is not None:
         digest = done.get("encoder_digest")
-        if done.get("hash") == full_hash and digest is not None and file_digest(enc_path) != digest:
+        same = _made_of(run_rec, fp) == {k: done.get(k) for k in ("key", "dataset_fingerprint")}
+        if same and digest is not None and file_digest(enc_path) != digest:
             # A finished encoder that changed since it was written is not trusted: rebuild it (from the final
             # checkpoint when there is one, else by training again).
             log.warning("pretrain %s: %s does not match its recorded digest; rebuilding it", name, enc_path)
@@ -261,7 +237,7 @@ def pretrain_encoder(
                 f"{enc_path} does not match the digest recorded when it was written; rebuilding it", stacklevel=2
             )
             done_path.unlink()
-        elif done.get("hash") == full_hash:
+        elif same:
             log.info("pretrain %s: finished run with the same config found in %s, skipping", name, out)
             if ds is not None:
                 ds.close()
@@ -272,7 +248,7 @@ def pretrain_encoder(
     if ds is None:  # the finished run cannot be reused and there is no dataset to train again from
         ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
         fp = ds.fingerprint
-        full_hash, compat_hash = _hashes(cfg, fp)
+    made_of = _made_of(run_rec, fp)
     if ck_path.exists():  # before anything is written: a damaged checkpoint is refused, never resumed
         verify_artifact(ck_path, "pretraining checkpoint", f"delete it to pretrain {name} seed {cfg.seed} anew")
     run_rec.claim()
@@ -301,7 +277,7 @@ def pretrain_encoder(
         start, rows = 0, []
         if ck_path.exists():
             state = load_torch(ck_path, "pretraining checkpoint")
-            if state.get("compat") == compat_hash and state["step"] <= p.iterations:
+            if {k: state.get(k) for k in made_of} == made_of and state["step"] <= p.iterations:
                 learner.load_state_dict(state["learner"])
                 opt.load_state_dict(state["optim"])
                 sampler.rng.bit_generator.state = json.loads(state["sampler_rng"])
@@ -319,8 +295,8 @@ def pretrain_encoder(
                     warnings.warn(msg, stacklevel=2)
                 log.info("pretrain %s: resuming from iteration %d", name, start)
             else:
-                log.warning("pretrain %s: checkpoint in %s is from a different config; starting over", name, out)
-        trainer = _Iterations(p, learner, opt, sampler, gen, start, compat_hash)
+                log.warning("pretrain %s: checkpoint in %s is from other data or code; starting over", name, out)
+        trainer = _Iterations(p, learner, opt, sampler, gen, start, made_of)
         learner.train()
         loop = TrainingLoop(
             run_rec,
@@ -346,7 +322,7 @@ def pretrain_encoder(
             done_path,
             json.dumps(
                 {
-                    "hash": full_hash,
+                    **made_of,
                     "iterations": p.iterations,
                     "final_loss": loss_val if math.isfinite(loss_val) else None,  # JSON has no NaN
                     "dataset": str(path),

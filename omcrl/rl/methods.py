@@ -35,8 +35,7 @@ from omcrl.rl.policy import load_policy
 from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, train_pixel, train_student
 from omcrl.runs import Run
 
-# Planner guides: name -> (class in omcrl.planners, the factory name that enters a run's identity). "apf" keeps
-# the name its runs had before the non-expert guide existed, so expert-guided runs keep their keys.
+# Planner guides: name -> (class in omcrl.planners, the factory name that enters a run's identity).
 PLANNER_GUIDES = {"apf": ("HybridAPF", "hybrid_apf"), "local-apf": ("LocalAPF", "local_apf")}
 
 

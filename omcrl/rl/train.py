@@ -25,13 +25,13 @@ import time
 import warnings
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from omcrl.config import Config, save_config
+from omcrl.config import Config, field_default, save_config, section_identity
 from omcrl.envs import make_vec_env
 from omcrl.envs.render import env_identity
 from omcrl.models.actor_critic import ActorCritic
@@ -100,10 +100,6 @@ METRIC_NAMES = (
     "update_s",
 )
 
-# RL fields that do not change the trained artifact (they may differ between a run and its resume).
-# ``update_threads`` and ``device`` change the rounding of the arithmetic, not the algorithm, like running on
-# another machine.
-_NOT_IDENTITY = ("checkpoint_every", "update_threads", "device", "precision")
 _GUIDE_FIELDS = ("alpha_schedule", "alpha_start", "alpha_decay_steps", "alpha_exp_factor", "alpha_exp_every", "beta")
 
 
@@ -141,25 +137,27 @@ def rollout_geometry(rl: Any) -> tuple[int, int, int, int]:
     return length, per_update, n_updates, n_updates * per_update
 
 
-def rl_identity(cfg: Config, guide: str | None, **extra: Any) -> dict:
-    """The identity of an RL run: every field that changes its trained policy.
+def rl_identity(cfg: Config, guide: str | None, *, oracle: bool = False, **extra: Any) -> dict:
+    """The identity of an RL run: the RL and env sections as the method reads them, and ``extra``.
 
-    ``cfg.rl`` (less ``checkpoint_every``; less the α/β fields without a guide; ``guide_std`` only with a
-    planner guide; ``oracle_guide`` only for the oracle, via ``extra``) and ``cfg.env``, plus ``extra``
-    (upstream digests, network sizes taken from other sections). ``guide``: None, ``"planner"`` or
-    ``"policy"``.
+    Both sections by :func:`~omcrl.config.section_identity` (fields off their defaults; execution-only fields
+    never), precision and renderer resolved. Fields the method does not read are set to their defaults first:
+    without a guide (``guide`` None, or ``alpha_schedule='none'``) the α/β fields and ``guide_std``, with
+    ``alpha_schedule`` 'none'; ``guide_std`` unless the guide is a planner (``"planner"``; ``"policy"``: the
+    oracle); ``oracle_guide`` unless this is the oracle (``oracle``; a student sees it through the oracle's
+    digest). ``extra``: upstream digests and the fields read from other sections (network sizes).
     """
-    rl = {k: v for k, v in asdict(cfg.rl).items() if k not in _NOT_IDENTITY and k != "oracle_guide"}
-    if section_precision(cfg.rl) != "fp32":  # resolved; fp32 runs keep the keys they had before the field
-        rl["precision"] = section_precision(cfg.rl)
-    if guide is None or cfg.rl.alpha_schedule == "none":
-        for k in (*_GUIDE_FIELDS, "guide_std"):
-            rl.pop(k)
-        rl["alpha_schedule"] = "none"
+    rl = cfg.rl
+    unread: dict[str, Any] = {}
+    if guide is None or rl.alpha_schedule == "none":
+        unread = {k: field_default(rl, k) for k in (*_GUIDE_FIELDS, "guide_std")}
+        unread["alpha_schedule"] = "none"
     elif guide != "planner":
-        rl.pop("guide_std")
-
-    return {"rl": rl, "env": env_identity(cfg.env), **extra}
+        unread["guide_std"] = field_default(rl, "guide_std")
+    if not oracle:
+        unread["oracle_guide"] = field_default(rl, "oracle_guide")
+    rl_ident = section_identity(rl, precision=section_precision(rl), **unread)
+    return {"rl": rl_ident, "env": env_identity(cfg.env), **extra}
 
 
 def rl_run(cfg: Config, method: str, identity: dict) -> Run:
@@ -465,11 +463,7 @@ def oracle_run(cfg: Config, name: str = "oracle", *, custom_env: bool = False) -
     """The run of the oracle for ``cfg``: its depth encoder's width ``pretrain.feature_dim`` is part of it."""
     guided = cfg.rl.oracle_guide != "none"
     ident = rl_identity(
-        cfg,
-        "planner" if guided else None,
-        oracle_guide=cfg.rl.oracle_guide,
-        feature_dim=cfg.pretrain.feature_dim,
-        custom_env=custom_env,
+        cfg, "planner" if guided else None, oracle=True, feature_dim=cfg.pretrain.feature_dim, **_custom(custom_env)
     )
     return rl_run(cfg, name, ident)
 
@@ -499,7 +493,12 @@ def policy_run(
             "oracle_digest": file_digest(oracle_path) if oracle_path is not None else "",
             "planner": getattr(planner_factory, "__name__", "") if planner_factory else "",
         }
-    return rl_run(cfg, name, rl_identity(cfg, kind, **feats, custom_env=custom_env, **guide))
+    return rl_run(cfg, name, rl_identity(cfg, kind, **feats, **_custom(custom_env), **guide))
+
+
+def _custom(custom_env: bool) -> dict:
+    """``{"custom_env": True}`` for a run on a caller's env factory (its env is not the config's), else nothing."""
+    return {"custom_env": True} if custom_env else {}
 
 
 def train_student(

@@ -27,9 +27,8 @@ The v2 suite (the default, :data:`SUITES`) keeps the v1 suite's looks and makes 
 In the unseen v2 scenes every episode has its straight line blocked.
 
 A bare family name (``"furniture"``) means its latest version, as in Gymnasium. furniture-v0 and -v1 share their
-generator and random stream, so a seed gives the same geometry in both; v2 scenes draw from streams of their own. In
-run and cache identities a v0 scene keeps its bare name (:func:`scene_key`), so runs from before versions keep
-their keys.
+generator and random stream, so a seed gives the same geometry in both; v2 scenes draw from streams of their own.
+Run and cache identities name a scene by its id.
 
 A scene is a list of :class:`~omcrl.scenes.geometry.Primitive`; decor (floor, walls beyond the arena, ceiling,
 sky) is ``visual_only``. Generators place structures by rejection sampling with a spacing margin so that the
@@ -99,11 +98,6 @@ class SceneSpec:
         """The Gymnasium id, e.g. ``omcrl/Furniture-v1``."""
         return f"omcrl/{self.family.capitalize()}-v{self.version}"
 
-    @property
-    def key(self) -> str:
-        """The scene's name in run and cache identities: the bare family for v0 (as before versions existed)."""
-        return self.family if self.version == 0 else self.id
-
 
 SCENE_SPECS: dict[str, SceneSpec] = {}
 
@@ -135,11 +129,6 @@ def scene_spec(name: str) -> SceneSpec:
 def scene_id(name: str) -> str:
     """The canonical id of ``name`` (``"furniture"`` -> ``"furniture-v1"``, ``"box"`` -> ``"box-v0"``)."""
     return scene_spec(name).id
-
-
-def scene_key(name: str) -> str:
-    """The name of ``name``'s scene in run and cache identities (see :attr:`SceneSpec.key`)."""
-    return scene_spec(name).key
 
 
 def families() -> tuple[str, ...]:

@@ -13,8 +13,8 @@ batch sizes (2 envs, 8 lanes) bf16 inference measured 0.64–0.85× the speed of
 - CPU: the ``avx512_bf16`` or ``amx_bf16`` flag in ``/proc/cpuinfo`` (Linux; elsewhere fp32);
 - CUDA: compute capability 8.0 or newer (Ampere and later have bfloat16 tensor cores).
 
-The resolved precision is part of a run's identity when it is bf16 (fp32 runs keep the keys they had before the
-field existed), so a bf16 run never reuses an fp32 artifact or the other way round.
+The resolved precision is part of a run's identity (:func:`omcrl.config.section_identity`: bf16 differs from the
+fp32 default), so a bf16 run never reuses an fp32 artifact or the other way round.
 """
 
 from __future__ import annotations
