@@ -362,6 +362,14 @@ class Config:
         out.eval.scenes = [*SUITES[suite], *STRESS_SCENES]
         return validate(out)
 
+    def with_overrides(self, overrides: list[str]) -> Config:
+        """A copy of this config with ``'section.field=value'`` overrides applied (as ``--set`` does)."""
+        import copy
+
+        out = copy.deepcopy(self)
+        apply_overrides(out, list(overrides))
+        return validate(out)
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
@@ -580,6 +588,19 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return key.strip().split("."), value
 
 
+def apply_overrides(cfg: Config, overrides: list[str]) -> None:
+    """Set each ``'section.field=value'`` of ``overrides`` on ``cfg`` in place, each value checked as its field
+    says (validate the whole config afterwards)."""
+    for text in overrides:
+        keys, val = parse_override(text)
+        nested: dict = {}
+        cur = nested
+        for k in keys[:-1]:
+            cur = cur.setdefault(k, {})
+        cur[keys[-1]] = val
+        _apply(cfg, nested)
+
+
 def load_config(
     preset: str = "quick", overrides: list[str] | dict | None = None, path: str | Path | None = None
 ) -> Config:
@@ -602,14 +623,7 @@ def load_config(
     if isinstance(overrides, dict):
         _apply(cfg, overrides)
     else:
-        for text in overrides or []:
-            keys, val = parse_override(text)
-            nested: dict = {}
-            cur = nested
-            for k in keys[:-1]:
-                cur = cur.setdefault(k, {})
-            cur[keys[-1]] = val
-            _apply(cfg, nested)
+        apply_overrides(cfg, overrides or [])
     if cfg.preset != preset:
         # The preset names the results folder: relabelling smoke budgets as paper results must not happen.
         raise ConfigError(

@@ -142,7 +142,8 @@ def test_a_bundle_names_its_scene_suite_and_one_from_before_v2_holds_v1_runs(tmp
     shipped = json.loads((Path(__file__).parents[1] / "reference" / "quick" / "bundle" / MANIFEST).read_text())
     assert shipped["suite"] == "v1" and shipped["rekeyed"]["runs"] and bundle_suite(shipped) == "v1"
     assert bundle_suite({k: v for k, v in shipped.items() if k != "suite"}) == "v1"
-    assert bundle_overrides("quick") == suite_overrides("v1")
+    # It was trained at quick's budget before the v2 budget check tripled it: the manifest says so.
+    assert bundle_overrides("quick") == [*suite_overrides("v1"), "rl.total_steps=150000", "rl.alpha_decay_steps=75000"]
     b = _bundle(tmp_path / "b", FILES, {"suite": "v2"})
     assert bundle_overrides("smoke", b) == suite_overrides("v2")
     with pytest.raises(ReferenceError, match="'suite' is 'v9'"):
@@ -161,3 +162,16 @@ def test_the_shipped_bundle_is_found_by_this_codes_registry(tmp_path):
     cfg = load_config("quick", overrides=[f"results_dir={tmp_path}", *bundle_overrides("quick")])
     res = unpack_reference(cfg, default_bundle("quick"))
     assert not res.not_found and len(res.found) == len(res.manifest["methods"]) * len(res.manifest["seeds"])
+
+
+def test_a_bundle_records_the_overrides_its_runs_were_trained_under():
+    from omcrl.pipeline.reference import config_overrides, manifest_overrides
+
+    cfg = load_config("quick", overrides=["rl.total_steps=1234", "env.goal_distance=[4, 12]"]).with_suite("v1")
+    got = config_overrides(cfg)
+    assert got == ["env.goal_distance=[4.0, 12.0]", "rl.total_steps=1234"]
+    again = load_config("quick").with_suite("v1").with_overrides(got)
+    assert config_overrides(again) == got and again.rl.total_steps == 1234
+    assert config_overrides(load_config("quick")) == []
+    with pytest.raises(ReferenceError, match="'overrides'"):
+        manifest_overrides({"overrides": "rl.total_steps=1"})

@@ -30,6 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from omcrl.eval.metrics import GLOSSARY, METRICS
+from omcrl.rl.methods import METHODS
 from omcrl.scenes import SUITES, scene_spec
 
 TRAINING_METRICS = {
@@ -123,8 +124,6 @@ LEDGER: tuple[Claim, ...] = (
 
 
 def _check(claim: Claim) -> None:
-    from omcrl.rl.methods import METHODS
-
     if claim.metric not in (*METRICS, *TRAINING_METRICS):
         raise ValueError(f"claim {claim.id}: metric {claim.metric!r} is not a Table I or training metric")
     if claim.kind not in KINDS or claim.family not in FAMILIES:

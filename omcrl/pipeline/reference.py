@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from omcrl.config import Config, project_root
+from omcrl.config import Config, load_config, project_root, section_identity
 from omcrl.eval.stage import eval_cache_root
 from omcrl.eval.table1 import evaluate_grid
 from omcrl.pipeline.glance import reference_table_dir
@@ -348,6 +348,7 @@ def pack_reference(
         "format": FORMAT,
         "preset": cfg.preset,
         "suite": config_suite(cfg),
+        "overrides": config_overrides(cfg),
         "seeds": seeds,
         "methods": methods,
         "commit": code_commit(short=False),
@@ -382,6 +383,24 @@ def config_suite(cfg: Config) -> str:
     raise ReferenceError(f"env.scene {cfg.env.scene!r} is the training scene of no suite {dict(SUITES)}")
 
 
+def config_overrides(cfg: Config) -> list[str]:
+    """The ``--set`` overrides, beyond its suite's, under which ``cfg``'s runs are found: every identity field of
+    the sections runs read (env, data, pretrain, rl) where ``cfg`` differs from its preset (so a bundle trained at
+    an earlier budget is still found after the preset changed)."""
+    base = load_config(cfg.preset).with_suite(config_suite(cfg))
+    out = []
+    for sec in ("env", "data", "pretrain", "rl"):
+        mine, theirs = section_identity(getattr(cfg, sec)), section_identity(getattr(base, sec))
+        for name in dict.fromkeys([*mine, *theirs]):
+            if mine.get(name) != theirs.get(name):
+                out.append(f"{sec}.{name}={json.dumps(_plain_json(getattr(getattr(cfg, sec), name)))}")
+    return out
+
+
+def _plain_json(value: Any) -> Any:
+    return list(value) if isinstance(value, tuple) else value
+
+
 def bundle_suite(manifest: dict[str, Any]) -> str:
     """The suite a bundle's runs were trained and evaluated in: its manifest's ``suite``; bundles made before the
     field existed hold v1 runs."""
@@ -395,7 +414,16 @@ def bundle_overrides(preset: str, bundle: str | Path | None = None) -> list[str]
     """The ``--set`` overrides under which a bundle's runs are found (:func:`omcrl.scenes.suite_overrides` of
     its suite): ``reproduce.sh --from-reference`` passes them to the notebooks it runs."""
     b = Path(bundle) if bundle is not None else default_bundle(preset)
-    return suite_overrides(bundle_suite(read_manifest(b, preset)))
+    m = read_manifest(b, preset)
+    return [*suite_overrides(bundle_suite(m)), *manifest_overrides(m)]
+
+
+def manifest_overrides(manifest: dict[str, Any]) -> list[str]:
+    """The manifest's ``overrides`` (a list of ``'section.field=value'``; none in bundles made before the field)."""
+    got = manifest.get("overrides", [])
+    if not isinstance(got, list) or not all(isinstance(o, str) and "=" in o for o in got):
+        raise ReferenceError(f"{MANIFEST}: field 'overrides' is {got!r}, expected a list of 'section.field=value'")
+    return got
 
 
 def read_manifest(bundle: str | Path, preset: str | None = None) -> dict[str, Any]:
@@ -484,7 +512,7 @@ def unpack_reference(cfg: Config, bundle: str | Path | None = None) -> Reference
     """
     b = Path(bundle) if bundle is not None else default_bundle(cfg.preset)
     m, contents = verify_reference(b, cfg.preset)
-    cfg = cfg.with_suite(bundle_suite(m))  # its runs are found where they were trained
+    cfg = cfg.with_suite(bundle_suite(m)).with_overrides(manifest_overrides(m))  # as its runs were trained
     root = cfg.run_root
     plan, present = [], []
     for rel, want in sorted(m["files"].items()):
