@@ -43,6 +43,7 @@ import h5py
 import numpy as np
 
 import omcrl
+from omcrl.envs.observation import PRIVILEGED_DIM, STATE_DIM
 from omcrl.utils.io import current_umask
 
 FORMAT_VERSION = 1
@@ -50,8 +51,8 @@ SOURCES = ("pilot", "random", "policy")
 FIELDS = {  # name -> (dtype, shape after the time axis; "img" = image side)
     "rgb": (np.uint8, (3, "img", "img")),
     "depth": (np.float16, ("img", "img")),
-    "state": (np.float32, (12,)),
-    "privileged": (np.float32, (6,)),
+    "state": (np.float32, (STATE_DIM,)),
+    "privileged": (np.float32, (PRIVILEGED_DIM,)),
     "action": (np.float32, (3,)),
     "reward": (np.float32, ()),
     "done": (np.bool_, ()),

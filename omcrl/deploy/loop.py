@@ -41,6 +41,7 @@ import numpy as np
 
 from omcrl.deploy.camera import CameraView
 from omcrl.deploy.timing import LAND_FALLBACK_S
+from omcrl.envs.observation import pack_state
 
 
 class Drone(Protocol):
@@ -215,10 +216,8 @@ class StateEstimator:
         self.prev = (np.asarray(pose, np.float64), t)
         c, s = math.cos(yaw), math.sin(yaw)
         gx, gy = self.goal[0] - x, self.goal[1] - y
-        return np.array(
-            [self.v[0], self.v[1], 0.0, 0.0, 0.0, self.wz, roll, pitch, yaw, c * gx + s * gy, -s * gx + c * gy, 0.0],
-            np.float32,
-        )
+        return pack_state((self.v[0], self.v[1], 0.0), (0.0, 0.0, self.wz), (roll, pitch, yaw),
+                          (c * gx + s * gy, -s * gx + c * gy, 0.0))  # fmt: skip
 
 
 class ControlLoop:

@@ -49,6 +49,7 @@ from omcrl.envs.appearance import (
 from omcrl.envs.dynamics import GRAVITY, Dynamics
 from omcrl.envs.episodes import EpisodePlanner, _Plan
 from omcrl.envs.grid import OccupancyGrid
+from omcrl.envs.observation import PRIVILEGED_DIM, STATE_DIM, pack_privileged, pack_state
 from omcrl.envs.render import load_egl, pybullet_renderer, resolve_renderer
 from omcrl.scenes import layout_to_primitives, scene_id
 from omcrl.scenes.geometry import Geometry, Primitive
@@ -118,8 +119,8 @@ class NavEnv(EpisodePlanner, SceneLook, Dynamics, gym.Env):
                 "rgb": spaces.Box(0, 255, (L, 3, S, S), np.uint8),
                 "depth": spaces.Box(0.0, cfg.far, (L, S, S), np.float32),
                 # Finite bounds that no reachable value exceeds (arena and far plane are tens of metres).
-                "state": spaces.Box(-1e3, 1e3, (12,), np.float32),
-                "privileged": spaces.Box(-1e3, 1e3, (6,), np.float32),
+                "state": spaces.Box(-1e3, 1e3, (STATE_DIM,), np.float32),
+                "privileged": spaces.Box(-1e3, 1e3, (PRIVILEGED_DIM,), np.float32),
             }
         )
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
@@ -298,8 +299,8 @@ class NavEnv(EpisodePlanner, SceneLook, Dynamics, gym.Env):
         pitch = math.atan2(self._acc[0], GRAVITY)
         roll = -math.atan2(self._acc[1], GRAVITY)
         vx, vy = self._vel
-        state = np.array([vx, vy, 0.0, 0.0, 0.0, self._wz, roll, pitch, self._yaw, *goal_b], np.float32)
-        priv = np.array([*obst_b, *goal_b], np.float32)
+        state = pack_state((vx, vy, 0.0), (0.0, 0.0, self._wz), (roll, pitch, self._yaw), goal_b)
+        priv = pack_privileged(obst_b, goal_b)
         return {"rgb": self._rgb.copy(), "depth": self._depth.copy(), "state": state, "privileged": priv}
 
     def obstacle_mask(self) -> np.ndarray:

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from omcrl.envs.observation import KINEMATICS, ORACLE_LOW_DIM, STATE_DIM
 from omcrl.models.artifact import encoder_from_artifact, load_encoder
 from omcrl.models.encoder import DepthEncoder, PixelEncoder
 
@@ -126,9 +127,9 @@ class OracleFeatures(FeatureExtractor):
     """Oracle feature [DepthEncoder(depth), v, ω, θ, Δp_obstacle, Δp_goal] (paper Eq. 5-6).
 
     ``obs["depth"]`` (B, L, H, W) float32 metres is stored as float16 (halves buffer memory; 0.01 m
-    resolution at 20 m is far below what the encoder resolves). ``low`` = state[:, :9] (v, ω, θ) ++
-    privileged (6,) -> (B, 15). The depth encoder is trained with the policy, so ``forward`` runs it on every
-    minibatch.
+    resolution at 20 m is far below what the encoder resolves). ``low`` = state[:, KINEMATICS] (v, ω, θ) ++
+    privileged (6,) -> (B, 15) (:mod:`omcrl.envs.observation`). The depth encoder is trained with the policy, so
+    ``forward`` runs it on every minibatch.
     """
 
     kind = "oracle"
@@ -138,11 +139,11 @@ class OracleFeatures(FeatureExtractor):
         self.depth_encoder = depth_encoder
         self.depth_dim = int(depth_dim)
         self.encoder_kwargs = dict(encoder_kwargs or {})
-        self.out_dim = self.depth_dim + 15
+        self.out_dim = self.depth_dim + ORACLE_LOW_DIM
 
     def preprocess(self, obs: Any) -> dict[str, torch.Tensor]:
         depth = torch.as_tensor(np.asarray(obs["depth"]), dtype=torch.float16)
-        low = np.concatenate([np.asarray(obs["state"])[:, :9], np.asarray(obs["privileged"])], axis=1)
+        low = np.concatenate([np.asarray(obs["state"])[:, KINEMATICS], np.asarray(obs["privileged"])], axis=1)
         return {"depth": depth, "low": torch.as_tensor(low, dtype=torch.float32)}
 
     def forward(self, stored: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -182,7 +183,7 @@ class StudentFeatures(FeatureExtractor):
         self.enc_dim = int(enc_dim)
         self.encoder_path = str(encoder_path)
         self.image_size, self.frame_stack = int(image_size), int(frame_stack)
-        self.out_dim = self.enc_dim + 12
+        self.out_dim = self.enc_dim + STATE_DIM
 
     def _apply(self, fn: Any, *args: Any, **kwargs: Any) -> StudentFeatures:
         # ``.to(device)`` on the policy must move the frozen encoder too, though it is not a submodule.
@@ -233,7 +234,7 @@ class PixelFeatures(FeatureExtractor):
         self.frame_stack, self.image_size, self.crop = int(frame_stack), int(image_size), int(crop)
         self.feature_dim = int(feature_dim)
         self.encoder = PixelEncoder(self.frame_stack, self.crop, self.feature_dim)
-        self.out_dim = self.feature_dim + 12
+        self.out_dim = self.feature_dim + STATE_DIM
 
     def preprocess(self, obs: Any) -> dict[str, torch.Tensor]:
         rgb = torch.as_tensor(np.asarray(obs["rgb"]))
