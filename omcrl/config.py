@@ -670,11 +670,15 @@ def _plain(x: Any) -> Any:
     return x
 
 
+def _declared_default(f: dataclasses.Field) -> Any:
+    return f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[misc]
+
+
 def field_default(section: Any, name: str) -> Any:
     """The declared default of field ``name`` of a config section (a class or an instance)."""
     for f in fields(section):
         if f.name == name:
-            return f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[misc]
+            return _declared_default(f)
     raise ConfigError(f"{getattr(section, '__name__', type(section).__name__)} has no field {name!r}")
 
 
@@ -702,7 +706,7 @@ def section_identity(section: Any, **resolved: Any) -> dict:
         if f.metadata.get("execution"):
             continue
         value = resolved.get(f.name, getattr(section, f.name))
-        if _plain(value) != _plain(field_default(section, f.name)):
+        if _plain(value) != _plain(_declared_default(f)):
             out[f.name] = _plain(value)
     return out
 

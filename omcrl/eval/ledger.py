@@ -176,8 +176,9 @@ def hypotheses(suite: str = "v2") -> list[dict]:
 
 def ledger_markdown() -> str:
     """The ledger as a Markdown table (one row per claim, with its hypothesis count), for docs/results.md."""
+    rows = hypotheses("v2")
     count: dict[str, int] = {}
-    for h in hypotheses("v2"):
+    for h in rows:
         count[h["claim"]] = count.get(h["claim"], 0) + 1
     lines = [
         "| claim | family | source | the paper says | metric | kind | a | versus | scenes | hypotheses |",
@@ -189,7 +190,7 @@ def ledger_markdown() -> str:
             f"| {c.id} | {c.family} | {c.source} | {c.quote} | {c.metric} ({c.better()}) | {c.kind} | {c.a} | "
             f"{versus} | {', '.join(c.scenes)} | {count[c.id]} |"
         )
-    fam = {f: sum(1 for h in hypotheses("v2") if h["family"] == f) for f in FAMILIES}
+    fam = {f: sum(1 for h in rows if h["family"] == f) for f in FAMILIES}
     lines.append("")
     lines.append(
         f"{len(LEDGER)} claims, {sum(fam.values())} hypotheses: primary {fam['primary']}, secondary "

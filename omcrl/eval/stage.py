@@ -251,16 +251,12 @@ def evaluate_methods(
             pool = stack.enter_context(EvalPool(cfg.eval.workers))
         for label, source in methods.items():
             policy, pkey = _load(label, source)
+            planner = isinstance(source, str) and source in PLANNERS
+            lanes = cfg.eval.lanes if callable(getattr(policy, "act_batch", None)) else 1
             for scene in scenes:
-                lanes = cfg.eval.lanes if callable(getattr(policy, "act_batch", None)) else 1
+                env = replace(cfg.env, scene=scene)
                 ident = evaluation_identity(
-                    cfg,
-                    pkey,
-                    replace(cfg.env, scene=scene),
-                    episodes,
-                    planner=isinstance(source, str) and source in PLANNERS,
-                    lanes=lanes,
-                    disturbance=disturbance,
+                    cfg, pkey, env, episodes, planner=planner, lanes=lanes, disturbance=disturbance
                 )
                 key = config_hash(ident) if pkey else ""
                 folder = eval_cache_dir(cfg, label)

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from omcrl.config import Config, load_config, project_root, section_identity
+from omcrl.config import Config, field_default, load_config, project_root, section_identity
 from omcrl.eval.stage import eval_cache_root
 from omcrl.eval.table1 import evaluate_grid
 from omcrl.pipeline.glance import reference_table_dir
@@ -390,15 +390,13 @@ def config_overrides(cfg: Config) -> list[str]:
     base = load_config(cfg.preset).with_suite(config_suite(cfg))
     out = []
     for sec in ("env", "data", "pretrain", "rl"):
-        mine, theirs = section_identity(getattr(cfg, sec)), section_identity(getattr(base, sec))
+        section = getattr(cfg, sec)
+        mine, theirs = section_identity(section), section_identity(getattr(base, sec))
         for name in dict.fromkeys([*mine, *theirs]):
             if mine.get(name) != theirs.get(name):
-                out.append(f"{sec}.{name}={json.dumps(_plain_json(getattr(getattr(cfg, sec), name)))}")
+                value = mine[name] if name in mine else field_default(section, name)  # identity values are plain
+                out.append(f"{sec}.{name}={json.dumps(value)}")
     return out
-
-
-def _plain_json(value: Any) -> Any:
-    return list(value) if isinstance(value, tuple) else value
 
 
 def bundle_suite(manifest: dict[str, Any]) -> str:

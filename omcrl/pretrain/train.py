@@ -133,6 +133,11 @@ def _made_of(run: Run, fingerprint: str) -> dict:
     return {"key": run.key, "dataset_fingerprint": fingerprint}
 
 
+def _made_by(record: dict, made_of: dict) -> bool:
+    """Does a ``done.json`` or checkpoint ``record`` say it was made of ``made_of`` (:func:`_made_of`)?"""
+    return all(record.get(k) == v for k, v in made_of.items())
+
+
 def _read_metrics(path: Path, upto: int) -> list[tuple[int, str, float]]:
     if not path.exists():
         return []
@@ -228,7 +233,7 @@ def pretrain_encoder(
         fp = ds.fingerprint
     if done is not None:
         digest = done.get("encoder_digest")
-        same = _made_of(run_rec, fp) == {k: done.get(k) for k in ("key", "dataset_fingerprint")}
+        same = _made_by(done, _made_of(run_rec, fp))
         if same and digest is not None and file_digest(enc_path) != digest:
             # A finished encoder that changed since it was written is not trusted: rebuild it (from the final
             # checkpoint when there is one, else by training again).
@@ -277,7 +282,7 @@ def pretrain_encoder(
         start, rows = 0, []
         if ck_path.exists():
             state = load_torch(ck_path, "pretraining checkpoint")
-            if {k: state.get(k) for k in made_of} == made_of and state["step"] <= p.iterations:
+            if _made_by(state, made_of) and state["step"] <= p.iterations:
                 learner.load_state_dict(state["learner"])
                 opt.load_state_dict(state["optim"])
                 sampler.rng.bit_generator.state = json.loads(state["sampler_rng"])
