@@ -144,6 +144,12 @@ def build_parser() -> argparse.ArgumentParser:
             sp.add_argument("--address", default=None, help="a Ray cluster (auto, ray://host:port); default: embedded")
             sp.add_argument("--num-cpus", type=int, default=None, help="CPUs of an embedded Ray (default: cores)")
             sp.add_argument("--plan", action="store_true", help="print the jobs and their estimated cost; run nothing")
+            sp.add_argument(
+                "--to-reference",
+                action="store_true",
+                help="keep each finished run's records and episodes in reference/<preset>/<grid>-<suite>/ (commit "
+                "them) and train only what is not kept there yet",
+            )
             sp.add_argument("--rates", default=None, help="with --plan: JSON {rate_key: units/s} (default: measured)")
         if name == "notebooks":
             sp.add_argument("--only", default=None, metavar="NN,..", help="run only these notebooks, e.g. 05,07")
@@ -276,7 +282,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             result = func(cfg, only=_csv(args.only), skip=_csv(args.skip))
         elif args.stage == "sweep":
             seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else None
-            kw = {"backend": args.backend, "address": args.address, "num_cpus": args.num_cpus}
+            kw = {"backend": args.backend, "address": args.address, "num_cpus": args.num_cpus,
+                  "to_reference": args.to_reference}  # fmt: skip
             if args.plan:
                 kw = {"plan": True, "rates": args.rates}
             result = func(cfg, args.grid, seeds=seeds, **kw)

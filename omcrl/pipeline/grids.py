@@ -130,7 +130,7 @@ GRIDS["precision"] = PRECISION_VARIANTS
 # cached) and adds the planners. The names are :data:`omcrl.rl.methods.TABLE1_METHODS`' learned ones (a test keeps
 # them equal; this module stays free of PyTorch for the CLI's help).
 GRIDS["table1"] = tuple(
-    Variant(m, m) for m in ("oracle", "ours", "ours-noOT", "npe", "npe-ot", "curl", "curl-phi", "ppo")
+    Variant(m, m) for m in ("oracle", "ours", "ours-noOT", "npe", "npe-ot", "ours-lapf", "curl", "curl-phi", "ppo")
 )
 
 

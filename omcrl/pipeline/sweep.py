@@ -35,6 +35,7 @@ import pandas as pd
 from omcrl.config import ROOT_ENV, Config, ConfigError, load_config, project_root, resolve_path
 from omcrl.eval.ablation import ablation_table, write_ablation, write_precision, write_remedies
 from omcrl.eval.stage import eval_cache_dir, evaluate_methods
+from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.pipeline.grids import ABLATION_GRIDS, DEFAULT_VARIANT, GRIDS, REMEDY_GRIDS, grid_variants
 from omcrl.pipeline.plan import (
     Job,
@@ -141,7 +142,7 @@ def run_job(preset_cfg: dict, job: Job, log_path: str, share: dict | None = None
     finally:
         if store is not None:
             store.push_log(share["grid"], Path(log_path).name, Path(log_path))
-    return {"status": status, "seconds": time.perf_counter() - t0, "rows": rows}
+    return {"status": status, "seconds": time.perf_counter() - t0, "rows": rows, "outputs": [str(p) for p in outputs]}
 
 
 def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path]]:
@@ -219,16 +220,23 @@ def run_sweep(
     address: str | None = None,
     num_cpus: int | None = None,
     progress: bool = True,
+    record: GridData | None = None,
 ) -> SweepResult:
     """Run ``grid`` at ``seeds`` (default ``cfg.seeds``) on ``backend`` (``ray`` or ``local``).
 
     ``address``: a Ray cluster to use (``auto``, ``ray://host:port`` or ``host:port``); None starts Ray embedded with
     ``num_cpus`` CPUs (default one per core). Returns a :class:`SweepResult`; evaluation rows are in
     ``result.episodes`` with the variant's ``label``.
+
+    ``record``: keep each finished job's small data there (:class:`omcrl.pipeline.griddata.GridData`: the runs'
+    records after their training, the episodes after their evaluation) and run only the variants whose episodes it
+    does not hold yet, with what they need upstream; the others are marked ``recorded`` and their rows read back.
     """
     if backend not in ("ray", "local"):
         raise ConfigError(f"sweep backend: got {backend!r}, expected 'ray' or 'local'")
     jobs = expand(cfg, grid, seeds)
+    targets = _record_targets(jobs) if record is not None else {}
+    recorded = _recorded(jobs, record) if record is not None else set()
     logs_dir = cfg.run_root / "sweeps" / grid / "logs"
     base = {"preset": cfg.preset, "overrides": base_overrides(cfg)}
     res = SweepResult(grid, jobs, {}, logs={j.id: logs_dir / j.log_name for j in jobs})
@@ -247,13 +255,26 @@ def run_sweep(
             res.status[job.id] = out["status"]
             res.seconds[job.id] = float(out["seconds"])
             rows.extend(out["rows"])
+            if record is not None:
+                for label, stage in targets.get(job.id, ()):
+                    record.save_run(label, job.seed, stage, out["outputs"][0])
+                if job.kind == "evaluate":
+                    record.save_episodes(job.label, job.seed, pd.DataFrame(out["rows"]))
             # After every job, not at the end: a killed driver loses no measured time.
             _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
         bar.update(1, **_postfix(res, running))
 
     running: set[str] = set()
+    for job in jobs:
+        if job.id in recorded:
+            res.status[job.id] = "recorded"
+            if job.kind == "evaluate":
+                rows.extend(json.loads(record.episodes([job.label]).query("train_seed == @job.seed").to_json(
+                    orient="records")))  # fmt: skip
+            bar.update(1, **_postfix(res, running))
+    todo = [j for j in jobs if j.id not in recorded]
     if backend == "local":
-        for job in jobs:
+        for job in todo:
             if any(res.status.get(d) in ("failed", "blocked") for d in job.deps):
                 res.status[job.id] = "blocked"
                 bar.update(1, **_postfix(res, running))
@@ -264,16 +285,41 @@ def run_sweep(
             except Exception as e:
                 finish(job, None, _error(e, res.logs[job.id]))
     else:
-        _run_ray(cfg, jobs, base, res, finish, running, bar, address, num_cpus, store, shares, log_arg)
+        _run_ray(cfg, todo, base, res, finish, running, bar, address, num_cpus, store, shares, log_arg)
     bar.close()
     if store is not None:
         # The driver's tables and learning curves read the runs: fetch what the finished jobs made (not the data).
-        done = [j for j in jobs if j.kind != "collect" and res.status.get(j.id) in ("done", "skipped")]
+        done = [j for j in todo if j.kind != "collect" and res.status.get(j.id) in ("done", "skipped")]
         store.pull([shares[j.id]["key"] for j in done])
     res.wall_s = time.perf_counter() - t0
     res.episodes = _in_grid_order(pd.DataFrame(rows), jobs)
     _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
     return res
+
+
+def _record_targets(jobs: Sequence[Job]) -> dict[str, list[tuple[str, str]]]:
+    """``{job id: [(variant label, stage)]}``: under which variants' folders a training or pretraining job's run
+    record is kept (a run shared by several variants, such as one encoder, is kept under each)."""
+    by_id = {j.id: j for j in jobs}
+    out: dict[str, list[tuple[str, str]]] = {}
+    for e in jobs:
+        if e.kind != "evaluate":
+            continue
+        train = by_id[e.deps[0]]
+        out.setdefault(train.id, []).append((e.label, "rl"))
+        for d in train.deps:
+            if by_id[d].kind == "pretrain":
+                out.setdefault(d, []).append((e.label, "pretrain"))
+    return out
+
+
+def _recorded(jobs: Sequence[Job], record: GridData) -> set[str]:
+    """Ids of the jobs nothing left to run needs: evaluations whose episodes ``record`` holds, and the upstream jobs
+    of those alone."""
+    need = {j.id for j in jobs if j.kind == "evaluate" and not record.has_episodes(j.label, j.seed)}
+    up = upstream(jobs)
+    need |= {d for jid in list(need) for d in up[jid]}
+    return {j.id for j in jobs} - need
 
 
 def _shares(jobs: Sequence[Job], grid: str, store: Storage | None) -> dict[str, dict]:
@@ -310,7 +356,8 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
 def _postfix(res: SweepResult, running: set[str]) -> dict[str, Any]:
     # Jobs handed to Ray wait there until their CPUs are free, so "submitted" counts running and queued jobs.
     c = res.counts()
-    return {"done": c.get("done", 0) + c.get("skipped", 0), "submitted": len(running), "failed": c.get("failed", 0)}
+    done = c.get("done", 0) + c.get("skipped", 0) + c.get("recorded", 0)
+    return {"done": done, "submitted": len(running), "failed": c.get("failed", 0)}
 
 
 def _error(e: BaseException, log: Path) -> str:
@@ -605,6 +652,22 @@ def variant_runs(cfg: Config, res: SweepResult) -> dict[str, dict[int, Path]]:
     return out
 
 
+# The planners Table I flies beside the learned methods: its two rows, and the local APF and the blind pilot (what
+# NPE's guide and a pilot without sight reach in the same layouts).
+TABLE1_PLANNERS = ("hybrid-apf", "hybrid-apf-perceptive", "local-apf", "blind")
+
+
+def record_planners(cfg: Config, record: GridData, planners: Sequence[str] = TABLE1_PLANNERS) -> list[str]:
+    """Fly each planner not yet in ``record`` once (training seed ``cfg.seeds[0]``: planners learn nothing) in
+    every scene of ``cfg.eval.scenes`` and keep its episodes; returns the planners flown."""
+    seed = cfg.seeds[0]
+    todo = [p for p in planners if not record.has_episodes(p, seed)]
+    for p in todo:
+        df = evaluate_methods(cfg.with_seed(seed), {p: p})
+        record.save_episodes(p, seed, df.assign(label=p, overrides=""))
+    return todo
+
+
 def run_ablations(
     cfg: Config,
     grids: Sequence[str],
@@ -614,9 +677,13 @@ def run_ablations(
     address: str | None = None,
     num_cpus: int | None = None,
     progress: bool = True,
+    to_reference: bool = False,
 ) -> dict[str, dict[str, Any]]:
     """Run each grid (:func:`run_sweep`) and write its table (:func:`omcrl.eval.ablation.write_ablation`; a
     remedy grid also its verdicts, :func:`omcrl.eval.ablation.write_remedies`).
+
+    ``to_reference``: keep each grid's data in the checkout as its jobs finish (:func:`grid_data_dir`; Table I's
+    grid also the planners' episodes, flown once) and train only what is not kept there yet.
 
     Returns ``{grid: {"result": SweepResult, "table": aggregate table, "paths": written files}}``; a grid whose
     evaluations all failed has an empty table and no files.
@@ -625,7 +692,12 @@ def run_ablations(
         grid_variants(g)  # every name checked before the first job runs
     out: dict[str, dict[str, Any]] = {}
     for g in grids:
-        res = run_sweep(cfg, g, seeds, backend=backend, address=address, num_cpus=num_cpus, progress=progress)
+        record = GridData(grid_data_dir(cfg, g)) if to_reference else None
+        if record is not None and g == "table1":
+            record_planners(cfg, record)
+        res = run_sweep(
+            cfg, g, seeds, backend=backend, address=address, num_cpus=num_cpus, progress=progress, record=record
+        )
         if g == "table1":
             # Not an ablation: Table I itself comes from `python -m omcrl tables` (which adds the planners and
             # finds these runs and their evaluations cached).

@@ -17,6 +17,7 @@ with the same env-step budget, PPO settings and seed for every method.
 | ``npe`` | f trained end to end | — | local APF on the depth camera (non-expert), fixed std ``rl.guide_std`` |
 | ``npe-expert`` | f trained end to end | — | Hybrid APF on the true map (an expert), fixed std (not a Table I row) |
 | ``npe-ot`` | f trained end to end | — | the oracle |
+| ``ours-lapf`` | frozen f+φ | OMC | local APF on the depth camera, as NPE (control row: encoder vs guide) |
 | ``hybrid-apf`` | privileged map | — | (planner, not learned) |
 | ``hybrid-apf-perceptive`` | depth camera map | — | (planner, not learned) |
 """
@@ -88,6 +89,9 @@ METHODS: dict[str, MethodSpec] = {
                    description="end-to-end PPO from RGB guided early by a local APF on depth (non-expert)"),
         MethodSpec("npe-ot", "NPE w/ OT", "pixel", guide="oracle",
                    description="end-to-end PPO from RGB guided early by the oracle"),
+        # The control that splits ours vs npe (encoder and guide both differ) into an encoder and a guide effect.
+        MethodSpec("ours-lapf", "Ours w/ NPE guide", "frozen", {"method": "omc"}, guide="local-apf",
+                   description="control: OMC encoder guided early by NPE's local APF (non-expert), fixed std"),
         MethodSpec("curl", "CURL", "frozen", {"method": "curl", "use_projection": False},
                    description="frozen CURL encoder (no phi), PPO without guidance"),
         MethodSpec("curl-phi", "CURL w/ phi", "frozen", {"method": "curl", "use_projection": True},

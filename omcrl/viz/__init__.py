@@ -31,6 +31,7 @@ METHOD_COLORS = {
     "npe": "#2ca02c",
     "npe-ot": "#98df8a",
     "npe-expert": "#17becf",
+    "ours-lapf": "#e377c2",
     "curl": "#9467bd",
     "curl-phi": "#c5b0d5",
     "ppo": "#8c564b",
