@@ -184,6 +184,13 @@ def build_parser() -> argparse.ArgumentParser:
                 action="store_true",
                 help="with --pack: make results/<preset>/tables/ the reference Table I (reference/<preset>/table1/)",
             )
+        if name == "tables":
+            sp.add_argument(
+                "--from-reference",
+                action="store_true",
+                help="rebuild Table I, the ledger's verdicts and Fig. 5 from reference/<preset>/table1-<suite>/ "
+                "alone (nothing trained or flown)",
+            )
         if name == "replay":
             sp.add_argument("log", help="a flight log CSV (ControlLoop's log_path)")
             sp.add_argument("--out", default=None, help="the PNG (default: beside the log)")
@@ -278,6 +285,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             result = func(cfg, pack=args.pack, source=args.source, with_table=args.with_table, exact=args.exact)
         elif args.stage == "summary":
             result = func(cfg, readme=args.readme)
+        elif args.stage == "tables":
+            result = func(cfg, from_reference=args.from_reference)
         elif args.stage == "notebooks":
             result = func(cfg, only=_csv(args.only), skip=_csv(args.skip))
         elif args.stage == "sweep":

@@ -22,6 +22,7 @@ RNG states are stored as tensors and plain containers, so checkpoints load with 
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import json
 import math
@@ -338,12 +339,14 @@ def read_metrics(path: str | Path) -> Any:
         return pd.DataFrame({"step": pd.Series(dtype=int), "metric": pd.Series(dtype=str), "value": []})
     try:
         raw = p.read_bytes()
+        if p.suffix == ".gz":  # a run record kept in the checkout (omcrl.pipeline.griddata)
+            raw = gzip.decompress(raw)
         if raw and not raw.endswith(b"\n"):  # every write ends its rows: a cut file ends mid-row
             raise ValueError("it ends in the middle of a row (cut short)")
-        df = pd.read_csv(p)
+        df = pd.read_csv(io.BytesIO(raw))
         if df[["step", "value"]].isna().any().any() if {"step", "value"} <= set(df.columns) else False:
             raise ValueError("rows with missing steps or values")
-    except (OSError, ValueError, pd.errors.ParserError) as e:  # includes an empty file and non-UTF-8 bytes
+    except (OSError, EOFError, ValueError, pd.errors.ParserError) as e:  # includes an empty file and non-UTF-8 bytes
         raise CorruptFile(f"{p} is not a readable metrics file ({_short(e)})") from None
     if not {"step", "metric", "value"} <= set(df.columns):
         raise CorruptFile(f"{p} is not a metrics file: columns {list(df.columns)[:6]}, expected step, metric, value")

@@ -406,3 +406,30 @@ def test_device_setting_resolves_and_refuses_a_missing_gpu_before_training(tmp_p
     with pytest.raises(ConfigError, match="'cuda'.*no CUDA GPU"):
         train_ppo(cfg, vec(), progress=False)
     assert not (tmp_path / "smoke" / "runs").exists()  # refused before a run folder appeared
+
+
+def test_ppo_settings_coerce_by_annotation_and_refuse_an_unknown_type():
+    """A bool knob stays a bool (it used to become 1.0: every non-int field was coerced to float)."""
+    import dataclasses
+
+    from omcrl.config import load_config
+    from omcrl.rl.ppo import PPOSettings
+
+    rl = load_config("smoke").rl
+    s = PPOSettings.from_config(rl)
+    assert type(s.epochs) is int and type(s.lr) is float and s.lr == rl.lr
+
+    @dataclasses.dataclass(frozen=True)
+    class WithFlag(PPOSettings):
+        norm_adv: bool = True
+
+    rl.norm_adv = False
+    assert WithFlag.from_config(rl).norm_adv is False
+
+    @dataclasses.dataclass(frozen=True)
+    class WithName(PPOSettings):
+        schedule: str = "linear"
+
+    rl.schedule = "linear"
+    with pytest.raises(TypeError, match="schedule"):
+        WithName.from_config(rl)

@@ -10,7 +10,7 @@ import pytest
 
 from omcrl.config import load_config
 from omcrl.eval import aggregate, compare_sr, mean_ci, paper_table1, summarize, write_table1
-from omcrl.eval.stats import bootstrap_means
+from omcrl.eval.stats import Term, contrast
 from omcrl.eval.table1 import paper_claims
 
 
@@ -51,10 +51,14 @@ def test_bootstrap_ci_collapses_for_constant_values_and_covers_the_truth():
     # NaNs (TTS of failures) are left out; all-NaN gives NaN.
     assert math.isnan(mean_ci([np.full(5, np.nan)])[0])
     assert mean_ci([np.array([1.0, np.nan, 3.0])])[0] == 2.0
-    # Between-seed spread widens the interval beyond what the episodes alone give (two-stage).
-    spread = [np.full(50, 20.0), np.full(50, 50.0), np.full(50, 80.0)]
-    b = bootstrap_means(spread, 2000, np.random.default_rng(0))
-    assert b.min() < 40.0 and b.max() > 60.0
+    # Between-seed spread widens the interval beyond what the episodes alone give: three seeds at 20, 50 and 80 %
+    # (the same 50 layouts) against one seed's 150 episodes at the same 50 %.
+    rng = np.random.default_rng(0)
+    spread = np.stack([(rng.random(50) < p) * 100.0 for p in (0.2, 0.5, 0.8)])
+    crossed = contrast([Term(spread, (0, 1, 2), tuple(range(50)), "s")])
+    pooled = contrast([Term(spread.reshape(1, -1), None, tuple(range(150)), "s")])
+    assert crossed.var_seed > 0 and pooled.var_seed == 0
+    assert crossed.hi - crossed.lo > 3 * (pooled.hi - pooled.lo)
 
 
 def test_aggregate_matches_summarize_and_reports_seeds():

@@ -31,8 +31,9 @@ from omcrl.eval.metrics import GLOSSARY, METRICS
 from omcrl.eval.runner import EvalPool
 from omcrl.eval.stage import evaluate_methods
 from omcrl.eval.stats import aggregate, compare_sr
-from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path, get_method
-from omcrl.scenes import scene_id, scene_label, scene_spec
+from omcrl.eval.verdicts import write_verdicts
+from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path, get_method, training_runs
+from omcrl.scenes import SUITES, scene_id, scene_label, scene_spec
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import track
 
@@ -52,6 +53,7 @@ class Table1Result:
     missing: list[str] = field(default_factory=list)
     paths: dict[str, Path] = field(default_factory=dict)
     wall_time_s: float = 0.0
+    verdicts: pd.DataFrame = field(default_factory=pd.DataFrame)  # the claim ledger's (omcrl.eval.verdicts)
 
     def __repr__(self) -> str:
         lines = [f"Table I: {len(self.episodes)} episodes in {self.wall_time_s:.0f} s"]
@@ -59,6 +61,9 @@ class Table1Result:
             lines.append("not evaluated (no finished run): " + ", ".join(self.missing))
         lines += [f"{k}: {v}" for k, v in self.paths.items()]
         lines += list(self.significance.get("statement", []))
+        if len(self.verdicts):
+            n = self.verdicts["verdict"].value_counts()
+            lines.append("claim ledger: " + ", ".join(f"{int(n[k])} {k}" for k in n.index))
         return "\n".join(lines)
 
 
@@ -284,8 +289,9 @@ def write_table1(
     seeds = int(table["seeds"].max()) if len(table) else 0
     n = int(episodes.groupby(["method", "scene", "train_seed"]).size().min()) if len(episodes) else 0
     note = (
-        f"Mean ± half-width of the 95% CI (two-stage bootstrap over {seeds} training seed(s) and {n} evaluation "
-        "episodes per seed and scene). NE m, OS/SR/CR %, SPL 0-1, TTS steps over successful episodes (– none). "
+        f"Mean ± half-width of the 95% CI (seeds × layouts crossed, omcrl.eval.stats: {seeds} training seed(s), "
+        f"{n} evaluation layouts per seed and scene). NE m, OS/SR/CR %, SPL 0-1, TTS steps over successful "
+        "episodes (– none). "
         "Bold: best non-privileged method (the oracle and the privileged Hybrid APF are references). "
         "Italics: best learned method.\n\n"
     )
@@ -341,7 +347,13 @@ def tables_stage(cfg: Config, *, progress: bool = True) -> Table1Result:
             f"(python -m omcrl train --method <name> --preset {cfg.preset}, or notebooks 03-05)"
         )
     table, sig, paths = write_table1(episodes, cfg.run_root / "tables", os_threshold=cfg.eval.success_threshold_os)
-    return Table1Result(episodes, table, sig, missing, paths, time.perf_counter() - t0)
+    verdicts, vpaths = write_verdicts(episodes, training_runs(cfg), cfg.run_root / "tables", _suite_of(cfg))
+    return Table1Result(episodes, table, sig, missing, paths | vpaths, time.perf_counter() - t0, verdicts)
+
+
+def _suite_of(cfg: Config) -> str:
+    """The suite whose box ``cfg`` trains in (the ledger's scenes are resolved in it); v2 for any other box."""
+    return next((k for k, v in SUITES.items() if cfg.env.scene == v[0]), "v2")
 
 
 # The paper's orderings (Table I, VI-A), as (better, worse): checked per scene on SR.

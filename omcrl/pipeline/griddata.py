@@ -18,14 +18,23 @@ from __future__ import annotations
 
 import gzip
 import io
+import re
 import shutil
+import time
 from collections.abc import Iterable
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import pandas as pd
 
 from omcrl.config import Config, project_root
+from omcrl.eval.table1 import Table1Result, write_table1
+from omcrl.eval.table1 import tables_stage as evaluate_tables
+from omcrl.eval.verdicts import write_verdicts
+from omcrl.pipeline.reference import config_suite
 from omcrl.utils.io import atomic_write_bytes
+from omcrl.viz import save_figure
+from omcrl.viz.compare import plot_learning_curves
 
 EPISODES = "episodes.csv.gz"
 # Small files of a run folder that are copied (CSV ones compressed); weights, checkpoints and event files are not.
@@ -34,7 +43,6 @@ RECORD_SUFFIXES = (".json", ".yaml", ".csv")
 
 def grid_data_dir(cfg: Config, grid: str) -> Path:
     """``<checkout>/reference/<preset>/<grid>-<suite>/`` for ``cfg``'s preset and scene suite."""
-    from omcrl.pipeline.reference import config_suite
 
     return project_root() / "reference" / cfg.preset / f"{grid}-{config_suite(cfg)}"
 
@@ -45,6 +53,13 @@ def _gz(data: bytes) -> bytes:
     with gzip.GzipFile(fileobj=buf, mode="wb", mtime=0) as f:
         f.write(data)
     return buf.getvalue()
+
+
+def _folder_name(label: str) -> str:
+    name = re.sub(r"[^A-Za-z0-9.+-]+", "_", label).strip("_.")
+    if not name:
+        raise ValueError(f"grid label {label!r} gives no folder name")
+    return name
 
 
 def _portable(checkpoint: object) -> object:
@@ -66,7 +81,9 @@ class GridData:
         self.root = Path(root)
 
     def folder(self, label: str, seed: int) -> Path:
-        return self.root / label / f"seed{int(seed)}"
+        """``<root>/<label>/seed<k>``, the label made a single safe folder name (``Ours w/o OT`` -> ``Ours_w_o_OT``;
+        Table I's labels, method names, are kept as they are)."""
+        return self.root / _folder_name(label) / f"seed{int(seed)}"
 
     def has_episodes(self, label: str, seed: int) -> bool:
         """True when the evaluation episodes of ``label`` at training seed ``seed`` are recorded."""
@@ -104,7 +121,7 @@ class GridData:
     def episodes(self, labels: Iterable[str] | None = None) -> pd.DataFrame:
         """Every recorded episode (of ``labels`` when given), with ``label`` and ``train_seed`` columns as recorded;
         an empty frame when nothing is recorded."""
-        want = None if labels is None else set(labels)
+        want = None if labels is None else {_folder_name(x) for x in labels}
         frames = []
         for p in sorted(self.root.glob(f"*/seed*/{EPISODES}")):
             if want is None or p.parent.parent.name in want:
@@ -122,3 +139,43 @@ class GridData:
     def remove(self, label: str, seed: int) -> None:
         """Forget what is recorded for ``label`` at ``seed`` (it is then trained and evaluated again)."""
         shutil.rmtree(self.folder(label, seed), ignore_errors=True)
+
+
+# Fig. 5's methods (the paper's training curves): the oracle as the upper bound, ours and the three baselines.
+FIG5_METHODS = ("oracle", "ours", "npe", "curl", "ppo")
+
+
+def tables_from_reference(cfg: Config, grid: str = "table1", reps: int = 2000) -> Table1Result:
+    """Table I, the claim ledger's verdicts and Fig. 5 from the grid's data in the checkout alone (nothing trained
+    or flown): writes ``tables/table1.*`` and ``tables/ledger_verdicts.*`` under ``cfg.run_root`` and
+    ``figures/fig5_training_curves.png``; returns the :class:`omcrl.eval.table1.Table1Result`.
+
+    FileNotFoundError when the grid has no recorded episodes.
+    """
+
+    t0 = time.perf_counter()
+    data = GridData(grid_data_dir(cfg, grid))
+    episodes = data.episodes()
+    if episodes.empty:
+        raise FileNotFoundError(
+            f"{data.root}: no recorded episodes; run python -m omcrl sweep {grid} --preset {cfg.preset} "
+            "--to-reference (or commit its data) first"
+        )
+    out = cfg.run_root / "tables"
+    table, sig, paths = write_table1(episodes, out, os_threshold=cfg.eval.success_threshold_os, reps=reps)
+    runs = data.metrics("rl")
+    verdicts, vpaths = write_verdicts(episodes, runs, out, config_suite(cfg), reps)
+    curves = {m: runs[m] for m in FIG5_METHODS if m in runs}
+    if curves:
+        fig = plot_learning_curves(curves)
+        paths["fig5"] = save_figure(fig, cfg.run_root / "figures", "fig5_training_curves")
+        plt.close(fig)
+    return Table1Result(episodes, table, sig, [], paths | vpaths, time.perf_counter() - t0, verdicts)
+
+
+def tables_stage(cfg: Config, *, from_reference: bool = False, progress: bool = True) -> Table1Result:
+    """CLI stage ``tables``: evaluate every finished run and write Table I (:func:`omcrl.eval.table1.tables_stage`),
+    or with ``--from-reference`` rebuild it from the grid data in the checkout (:func:`tables_from_reference`)."""
+    if from_reference:
+        return tables_from_reference(cfg)
+    return evaluate_tables(cfg, progress=progress)

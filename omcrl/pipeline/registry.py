@@ -29,7 +29,7 @@ STAGES: dict[str, tuple[str, str]] = {
     "student": ("omcrl.pipeline.stages:student_stage", "train the oracle-guided student (= train --method ours)"),
     "train": ("omcrl.pipeline.stages:train_stage", "train one method of the comparison: --method NAME [--seed K]"),
     "evaluate": ("omcrl.eval:evaluate_stage", "evaluate the policies of --seed (or cfg.seed) and write a quick table"),
-    "tables": ("omcrl.eval.table1:tables_stage", "evaluate every method at cfg.seeds and write Table I with CIs"),
+    "tables": ("omcrl.pipeline.griddata:tables_stage", "evaluate every method at cfg.seeds and write Table I with CIs"),
     "interpret": (
         "omcrl.interpret.stage:interpret_stage",
         "disturbance tests in a simulated room, Grad-CAM mass on obstacles, feature stability (notebook 08)",

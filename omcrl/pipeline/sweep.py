@@ -343,6 +343,8 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
     plan = {r.id: r for r in work_rows(cfg, res.jobs)}
     old = pd.read_csv(path) if path.exists() else pd.DataFrame(columns=["id"])
     kept = {r["id"]: r for r in old.to_dict("records")}
+    if not kept and not any(res.status.get(j.id) in ("done", "skipped") for j in res.jobs):
+        return  # nothing measured (every job recorded in the checkout): no empty file for the next run to trip on
     for j in res.jobs:
         st = res.status.get(j.id)
         if st == "done" or (st == "skipped" and j.id not in kept):

@@ -262,6 +262,10 @@ def ppo_update(
     return {k: v / count for k, v in sums.items()}
 
 
+# How PPOSettings.from_config coerces a field by its annotation (the module's annotations are strings).
+_COERCE = {"int": int, "float": float, "bool": bool}
+
+
 @dataclass(frozen=True)
 class PPOSettings:
     """PPO's hyperparameters, stated once (the fields of :class:`omcrl.config.RLConfig` they are read from).
@@ -287,8 +291,14 @@ class PPOSettings:
     @classmethod
     def from_config(cls, rl: Any) -> PPOSettings:
         """The settings of an :class:`omcrl.config.RLConfig` (same field names)."""
-        # Coerced as the fields say (int for counts, float for the rest): the settings are exact whatever the source.
-        return cls(**{f.name: (int if f.type == "int" else float)(getattr(rl, f.name)) for f in fields(cls)})
+        # Coerced as each field's annotation says, so the settings are exact whatever the source (a YAML 3 for a
+        # float); a field of another type is refused here rather than silently turned into a number.
+        out = {}
+        for f in fields(cls):
+            if f.type not in _COERCE:
+                raise TypeError(f"PPOSettings.{f.name}: type {f.type!r} not coercible, expected {list(_COERCE)}")
+            out[f.name] = _COERCE[f.type](getattr(rl, f.name))
+        return cls(**out)
 
     def sgd(self) -> dict[str, Any]:
         """The keyword arguments of :func:`ppo_update` these settings give."""

@@ -1,0 +1,224 @@
+"""Verdicts on the claim ledger (:mod:`omcrl.eval.ledger`) from evaluation episodes and training metrics.
+
+Each hypothesis becomes a contrast (:func:`omcrl.eval.stats.contrast`) signed so that a positive estimate is the
+paper's direction (``a`` better than ``b``: higher SR, lower CR, ...):
+
+* ``order``: ``a − b`` in one scene, paired layout by layout and seed by seed;
+* ``drop``: ``a`` in the first scene minus ``a`` in another (seeds paired, layouts of two scenes independent);
+* ``gap``: ``(a − b)`` in the first scene minus ``(a − b)`` in the second;
+* training metrics (``return_auc``, ``return_final``): one value per training run, seeds paired.
+
+The two-sided p-values are Holm–Bonferroni adjusted within each family (primary, secondary) over the rows that
+could be computed. Verdict: ``holds`` (adjusted p < 0.05, estimate > 0), ``reversed`` (adjusted p < 0.05,
+estimate < 0), ``undecided`` otherwise, ``not run`` when a method or scene has no data. For an undecided row the
+*power line* says how many training seeds would decide it at the measured effect and variance components (80 %
+power, 5 % two-sided, before Holm): ``n = v_seed · S / ((|d| / 2.80)² − v_layout)``; when the layout part alone
+is too large, no number of seeds does at these layouts, and the line says so.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from omcrl.eval.ledger import FAMILIES, TRAINING_METRICS, hypotheses
+from omcrl.eval.metrics import episode_values
+from omcrl.eval.stats import DEFAULT_REPS, Term, contrast, term
+from omcrl.runs import metric_series
+from omcrl.utils.io import atomic_write_text
+
+ALPHA = 0.05
+Z_POWER = 1.959964 + 0.841621  # two-sided 5 % and 80 % power
+COLUMNS = ["claim", "family", "hypothesis", "metric", "scene", "versus_scene", "a", "b", "estimate", "lo", "hi",
+           "p", "p_holm", "verdict", "seeds", "seeds_to_decide", "var_seed", "var_layout"]  # fmt: skip
+
+
+def training_values(runs: Mapping[str, Mapping[int, str | Path]], metric: str) -> dict[str, dict[int, float]]:
+    """``{method: {seed: value}}`` of a training metric (:data:`omcrl.eval.ledger.TRAINING_METRICS`) from each
+    run's ``episodic_return`` over env steps: ``return_auc`` its mean over the run, ``return_final`` its mean over
+    the last 10 % of the steps. ``runs``: ``{method: {seed: metrics.csv(.gz) or run folder}}``."""
+    out: dict[str, dict[int, float]] = {}
+    for method, seeds in runs.items():
+        for seed, path in seeds.items():
+            m = metric_series(path)
+            if "episodic_return" not in m or not len(m["episodic_return"][0]):
+                continue
+            steps, vals = m["episodic_return"]
+            ok = np.isfinite(vals)
+            steps, vals = steps[ok], vals[ok]
+            if metric == "return_final":
+                vals = vals[steps >= steps[0] + 0.9 * (steps[-1] - steps[0])]
+            out.setdefault(method, {})[int(seed)] = float(np.mean(vals))
+    return out
+
+
+def _holm(p: np.ndarray) -> np.ndarray:
+    """Holm–Bonferroni adjusted p-values (NaN stays NaN and is not counted)."""
+    out = np.full(len(p), math.nan)
+    idx = np.flatnonzero(np.isfinite(p))
+    order = idx[np.argsort(p[idx], kind="stable")]
+    m, running = len(order), 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * p[i]))
+        out[i] = running
+    return out
+
+
+def seeds_to_decide(estimate: float, var_seed: float, var_layout: float, seeds: int) -> float:
+    """Training seeds at which ``estimate`` would be significant with 80 % power (module docstring); ``inf``
+    when the layout part alone forbids it, NaN when there is no effect to detect."""
+    if not math.isfinite(estimate) or estimate == 0:
+        return math.nan
+    room = (abs(estimate) / Z_POWER) ** 2 - var_layout
+    if room <= 0:
+        return math.inf
+    return float(max(seeds, math.ceil(var_seed * seeds / room))) if var_seed > 0 else float(seeds)
+
+
+def ledger_verdicts(
+    episodes: pd.DataFrame,
+    training: Mapping[str, Mapping[int, str | Path]] | None = None,
+    suite: str = "v2",
+    reps: int = DEFAULT_REPS,
+    seed: int = 0,
+    os_threshold: float = 0.5,
+) -> pd.DataFrame:
+    """Every hypothesis of the ledger in ``suite`` judged on ``episodes`` (one row per episode with ``method``,
+    ``scene``, ``train_seed`` and the layout ``seed``) and the training runs ``training`` (``{method: {seed:
+    metrics}}``, for Fig. 5's rows). Returns one row per hypothesis (:data:`COLUMNS`)."""
+    rng = np.random.default_rng(seed)
+    values = episode_values(episodes, os_threshold) if len(episodes) else pd.DataFrame()
+    train_cache: dict[str, dict] = {}
+    rows = []
+    for h in hypotheses(suite):
+        sign = 1.0 if h["better"] == "higher" else -1.0
+        if h["metric"] in TRAINING_METRICS:
+            tv = train_cache.setdefault(h["metric"], training_values(training or {}, h["metric"]))
+            terms = [_run_term(tv, h["a"], sign), _run_term(tv, h["b"], -sign)]
+        elif h["kind"] == "order":
+            terms = [_cell(episodes, values, h, h["a"], h["scene"], sign),
+                     _cell(episodes, values, h, h["b"], h["scene"], -sign)]  # fmt: skip
+        elif h["kind"] == "drop":
+            terms = [_cell(episodes, values, h, h["a"], h["scene"], sign),
+                     _cell(episodes, values, h, h["a"], h["versus_scene"], -sign)]  # fmt: skip
+        else:
+            terms = [_cell(episodes, values, h, h["a"], h["scene"], sign),
+                     _cell(episodes, values, h, h["b"], h["scene"], -sign),
+                     _cell(episodes, values, h, h["a"], h["versus_scene"], -sign),
+                     _cell(episodes, values, h, h["b"], h["versus_scene"], sign)]  # fmt: skip
+        row = {k: h[k] for k in ("claim", "family", "hypothesis", "metric", "scene", "versus_scene", "a", "b")}
+        if any(t is None for t in terms):
+            rows.append({**row, "estimate": math.nan, "lo": math.nan, "hi": math.nan, "p": math.nan, "seeds": 0,
+                         "var_seed": math.nan, "var_layout": math.nan})  # fmt: skip
+            continue
+        e = contrast(terms, reps, rng=rng)
+        n_seeds = len({s for t in terms if t.seeds is not None for s in t.seeds}) or 1
+        rows.append({**row, "estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": e.p, "seeds": n_seeds,
+                     "var_seed": e.var_seed, "var_layout": e.var_layout})  # fmt: skip
+    df = pd.DataFrame(rows)
+    df["p_holm"] = math.nan
+    for fam in FAMILIES:
+        sel = (df["family"] == fam).to_numpy()
+        df.loc[sel, "p_holm"] = _holm(df.loc[sel, "p"].to_numpy(float))
+    df["verdict"] = [_verdict(r.estimate, r.p_holm) for r in df.itertuples()]
+    df["seeds_to_decide"] = [
+        seeds_to_decide(r.estimate, r.var_seed, r.var_layout, r.seeds) if r.verdict == "undecided" else math.nan
+        for r in df.itertuples()
+    ]
+    return df[COLUMNS]
+
+
+def _verdict(estimate: float, p_holm: float) -> str:
+    if not math.isfinite(p_holm):
+        return "not run"
+    if p_holm < ALPHA:
+        return "holds" if estimate > 0 else "reversed"
+    return "undecided"
+
+
+def _cell(episodes: pd.DataFrame, values: pd.DataFrame, h: dict, method: str, scene: str, coef: float) -> Term | None:
+    if episodes.empty:
+        return None
+    g = episodes[(episodes["method"] == method) & (episodes["scene"] == scene)]
+    if g.empty:
+        return None
+    return term(g, values.loc[g.index, h["metric"]].to_numpy(), scene, coef)
+
+
+def _run_term(values: dict[str, dict[int, float]], method: str, coef: float) -> Term | None:
+    v = values.get(method)
+    if not v:
+        return None
+    seeds = tuple(sorted(v))
+    return Term(np.array([[v[s]] for s in seeds]), seeds if len(seeds) > 1 else None, ("run",), "training", coef)
+
+
+def verdict_counts(verdicts: pd.DataFrame) -> pd.DataFrame:
+    """Per claim: how many of its hypotheses hold, are reversed, undecided or not run, and the claim's verdict
+    (``holds`` when every hypothesis holds, ``reversed`` when any is reversed and none holds, ``undecided`` when
+    none is decided, else ``mixed``)."""
+    out = []
+    for claim, g in verdicts.groupby("claim", sort=False):
+        n = g["verdict"].value_counts()
+        h, r, u, x = (int(n.get(k, 0)) for k in ("holds", "reversed", "undecided", "not run"))
+        run = len(g) - x
+        if run == 0:
+            v = "not run"
+        elif h == run:
+            v = "holds"
+        elif r and not h:
+            v = "reversed"
+        elif h == 0 and r == 0:
+            v = "undecided"
+        else:
+            v = "mixed"
+        out.append({"claim": claim, "family": g["family"].iloc[0], "hypotheses": len(g), "holds": h, "reversed": r,
+                    "undecided": u, "not run": x, "verdict": v})  # fmt: skip
+    return pd.DataFrame(out)
+
+
+def verdicts_markdown(verdicts: pd.DataFrame) -> str:
+    """The verdicts as Markdown: one line per claim (counts and verdict), then every hypothesis with its signed
+    estimate (the paper's direction positive), 95 % interval, Holm-adjusted p and, where undecided, the seeds
+    that would decide it."""
+    c = verdict_counts(verdicts)
+    lines = [
+        "| claim | family | hypotheses | holds | reversed | undecided | not run | verdict |",
+        "|---|" * 1 + "---|" * 7,
+    ]
+    lines += [f"| {r.claim} | {r.family} | {r.hypotheses} | {r.holds} | {r.reversed} | {r.undecided} | {r[7]} | "
+              f"**{r.verdict}** |" for r in c.itertuples()]  # fmt: skip
+    lines += ["", "| claim | hypothesis | estimate [95 % CI] | p (Holm) | verdict | seeds to decide |",
+              "|---|---|---|---|---|---|"]  # fmt: skip
+    for r in verdicts.itertuples():
+        if r.verdict == "not run":
+            cell, p = "–", "–"
+        else:
+            cell, p = f"{r.estimate:+.3g} [{r.lo:+.3g}, {r.hi:+.3g}]", f"{r.p_holm:.3g}"
+        need = "" if not math.isfinite(r.seeds_to_decide) else f"{int(r.seeds_to_decide)}"
+        if r.verdict == "undecided" and r.seeds_to_decide == math.inf:
+            need = "no number at these layouts"
+        lines.append(f"| {r.claim} | {r.hypothesis} | {cell} | {p} | {r.verdict} | {need} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_verdicts(
+    episodes: pd.DataFrame,
+    training: Mapping[str, Mapping[int, str | Path]] | None,
+    directory: str | Path,
+    suite: str = "v2",
+    reps: int = DEFAULT_REPS,
+) -> tuple[pd.DataFrame, dict[str, Path]]:
+    """:func:`ledger_verdicts` written as ``ledger_verdicts.csv`` (every hypothesis) and ``ledger_verdicts.md``
+    (:func:`verdicts_markdown`) in ``directory``; returns the verdicts and the paths."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    v = ledger_verdicts(episodes, training, suite, reps)
+    paths = {"verdicts_csv": d / "ledger_verdicts.csv", "verdicts_md": d / "ledger_verdicts.md"}
+    atomic_write_text(paths["verdicts_csv"], v.to_csv(index=False))
+    atomic_write_text(paths["verdicts_md"], verdicts_markdown(v))
+    return v, paths

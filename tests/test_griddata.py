@@ -1,0 +1,74 @@
+"""A grid's data kept in the checkout (omcrl.pipeline.griddata): recorded as jobs finish, a restarted grid trains
+only what has no data, and Table I, the ledger's verdicts and Fig. 5 rebuild from those files alone."""
+
+from __future__ import annotations
+
+import gzip
+
+import pandas as pd
+import pytest
+
+from omcrl.__main__ import main
+from omcrl.config import load_config
+from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
+from omcrl.pipeline.sweep import record_planners, run_sweep
+
+
+def test_a_grid_is_recorded_resumed_from_its_records_and_rebuilt_without_training(tmp_path, monkeypatch):
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-a"))
+    cfg = load_config("smoke")
+    record = GridData(grid_data_dir(cfg, "smoke"))
+    assert record.root == tmp_path / "machine-a" / "reference" / "smoke" / "smoke-v2"
+    first = run_sweep(cfg, "smoke", [0], backend="local", progress=False, record=record)
+    assert first.counts() == {"done": 6}
+    assert record_planners(cfg, record, ("blind",)) == ["blind"] and record_planners(cfg, record, ("blind",)) == []
+    labels = {p.parent.parent.name for p in record.root.glob("*/seed0/episodes.csv.gz")}
+    assert labels == {"Ours_w_o_OT", "PPO", "blind"}
+    # The runs' records, small and portable: no weights, metrics compressed, no machine path in the episodes.
+    files = {p.relative_to(record.root).as_posix() for p in record.root.rglob("*") if p.is_file()}
+    assert "PPO/seed0/rl/metrics.csv.gz" in files and "Ours_w_o_OT/seed0/pretrain/done.json" in files
+    assert not [f for f in files if f.endswith(".pt")]
+    text = gzip.decompress((record.root / "PPO" / "seed0" / "episodes.csv.gz").read_bytes()).decode()
+    assert str(tmp_path) not in text
+    # A second machine with the checkout's records only: nothing to run, the same rows read back.
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-b"))
+    (tmp_path / "machine-b" / "reference").mkdir(parents=True)
+    (tmp_path / "machine-b" / "reference" / "smoke").symlink_to(record.root.parent)
+    again = run_sweep(load_config("smoke"), "smoke", [0], backend="local", progress=False, record=record)
+    assert again.counts() == {"recorded": 6}
+    cols = ["label", "scene", "seed", "success", "final_distance"]
+    pd.testing.assert_frame_equal(first.episodes[cols].reset_index(drop=True), again.episodes[cols])
+    # One variant's episodes lost: only it (and its upstream jobs) runs again, trained afresh on this machine.
+    record.remove("PPO", 0)
+    third = run_sweep(load_config("smoke"), "smoke", [0], backend="local", progress=False, record=record)
+    ran = {j.method for j in third.jobs if third.status[j.id] == "done"}
+    assert ran == {"ppo"} and third.counts() == {"recorded": 4, "done": 2}
+    assert record.has_episodes("PPO", 0)
+
+
+def test_tables_rebuild_from_the_records_alone(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    cfg = load_config("smoke")
+    record = GridData(grid_data_dir(cfg, "table1"))
+    with pytest.raises(FileNotFoundError, match="no recorded episodes"):
+        tables_from_reference(cfg)
+    run_sweep(cfg, "smoke", [0, 1], backend="local", progress=False, record=GridData(tmp_path / "scratch"))
+    # Lay the two methods out as Table I's grid would (label = method name).
+    for label, method in (("Ours w/o OT", "ours-noOT"), ("PPO", "ppo")):
+        for s in (0, 1):
+            src = GridData(tmp_path / "scratch")
+            record.save_episodes(method, s, pd.read_csv(src.folder(label, s) / "episodes.csv.gz"))
+            (run,) = cfg.run_root.glob(f"runs/rl/{method}-*/seed{s}")
+            record.save_run(method, s, "rl", run)
+    out = tmp_path / "fresh"
+    assert main(["tables", "--preset", "smoke", "--from-reference", "--set", f"results_dir={out}"]) == 0
+    tables = out / "smoke" / "tables"
+    t1 = pd.read_csv(tables / "table1.csv")
+    ep = record.episodes()
+    sr = t1[(t1.metric == "SR") & (t1.method == "ppo") & (t1.scene == "box-v2")].iloc[0]
+    assert sr["mean"] == pytest.approx(100 * ep[(ep.method == "ppo") & (ep.scene == "box-v2")].success.mean())
+    assert sr["seeds"] == 2
+    v = pd.read_csv(tables / "ledger_verdicts.csv")
+    assert len(v) == 98 and set(v.verdict) <= {"holds", "reversed", "undecided", "not run"}
+    assert (out / "smoke" / "figures" / "fig5_training_curves.png").stat().st_size > 10_000
+    assert "claim ledger:" in capsys.readouterr().out

@@ -1,0 +1,74 @@
+"""Ledger verdicts (omcrl.eval.verdicts): contrasts signed in the paper's direction, Holm within families, the
+power line, and the training metrics of Fig. 5 from metrics files."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from omcrl.eval.verdicts import _holm, ledger_verdicts, seeds_to_decide, training_values, verdict_counts
+
+SCENES = ("box-v2", "furniture-v2", "barrier-v2", "tree-v2")
+
+
+def _episodes(sr: dict[str, float], seeds=range(5), layouts=50, rng=None) -> pd.DataFrame:
+    rng = rng or np.random.default_rng(0)
+    rows = []
+    for m, p in sr.items():
+        for s in seeds if m not in ("hybrid-apf",) else [0]:
+            for scene in SCENES:
+                ok = rng.random(layouts) < p
+                for j in range(layouts):
+                    rows.append({"method": m, "scene": scene, "train_seed": s, "seed": j, "success": bool(ok[j]),
+                                 "collision": not ok[j], "final_distance": 0.1 if ok[j] else 3.0,
+                                 "min_distance": 0.1 if ok[j] else 2.0, "path_length": 8.0,
+                                 "optimal_path_length": 7.0, "steps": 80})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_a_clear_ordering_holds_a_reversed_one_is_reversed_and_missing_methods_are_not_run():
+    ep = _episodes({"ours": 0.85, "npe": 0.2, "curl": 0.55, "ppo": 0.5, "hybrid-apf": 0.3})
+    v = ledger_verdicts(ep, reps=300).set_index("hypothesis")
+    assert v.loc["ours > npe on SR in tree-v2", "verdict"] == "holds"
+    assert v.loc["ours > npe on SR in tree-v2", "estimate"] > 50
+    # CR is better lower: ours collides less, so the signed estimate is positive too.
+    assert v.loc["ours > npe on CR in tree-v2", "estimate"] > 0
+    # The paper's "CURL above NPE" holds here; "NPE above PPO" (E4) is reversed (0.2 vs 0.5).
+    assert v.loc["npe > ppo on SR in furniture-v2", "verdict"] == "reversed"
+    assert v.loc["ours > ours-noOT on SR in tree-v2", "verdict"] == "not run"
+    counts = verdict_counts(ledger_verdicts(ep, reps=300)).set_index("claim")
+    assert counts.loc["E9", "verdict"] == "not run" and counts.loc["E4", "verdict"] == "reversed"
+
+
+def test_an_equal_pair_is_undecided_with_a_power_line():
+    ep = _episodes({"ours": 0.6, "curl": 0.55}, rng=np.random.default_rng(4))
+    v = ledger_verdicts(ep, reps=300).set_index("hypothesis")
+    row = v.loc["ours > curl on SR in barrier-v2"]
+    assert row["verdict"] == "undecided" and row["lo"] < 0 < row["hi"]
+    assert row["seeds_to_decide"] >= 5 or math.isinf(row["seeds_to_decide"])
+
+
+def test_holm_is_monotone_and_never_below_the_raw_p():
+    p = np.array([0.01, 0.04, 0.03, math.nan, 0.005])
+    adj = _holm(p)
+    assert math.isnan(adj[3])
+    np.testing.assert_allclose(adj[[4, 0, 2, 1]], [0.02, 0.03, 0.06, 0.06])
+    assert (adj[np.isfinite(p)] >= p[np.isfinite(p)]).all()
+
+
+def test_seeds_to_decide():
+    # d = 10, layout part 4, seed part 9 at 5 seeds: (10/2.8)^2 - 4 = 8.76 -> ceil(45 / 8.76) = 6.
+    assert seeds_to_decide(10.0, 9.0, 4.0, 5) == 6
+    assert math.isinf(seeds_to_decide(1.0, 9.0, 4.0, 5))
+    assert math.isnan(seeds_to_decide(0.0, 9.0, 4.0, 5))
+
+
+def test_training_values_read_the_return_curve(tmp_path):
+    rows = [{"step": s, "metric": "episodic_return", "value": float(s)} for s in range(0, 101, 10)]
+    p = tmp_path / "metrics.csv.gz"
+    pd.DataFrame(rows).to_csv(p, index=False)
+    out = {k: training_values({"ours": {0: p}}, k)["ours"][0] for k in ("return_auc", "return_final")}
+    assert out["return_auc"] == pytest.approx(50.0) and out["return_final"] == pytest.approx(95.0)
