@@ -72,3 +72,12 @@ def test_training_values_read_the_return_curve(tmp_path):
     pd.DataFrame(rows).to_csv(p, index=False)
     out = {k: training_values({"ours": {0: p}}, k)["ours"][0] for k in ("return_auc", "return_final")}
     assert out["return_auc"] == pytest.approx(50.0) and out["return_final"] == pytest.approx(95.0)
+
+
+def test_a_learned_method_of_one_seed_is_shown_not_judged():
+    ep = _episodes({"ours": 0.9, "npe": 0.1}, seeds=[0])
+    v = ledger_verdicts(ep, reps=200).set_index("hypothesis")
+    row = v.loc["ours > npe on SR in tree-v2"]
+    assert row["verdict"] == "one seed" and row["estimate"] > 50 and math.isnan(row["p_holm"])
+    counts = verdict_counts(ledger_verdicts(ep, reps=200)).set_index("claim")
+    assert counts.loc["E8", "verdict"] == "one seed"

@@ -10,7 +10,9 @@ paper's direction (``a`` better than ``b``: higher SR, lower CR, ...):
 
 The two-sided p-values are Holm–Bonferroni adjusted within each family (primary, secondary) over the rows that
 could be computed. Verdict: ``holds`` (adjusted p < 0.05, estimate > 0), ``reversed`` (adjusted p < 0.05,
-estimate < 0), ``undecided`` otherwise, ``not run`` when a method or scene has no data. For an undecided row the
+estimate < 0), ``undecided`` otherwise, ``not run`` when a method or scene has no data, ``one seed`` when a learned
+method of the row has a single training seed (its estimate and interval over layouts are shown, not judged, and
+the row is left out of Holm). For an undecided row the
 *power line* says how many training seeds would decide it at the measured effect and variance components (80 %
 power, 5 % two-sided, before Holm): ``n = v_seed · S / ((|d| / 2.80)² − v_layout)``; when the layout part alone
 is too large, no number of seeds does at these layouts, and the line says so.
@@ -28,6 +30,7 @@ import pandas as pd
 from omcrl.eval.ledger import FAMILIES, TRAINING_METRICS, hypotheses
 from omcrl.eval.metrics import episode_values
 from omcrl.eval.stats import DEFAULT_REPS, Term, contrast, term
+from omcrl.rl.methods import METHODS
 from omcrl.runs import metric_series
 from omcrl.utils.io import atomic_write_text
 
@@ -117,19 +120,35 @@ def ledger_verdicts(
             continue
         e = contrast(terms, reps, rng=rng)
         n_seeds = len({s for t in terms if t.seeds is not None for s in t.seeds}) or 1
-        rows.append({**row, "estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": e.p, "seeds": n_seeds,
-                     "var_seed": e.var_seed, "var_layout": e.var_layout})  # fmt: skip
+        # A learned method of one training seed shows no seed spread: its interval is over layouts alone and
+        # says nothing about another training run, so the row is reported but not judged (nor counted by Holm).
+        few = any(t.seeds is None and m in METHODS and METHODS[m].learned for t, m in zip(terms, _methods(h)))
+        rows.append({**row, "estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": math.nan if few else e.p,
+                     "seeds": n_seeds, "var_seed": e.var_seed, "var_layout": e.var_layout,
+                     "_few": few})  # fmt: skip
     df = pd.DataFrame(rows)
     df["p_holm"] = math.nan
     for fam in FAMILIES:
         sel = (df["family"] == fam).to_numpy()
         df.loc[sel, "p_holm"] = _holm(df.loc[sel, "p"].to_numpy(float))
-    df["verdict"] = [_verdict(r.estimate, r.p_holm) for r in df.itertuples()]
+    few = df["_few"].fillna(False).astype(bool) if "_few" in df else pd.Series(False, index=df.index)
+    df["verdict"] = [
+        "one seed" if f else _verdict(r.estimate, r.p_holm) for f, r in zip(few, df.itertuples(), strict=True)
+    ]
     df["seeds_to_decide"] = [
         seeds_to_decide(r.estimate, r.var_seed, r.var_layout, r.seeds) if r.verdict == "undecided" else math.nan
         for r in df.itertuples()
     ]
     return df[COLUMNS]
+
+
+def _methods(h: dict) -> list[str]:
+    """The method of each term, in the order the contrast of ``h`` lists them."""
+    if h["metric"] in TRAINING_METRICS or h["kind"] == "order":
+        return [h["a"], h["b"]]
+    if h["kind"] == "drop":
+        return [h["a"], h["a"]]
+    return [h["a"], h["b"], h["a"], h["b"]]
 
 
 def _verdict(estimate: float, p_holm: float) -> str:
@@ -158,16 +177,16 @@ def _run_term(values: dict[str, dict[int, float]], method: str, coef: float) -> 
 
 
 def verdict_counts(verdicts: pd.DataFrame) -> pd.DataFrame:
-    """Per claim: how many of its hypotheses hold, are reversed, undecided or not run, and the claim's verdict
-    (``holds`` when every hypothesis holds, ``reversed`` when any is reversed and none holds, ``undecided`` when
-    none is decided, else ``mixed``)."""
+    """Per claim: how many of its hypotheses hold, are reversed, undecided, not run or of one seed, and the
+    claim's verdict (``holds`` when every judged hypothesis holds, ``reversed`` when any is reversed and none
+    holds, ``undecided`` when none is decided, else ``mixed``; ``one seed`` / ``not run`` when none was judged)."""
     out = []
     for claim, g in verdicts.groupby("claim", sort=False):
         n = g["verdict"].value_counts()
-        h, r, u, x = (int(n.get(k, 0)) for k in ("holds", "reversed", "undecided", "not run"))
-        run = len(g) - x
+        h, r, u, x, one = (int(n.get(k, 0)) for k in ("holds", "reversed", "undecided", "not run", "one seed"))
+        run = len(g) - x - one
         if run == 0:
-            v = "not run"
+            v = "one seed" if one else "not run"
         elif h == run:
             v = "holds"
         elif r and not h:
@@ -177,7 +196,7 @@ def verdict_counts(verdicts: pd.DataFrame) -> pd.DataFrame:
         else:
             v = "mixed"
         out.append({"claim": claim, "family": g["family"].iloc[0], "hypotheses": len(g), "holds": h, "reversed": r,
-                    "undecided": u, "not run": x, "verdict": v})  # fmt: skip
+                    "undecided": u, "not run": x, "one seed": one, "verdict": v})  # fmt: skip
     return pd.DataFrame(out)
 
 
@@ -187,16 +206,18 @@ def verdicts_markdown(verdicts: pd.DataFrame) -> str:
     that would decide it."""
     c = verdict_counts(verdicts)
     lines = [
-        "| claim | family | hypotheses | holds | reversed | undecided | not run | verdict |",
-        "|---|" * 1 + "---|" * 7,
+        "| claim | family | hypotheses | holds | reversed | undecided | not run | one seed | verdict |",
+        "|---" * 9 + "|",
     ]
     lines += [f"| {r.claim} | {r.family} | {r.hypotheses} | {r.holds} | {r.reversed} | {r.undecided} | {r[7]} | "
-              f"**{r.verdict}** |" for r in c.itertuples()]  # fmt: skip
+              f"{r[8]} | **{r.verdict}** |" for r in c.itertuples()]  # fmt: skip
     lines += ["", "| claim | hypothesis | estimate [95 % CI] | p (Holm) | verdict | seeds to decide |",
               "|---|---|---|---|---|---|"]  # fmt: skip
     for r in verdicts.itertuples():
         if r.verdict == "not run":
             cell, p = "–", "–"
+        elif r.verdict == "one seed":
+            cell, p = f"{r.estimate:+.3g} [{r.lo:+.3g}, {r.hi:+.3g}] (layouts only)", "–"
         else:
             cell, p = f"{r.estimate:+.3g} [{r.lo:+.3g}, {r.hi:+.3g}]", f"{r.p_holm:.3g}"
         need = "" if not math.isfinite(r.seeds_to_decide) else f"{int(r.seeds_to_decide)}"
