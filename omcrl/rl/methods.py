@@ -50,8 +50,9 @@ class MethodSpec:
     label : the paper's name in tables and figures.
     features : the method's kind, a key of :data:`RECIPES`: ``oracle`` | ``frozen`` | ``pixel`` | ``planner``.
     encoder : pretraining overrides for a frozen encoder (``{"method": "curl", "use_projection": False}``).
-    guide : ``oracle`` | a planner guide of :data:`PLANNER_GUIDES` (``local-apf``, ``apf``) | None
-        (``oracle-config``: the oracle's own ``rl.oracle_guide``).
+    guide : the guide of a student: ``oracle`` | a planner guide of :data:`PLANNER_GUIDES` (``local-apf``,
+        ``apf``) | None. The oracle has none here: its own guide is ``rl.oracle_guide``, read by its recipe's
+        trainer (:func:`omcrl.rl.train.train_oracle`).
     privileged : uses inputs a real robot does not have (true map or depth + obstacle vectors).
     description : one line for ``--help``.
     ablation : a variant for the ablations (VI-C), not a row of Table I.
@@ -79,7 +80,7 @@ class MethodSpec:
 METHODS: dict[str, MethodSpec] = {
     m.name: m
     for m in (
-        MethodSpec("oracle", "Oracle", "oracle", guide="oracle-config", privileged=True,
+        MethodSpec("oracle", "Oracle", "oracle", privileged=True,
                    description="privileged PPO teacher on depth + state (upper bound)"),
         MethodSpec("ours", "Ours", "frozen", {"method": "omc"}, guide="oracle",
                    description="OMC-RL: frozen masked-contrastive encoder, oracle-guided PPO"),
