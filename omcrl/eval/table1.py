@@ -33,7 +33,7 @@ from omcrl.eval.stage import evaluate_methods
 from omcrl.eval.stats import aggregate, compare_sr
 from omcrl.eval.verdicts import write_verdicts
 from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path, get_method, training_runs
-from omcrl.scenes import SUITES, scene_id, scene_label, scene_spec
+from omcrl.scenes import DEFAULT_SUITE, scene_id, scene_label, scene_spec, suite_of
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import track
 
@@ -347,13 +347,10 @@ def tables_stage(cfg: Config, *, progress: bool = True) -> Table1Result:
             f"(python -m omcrl train --method <name> --preset {cfg.preset}, or notebooks 03-05)"
         )
     table, sig, paths = write_table1(episodes, cfg.run_root / "tables", os_threshold=cfg.eval.success_threshold_os)
-    verdicts, vpaths = write_verdicts(episodes, training_runs(cfg), cfg.run_root / "tables", _suite_of(cfg))
+    # The ledger's scenes are resolved in the suite whose box cfg trains in (v2 for a box of no suite).
+    suite = suite_of(cfg.env.scene) or DEFAULT_SUITE
+    verdicts, vpaths = write_verdicts(episodes, training_runs(cfg), cfg.run_root / "tables", suite)
     return Table1Result(episodes, table, sig, missing, paths | vpaths, time.perf_counter() - t0, verdicts)
-
-
-def _suite_of(cfg: Config) -> str:
-    """The suite whose box ``cfg`` trains in (the ledger's scenes are resolved in it); v2 for any other box."""
-    return next((k for k, v in SUITES.items() if cfg.env.scene == v[0]), "v2")
 
 
 # The paper's orderings (Table I, VI-A), as (better, worse): checked per scene on SR.

@@ -98,21 +98,12 @@ def ledger_verdicts(
     train_cache: dict[str, dict] = {}
     rows = []
     for h in hypotheses(suite):
-        sign = 1.0 if h["better"] == "higher" else -1.0
+        specs = _term_specs(h)
         if h["metric"] in TRAINING_METRICS:
             tv = train_cache.setdefault(h["metric"], training_values(training or {}, h["metric"]))
-            terms = [_run_term(tv, h["a"], sign), _run_term(tv, h["b"], -sign)]
-        elif h["kind"] == "order":
-            terms = [_cell(episodes, values, h, h["a"], h["scene"], sign),
-                     _cell(episodes, values, h, h["b"], h["scene"], -sign)]  # fmt: skip
-        elif h["kind"] == "drop":
-            terms = [_cell(episodes, values, h, h["a"], h["scene"], sign),
-                     _cell(episodes, values, h, h["a"], h["versus_scene"], -sign)]  # fmt: skip
+            terms = [_run_term(tv, m, c) for m, _, c in specs]
         else:
-            terms = [_cell(episodes, values, h, h["a"], h["scene"], sign),
-                     _cell(episodes, values, h, h["b"], h["scene"], -sign),
-                     _cell(episodes, values, h, h["a"], h["versus_scene"], -sign),
-                     _cell(episodes, values, h, h["b"], h["versus_scene"], sign)]  # fmt: skip
+            terms = [_cell(episodes, values, h["metric"], m, s, c) for m, s, c in specs]
         row = {k: h[k] for k in ("claim", "family", "hypothesis", "metric", "scene", "versus_scene", "a", "b")}
         if any(t is None for t in terms):
             rows.append({**row, "estimate": math.nan, "lo": math.nan, "hi": math.nan, "p": math.nan, "seeds": 0,
@@ -122,7 +113,7 @@ def ledger_verdicts(
         n_seeds = len({s for t in terms if t.seeds is not None for s in t.seeds}) or 1
         # A learned method of one training seed shows no seed spread: its interval is over layouts alone and
         # says nothing about another training run, so the row is reported but not judged (nor counted by Holm).
-        few = any(t.seeds is None and m in METHODS and METHODS[m].learned for t, m in zip(terms, _methods(h)))
+        few = any(t.seeds is None and m in METHODS and METHODS[m].learned for t, (m, _, _) in zip(terms, specs))
         rows.append({**row, "estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": math.nan if few else e.p,
                      "seeds": n_seeds, "var_seed": e.var_seed, "var_layout": e.var_layout,
                      "_few": few})  # fmt: skip
@@ -142,13 +133,16 @@ def ledger_verdicts(
     return df[COLUMNS]
 
 
-def _methods(h: dict) -> list[str]:
-    """The method of each term, in the order the contrast of ``h`` lists them."""
+def _term_specs(h: dict) -> list[tuple[str, str, float]]:
+    """``[(method, scene, coefficient)]`` of the contrast of hypothesis ``h``, signed so that a positive value is
+    the paper's direction (module docstring); training metrics live in the training scene."""
+    sign = 1.0 if h["better"] == "higher" else -1.0
+    a, b, s, v = h["a"], h["b"], h["scene"], h["versus_scene"]
     if h["metric"] in TRAINING_METRICS or h["kind"] == "order":
-        return [h["a"], h["b"]]
+        return [(a, s, sign), (b, s, -sign)]
     if h["kind"] == "drop":
-        return [h["a"], h["a"]]
-    return [h["a"], h["b"], h["a"], h["b"]]
+        return [(a, s, sign), (a, v, -sign)]
+    return [(a, s, sign), (b, s, -sign), (a, v, -sign), (b, v, sign)]
 
 
 def _verdict(estimate: float, p_holm: float) -> str:
@@ -159,13 +153,15 @@ def _verdict(estimate: float, p_holm: float) -> str:
     return "undecided"
 
 
-def _cell(episodes: pd.DataFrame, values: pd.DataFrame, h: dict, method: str, scene: str, coef: float) -> Term | None:
+def _cell(
+    episodes: pd.DataFrame, values: pd.DataFrame, metric: str, method: str, scene: str, coef: float
+) -> Term | None:
     if episodes.empty:
         return None
     g = episodes[(episodes["method"] == method) & (episodes["scene"] == scene)]
     if g.empty:
         return None
-    return term(g, values.loc[g.index, h["metric"]].to_numpy(), scene, coef)
+    return term(g, values.loc[g.index, metric].to_numpy(), scene, coef)
 
 
 def _run_term(values: dict[str, dict[int, float]], method: str, coef: float) -> Term | None:

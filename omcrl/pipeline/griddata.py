@@ -34,7 +34,7 @@ from omcrl.eval.verdicts import write_verdicts
 from omcrl.pipeline.reference import config_suite
 from omcrl.utils.io import atomic_write_bytes
 from omcrl.viz import save_figure
-from omcrl.viz.compare import plot_learning_curves
+from omcrl.viz.compare import curve_window, plot_learning_curves
 
 EPISODES = "episodes.csv.gz"
 # Small files of a run folder that are copied (CSV ones compressed); weights, checkpoints and event files are not.
@@ -118,6 +118,10 @@ class GridData:
             raise FileNotFoundError(f"{run_dir}: no run record (run.json, done.json, config.yaml, metrics.csv) to keep")
         return written
 
+    def read_episodes(self, label: str, seed: int) -> pd.DataFrame:
+        """The recorded episodes of ``label`` at training seed ``seed`` (FileNotFoundError when there are none)."""
+        return pd.read_csv(self.folder(label, seed) / EPISODES)
+
     def episodes(self, labels: Iterable[str] | None = None) -> pd.DataFrame:
         """Every recorded episode (of ``labels`` when given), with ``label`` and ``train_seed`` columns as recorded;
         an empty frame when nothing is recorded."""
@@ -141,10 +145,6 @@ class GridData:
         shutil.rmtree(self.folder(label, seed), ignore_errors=True)
 
 
-# Fig. 5's methods (the paper's training curves): the oracle as the upper bound, ours and the three baselines.
-FIG5_METHODS = ("oracle", "ours", "npe", "curl", "ppo")
-
-
 def tables_from_reference(cfg: Config, grid: str = "table1", reps: int = 2000) -> Table1Result:
     """Table I, the claim ledger's verdicts and Fig. 5 from the grid's data in the checkout alone (nothing trained
     or flown): writes ``tables/table1.*`` and ``tables/ledger_verdicts.*`` under ``cfg.run_root`` and
@@ -165,9 +165,9 @@ def tables_from_reference(cfg: Config, grid: str = "table1", reps: int = 2000) -
     table, sig, paths = write_table1(episodes, out, os_threshold=cfg.eval.success_threshold_os, reps=reps)
     runs = data.metrics("rl")
     verdicts, vpaths = write_verdicts(episodes, runs, out, config_suite(cfg), reps)
-    curves = {m: runs[m] for m in FIG5_METHODS if m in runs}
-    if curves:
-        fig = plot_learning_curves(curves)
+    if runs:
+        # As notebook 07 draws it: every learned method's curves, the same smoothing.
+        fig = plot_learning_curves(runs, window=curve_window(cfg.rl.total_steps, cfg.rl.buffer_size))
         paths["fig5"] = save_figure(fig, cfg.run_root / "figures", "fig5_training_curves")
         plt.close(fig)
     return Table1Result(episodes, table, sig, [], paths | vpaths, time.perf_counter() - t0, verdicts)

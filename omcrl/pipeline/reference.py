@@ -44,7 +44,7 @@ from omcrl.pipeline.storage import sha256
 from omcrl.pipeline.summary import code_commit
 from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path
 from omcrl.runs import DIGEST_FIELDS, read_identity, recorded_digest, run_key
-from omcrl.scenes import SUITES, suite_overrides
+from omcrl.scenes import SUITES, suite_of, suite_overrides
 from omcrl.utils.io import atomic_save_torch, atomic_write_bytes, atomic_write_text, load_torch
 
 FORMAT = 1
@@ -377,9 +377,9 @@ def pack_reference(
 def config_suite(cfg: Config) -> str:
     """The scene suite (a key of :data:`omcrl.scenes.SUITES`) whose box ``cfg`` trains in; ReferenceError for a
     training scene of no suite (such runs are not the paper's comparison)."""
-    for suite, scenes in SUITES.items():
-        if cfg.env.scene == scenes[0]:
-            return suite
+    suite = suite_of(cfg.env.scene)
+    if suite is not None:
+        return suite
     raise ReferenceError(f"env.scene {cfg.env.scene!r} is the training scene of no suite {dict(SUITES)}")
 
 

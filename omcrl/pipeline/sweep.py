@@ -51,7 +51,7 @@ from omcrl.pipeline.plan import (
 from omcrl.pipeline.recipes import pretrain_method, train_method
 from omcrl.pipeline.stages import collect_stage, oracle_policy
 from omcrl.pipeline.storage import Storage, job_key
-from omcrl.rl.methods import final_policy_path
+from omcrl.rl.methods import PlannerRecipe, final_policy_path
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import cpu_count
@@ -269,8 +269,7 @@ def run_sweep(
         if job.id in recorded:
             res.status[job.id] = "recorded"
             if job.kind == "evaluate":
-                rows.extend(json.loads(record.episodes([job.label]).query("train_seed == @job.seed").to_json(
-                    orient="records")))  # fmt: skip
+                rows.extend(json.loads(record.read_episodes(job.label, job.seed).to_json(orient="records")))
             bar.update(1, **_postfix(res, running))
     todo = [j for j in jobs if j.id not in recorded]
     if backend == "local":
@@ -334,6 +333,9 @@ def _shares(jobs: Sequence[Job], grid: str, store: Storage | None) -> dict[str, 
     }
 
 
+JOB_TIME_COLUMNS = ["id", "kind", "method", "seed", "status", "seconds", "rate_key", "work"]
+
+
 def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
     """Keep each job's measured wall time in ``jobs.csv`` beside the sweep's logs.
 
@@ -341,10 +343,8 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
     measured. :func:`measured_rates` reads these files.
     """
     plan = {r.id: r for r in work_rows(cfg, res.jobs)}
-    old = pd.read_csv(path) if path.exists() else pd.DataFrame(columns=["id"])
+    old = pd.read_csv(path) if path.exists() else pd.DataFrame(columns=JOB_TIME_COLUMNS)
     kept = {r["id"]: r for r in old.to_dict("records")}
-    if not kept and not any(res.status.get(j.id) in ("done", "skipped") for j in res.jobs):
-        return  # nothing measured (every job recorded in the checkout): no empty file for the next run to trip on
     for j in res.jobs:
         st = res.status.get(j.id)
         if st == "done" or (st == "skipped" and j.id not in kept):
@@ -352,7 +352,8 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
             kept[j.id] = {"id": j.id, "kind": j.kind, "method": j.method, "seed": j.seed, "status": st,
                           "seconds": round(res.seconds.get(j.id, float("nan")), 2), "rate_key": w.rate_key,
                           "work": w.work}  # fmt: skip
-    atomic_write_text(path, pd.DataFrame(list(kept.values())).to_csv(index=False))
+    # Named columns: a sweep that measured nothing (every job recorded) still writes a file that reads back.
+    atomic_write_text(path, pd.DataFrame(list(kept.values()), columns=JOB_TIME_COLUMNS).to_csv(index=False))
 
 
 def _postfix(res: SweepResult, running: set[str]) -> dict[str, Any]:
@@ -655,8 +656,8 @@ def variant_runs(cfg: Config, res: SweepResult) -> dict[str, dict[int, Path]]:
 
 
 # The planners Table I flies beside the learned methods: its two rows, and the local APF and the blind pilot (what
-# NPE's guide and a pilot without sight reach in the same layouts).
-TABLE1_PLANNERS = ("hybrid-apf", "hybrid-apf-perceptive", "local-apf", "blind")
+# NPE's guide and a pilot without sight reach in the same layouts): every planner method of the kit.
+TABLE1_PLANNERS = tuple(PlannerRecipe.PLANNERS)
 
 
 def record_planners(cfg: Config, record: GridData, planners: Sequence[str] = TABLE1_PLANNERS) -> list[str]:

@@ -25,6 +25,7 @@ from omcrl.scenes.registry import (
     scene_id,
     scene_label,
     scene_spec,
+    suite_of,
     suite_overrides,
 )
 
@@ -52,5 +53,6 @@ __all__ = [
     "scene_id",
     "scene_label",
     "scene_spec",
+    "suite_of",
     "suite_overrides",
 ]

@@ -711,6 +711,11 @@ DEFAULT_SUITE = "v2"
 PAPER_SUITE = SUITES[DEFAULT_SUITE]
 
 
+def suite_of(train_scene: str) -> str | None:
+    """The suite (a key of :data:`SUITES`) whose training box is ``train_scene``, or None for a box of no suite."""
+    return next((suite for suite, scenes in SUITES.items() if scenes[0] == train_scene), None)
+
+
 def suite_overrides(suite: str) -> list[str]:
     """Config overrides (``--set`` strings) that train in ``suite``'s box and evaluate in its four scenes plus
     the stress scenes: ``suite_overrides("v1")`` reproduces the v1 suite's runs and Table I."""

@@ -25,6 +25,12 @@ from omcrl.viz.rl import TRAJECTORY_KEY, plot_trajectories
 CURVE_METRICS = (("episodic_return", "episodic reward"), ("success_rate", "training success rate"))
 
 
+def curve_window(total_steps: int, buffer_size: int) -> int:
+    """Fig. 5's moving-average window in updates: about 15 windows over a run of ``total_steps`` env steps
+    collected ``buffer_size`` at a time."""
+    return max(1, total_steps // (buffer_size * 15))
+
+
 def _labels() -> dict[str, str]:
 
     return {m: s.label for m, s in METHODS.items()}
