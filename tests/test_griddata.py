@@ -72,3 +72,35 @@ def test_tables_rebuild_from_the_records_alone(tmp_path, monkeypatch, capsys):
     assert len(v) == 98 and set(v.verdict) <= {"holds", "reversed", "undecided", "not run"}
     assert (out / "smoke" / "figures" / "fig5_training_curves.png").stat().st_size > 10_000
     assert "claim ledger:" in capsys.readouterr().out
+
+
+def test_a_teachers_weights_travel_so_a_new_machine_trains_its_students_without_it(tmp_path, monkeypatch):
+    from omcrl.pipeline.grids import GRIDS, Variant
+    from omcrl.runs import CorruptFile
+
+    monkeypatch.setitem(GRIDS, "teach", (Variant("oracle", "oracle"), Variant("ours", "ours")))
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-a"))
+    record = GridData(tmp_path / "record")
+    first = run_sweep(load_config("smoke"), "teach", [0], backend="local", progress=False, record=record)
+    assert set(first.status.values()) == {"done"}
+    kept = record.folder("oracle", 0) / "rl" / "final.pt"
+    (oracle_run,) = (tmp_path / "machine-a" / "results").glob("smoke/runs/rl/oracle-*/seed0")
+    assert kept.read_bytes() == (oracle_run / "final.pt").read_bytes()
+    assert not list(record.folder("ours", 0).rglob("*.pt"))  # a student's weights are not kept
+    # A new machine, the student's data lost: the oracle is laid out from the record (a skip), the student trains.
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-b"))
+    record.remove("ours", 0)
+    again = run_sweep(load_config("smoke"), "teach", [0], backend="local", progress=False, record=record)
+    by_kind = {(j.kind, j.method): again.status[j.id] for j in again.jobs}
+    assert by_kind[("train", "oracle")] == "skipped" and by_kind[("train", "ours")] == "done"
+    assert by_kind[("evaluate", "oracle")] == "recorded"
+    (restored,) = (tmp_path / "machine-b" / "results").glob("smoke/runs/rl/oracle-*/seed0")
+    assert restored.name == oracle_run.name and restored.parent.name == oracle_run.parent.name
+    assert (restored / "final.pt").read_bytes() == kept.read_bytes() and (restored / "metrics.csv").is_file()
+    # Damaged kept weights are refused before any job runs, naming the file; nothing is written.
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-c"))
+    record.remove("ours", 0)
+    kept.write_bytes(kept.read_bytes()[:-10] + b"0123456789")
+    with pytest.raises(CorruptFile, match="kept teacher weights .*final.pt"):
+        run_sweep(load_config("smoke"), "teach", [0], backend="local", progress=False, record=record)
+    assert not list((tmp_path / "machine-c").rglob("final.pt"))

@@ -1,17 +1,22 @@
 """A training grid's small data, kept in the repository as each run finishes: what Table I is rebuilt from.
 
-Weights do not travel (an RL checkpoint is ~15 MB); what does is enough to recompute every cell, interval,
+Policies' weights do not travel (a policy file is ~11 MB); what does is enough to recompute every cell, interval,
 verdict and learning curve without training anything::
 
     reference/<preset>/<grid>-<suite>/
         <label>/seed<k>/episodes.csv.gz     one row per evaluation episode (all scenes; trajectories left out)
         <label>/seed<k>/rl/                 the policy's run record: run.json, config.yaml, metrics.csv.gz
+        <label>/seed<k>/rl/final.pt         a teacher's weights only (the oracle: other runs of the grid need it)
         <label>/seed<k>/pretrain/           its encoder's run record (frozen-encoder methods): done.json, ...
+
+A teacher's weights are the one exception to "records only": the oracle (~15 MB) takes longer to train than a
+session lasts together with its students, so without its weights every session would retrain it before a student
+could start (and a retrained teacher is only the same file where training is bit-for-bit reproducible).
 
 ``label`` is the variant's label (for ``table1``: the method name); planners are recorded once, under ``seed0``.
 A sweep run with ``--to-reference`` (:func:`omcrl.pipeline.sweep.run_sweep`) writes these files after every
 finished job and, on its next start, trains only the variants whose episodes are not there yet (a new machine
-retrains the upstream runs those need: their weights were not kept).
+retrains the encoders those need, and lays a kept teacher out as its finished run folder).
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from omcrl.eval.table1 import Table1Result, write_table1
 from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
 from omcrl.pipeline.reference import config_suite
+from omcrl.runs import CorruptFile, read_identity, verify_artifact
 from omcrl.utils.io import atomic_write_bytes
 from omcrl.viz import save_figure
 from omcrl.viz.compare import curve_window, plot_learning_curves
@@ -39,6 +45,7 @@ from omcrl.viz.compare import curve_window, plot_learning_curves
 EPISODES = "episodes.csv.gz"
 # Small files of a run folder that are copied (CSV ones compressed); weights, checkpoints and event files are not.
 RECORD_SUFFIXES = (".json", ".yaml", ".csv")
+WEIGHTS = "final.pt"
 
 
 def grid_data_dir(cfg: Config, grid: str) -> Path:
@@ -117,6 +124,49 @@ class GridData:
         if not written:
             raise FileNotFoundError(f"{run_dir}: no run record (run.json, done.json, config.yaml, metrics.csv) to keep")
         return written
+
+    def save_weights(self, label: str, seed: int, stage: str, run_dir: str | Path) -> Path:
+        """Keep the finished run's ``final.pt`` beside its record (for a teacher that later runs need); it must match
+        the digest its ``run.json`` recorded. Returns the file written."""
+        src = Path(run_dir) / WEIGHTS
+        verify_artifact(src, "teacher weights", "train the run again")
+        dest = self.folder(label, seed) / stage / WEIGHTS
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(dest, src.read_bytes())
+        return dest
+
+    def has_weights(self, label: str, seed: int, stage: str) -> bool:
+        """True when ``final.pt`` of ``label``'s ``stage`` run at ``seed`` is kept."""
+        return (self.folder(label, seed) / stage / WEIGHTS).is_file()
+
+    def restore_run(self, label: str, seed: int, stage: str, run_dir: str | Path) -> bool:
+        """Lay a kept run (record and weights) out as the finished run folder ``run_dir``, so that training it is a
+        skip. Nothing is written when ``run_dir`` already holds a ``final.pt`` or no weights are kept (False).
+
+        Raises :class:`omcrl.runs.CorruptFile` when the kept weights do not match the kept ``run.json``'s digest, or
+        when that record is of another run than ``run_dir`` names (its key), before anything is written.
+        """
+        src, dest = self.folder(label, seed) / stage, Path(run_dir)
+        if not (src / WEIGHTS).is_file() or (dest / WEIGHTS).exists():
+            return False
+        verify_artifact(src / WEIGHTS, "kept teacher weights", f"delete {src} to train that run again")
+        rec = read_identity(src) or {}
+        want = dest.parent.name.rpartition("-")[2]
+        if rec.get("key") != want or f"seed{rec.get('seed')}" != dest.name:
+            raise CorruptFile(
+                f"{src / 'run.json'}: records run key {rec.get('key')!r} seed {rec.get('seed')!r}, expected {want!r} "
+                f"seed {dest.name.removeprefix('seed')!r} ({dest}); delete {src} to train that run again"
+            )
+        dest.mkdir(parents=True, exist_ok=True)
+        for p in sorted(src.iterdir()):
+            if p.name == WEIGHTS or not p.is_file():
+                continue
+            data = p.read_bytes()
+            name = p.name.removesuffix(".gz") if p.name.endswith(".csv.gz") else p.name
+            atomic_write_bytes(dest / name, gzip.decompress(data) if name != p.name else data)
+        # The weights last: a folder with final.pt is a finished run, so it must not appear before its record.
+        atomic_write_bytes(dest / WEIGHTS, (src / WEIGHTS).read_bytes())
+        return True
 
     def read_episodes(self, label: str, seed: int) -> pd.DataFrame:
         """The recorded episodes of ``label`` at training seed ``seed`` (FileNotFoundError when there are none)."""

@@ -51,7 +51,7 @@ from omcrl.pipeline.plan import (
 from omcrl.pipeline.recipes import pretrain_method, train_method
 from omcrl.pipeline.stages import collect_stage, oracle_policy
 from omcrl.pipeline.storage import Storage, job_key
-from omcrl.rl.methods import PlannerRecipe, final_policy_path
+from omcrl.rl.methods import PlannerRecipe, final_policy_path, get_method
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import cpu_count
@@ -231,12 +231,15 @@ def run_sweep(
     ``record``: keep each finished job's small data there (:class:`omcrl.pipeline.griddata.GridData`: the runs'
     records after their training, the episodes after their evaluation) and run only the variants whose episodes it
     does not hold yet, with what they need upstream; the others are marked ``recorded`` and their rows read back.
+    A teacher's weights (a training run other training jobs need: the oracle) are kept there too, and laid out as
+    its finished run folder before anything runs, so a new machine trains its students without training it again.
     """
     if backend not in ("ray", "local"):
         raise ConfigError(f"sweep backend: got {backend!r}, expected 'ray' or 'local'")
     jobs = expand(cfg, grid, seeds)
     targets = _record_targets(jobs) if record is not None else {}
     recorded = _recorded(jobs, record) if record is not None else set()
+    teachers = _teachers(jobs, targets)
     logs_dir = cfg.run_root / "sweeps" / grid / "logs"
     base = {"preset": cfg.preset, "overrides": base_overrides(cfg)}
     res = SweepResult(grid, jobs, {}, logs={j.id: logs_dir / j.log_name for j in jobs})
@@ -258,6 +261,8 @@ def run_sweep(
             if record is not None:
                 for label, stage in targets.get(job.id, ()):
                     record.save_run(label, job.seed, stage, out["outputs"][0])
+                if job.id in teachers:
+                    record.save_weights(*teachers[job.id], job.seed, "rl", out["outputs"][0])
                 if job.kind == "evaluate":
                     record.save_episodes(job.label, job.seed, pd.DataFrame(out["rows"]))
             # After every job, not at the end: a killed driver loses no measured time.
@@ -272,6 +277,11 @@ def run_sweep(
                 rows.extend(json.loads(record.read_episodes(job.label, job.seed).to_json(orient="records")))
             bar.update(1, **_postfix(res, running))
     todo = [j for j in jobs if j.id not in recorded]
+    if record is not None:
+        for job in todo:
+            if job.id in teachers and (run := _train_run(base, job)) is not None:
+                if record.restore_run(*teachers[job.id], job.seed, "rl", run.dir):
+                    print(f"[sweep] {job.method} seed {job.seed}: kept weights restored into {run.dir}", flush=True)
     if backend == "local":
         for job in todo:
             if any(res.status.get(d) in ("failed", "blocked") for d in job.deps):
@@ -310,6 +320,23 @@ def _record_targets(jobs: Sequence[Job]) -> dict[str, list[tuple[str, str]]]:
             if by_id[d].kind == "pretrain":
                 out.setdefault(d, []).append((e.label, "pretrain"))
     return out
+
+
+def _teachers(jobs: Sequence[Job], targets: dict[str, list[tuple[str, str]]]) -> dict[str, tuple[str]]:
+    """``{job id: (variant label,)}`` of the training jobs another training job needs (teachers: the oracle), with
+    the variant whose folder keeps their weights (the first that records the run)."""
+    by_id = {j.id: j for j in jobs}
+    need = {d for j in jobs if j.kind == "train" for d in j.deps if by_id[d].kind == "train"}
+    return {jid: (targets[jid][0][0],) for jid in sorted(need) if targets.get(jid)}
+
+
+def _train_run(preset_cfg: dict, job: Job) -> Any:
+    """The :class:`omcrl.runs.Run` a training job trains into, or None while its own prerequisites are missing."""
+    base = load_config(preset_cfg["preset"], overrides=preset_cfg["overrides"])
+    cfg = job_config(base, job.overrides, job.seed)
+    oracle_cfg = None if job.oracle_overrides is None else job_config(base, job.oracle_overrides, job.seed)
+    spec = get_method(job.method)
+    return spec.recipe.run(cfg, spec, oracle_cfg)
 
 
 def _recorded(jobs: Sequence[Job], record: GridData) -> set[str]:
