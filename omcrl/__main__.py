@@ -151,6 +151,12 @@ def build_parser() -> argparse.ArgumentParser:
                 "them) and train only what is not kept there yet",
             )
             sp.add_argument("--rates", default=None, help="with --plan: JSON {rate_key: units/s} (default: measured)")
+            sp.add_argument(
+                "--variants",
+                default=None,
+                metavar="LABEL,..",
+                help="only these variants of the grid (and what they need), e.g. ours-lapf,curl",
+            )
         if name == "notebooks":
             sp.add_argument("--only", default=None, metavar="NN,..", help="run only these notebooks, e.g. 05,07")
             sp.add_argument("--skip", default=None, metavar="NN,..", help="leave these out, e.g. 06 (the ablations)")
@@ -292,9 +298,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         elif args.stage == "sweep":
             seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else None
             kw = {"backend": args.backend, "address": args.address, "num_cpus": args.num_cpus,
-                  "to_reference": args.to_reference}  # fmt: skip
+                  "to_reference": args.to_reference, "variants": _csv(args.variants)}  # fmt: skip
             if args.plan:
-                kw = {"plan": True, "rates": args.rates}
+                kw = {"plan": True, "rates": args.rates, "to_reference": args.to_reference}
             result = func(cfg, args.grid, seeds=seeds, **kw)
         else:
             result = func(cfg)

@@ -1,5 +1,5 @@
-"""One home for runs: naming, identity keys, skip-if-finished / resume, metrics I/O, the training lifecycle
-(:class:`TrainingLoop` with :class:`Callback` s) and RNG state.
+"""One home for runs: naming, identity keys, skip-if-finished / resume, checkpoints and the finished artifact
+(:class:`Run`), metrics I/O, the training hooks (:class:`Callback`) and RNG state.
 
 Every stage that trains something (pretraining, the oracle, each RL method) writes one *run*::
 
@@ -27,6 +27,8 @@ import io
 import json
 import math
 import random
+import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,10 +36,10 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import Config, config_hash
-from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest
-from omcrl.utils.progress import Progress
+from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
 
 RUN_FILE = "run.json"
+CHECKPOINT = "checkpoint.pt"
 
 # The behaviour version of each component whose code decides results. A change that alters what a component
 # computes (trained weights, collected frames, episode outcomes) bumps its number in the same commit: every run and
@@ -235,6 +237,54 @@ class Run:
 
         return record
 
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.dir / CHECKPOINT
+
+    def finished(self, artifact: str = "final.pt") -> Path | None:
+        """The run's finished ``artifact`` when it is there and matches the digest ``run.json`` recorded (or none
+        was recorded), else None. A finished artifact that changed since it was written is not trusted: it is moved
+        aside (``<name>.corrupt``, with a warning) so that the run trains again."""
+        path = self.dir / artifact
+        if not path.exists():
+            return None
+        if self.verified(path) is not False:
+            return path
+        aside = path.with_name(f"{artifact}.corrupt")
+        path.replace(aside)
+        warnings.warn(
+            f"{path} does not match the digest recorded when it was written (moved to {aside.name}); training this "
+            "run again",
+            stacklevel=2,
+        )
+        return None
+
+    def load(self, what: str = "checkpoint", error: type[Exception] | None = None) -> dict | None:
+        """The resumable state :meth:`save` wrote, verified against its recorded digest (:class:`ArtifactMismatch`
+        names the file when it was damaged: a damaged checkpoint is refused, never resumed); None when there is
+        none; ``error``: the exception type of an unreadable file (default :class:`omcrl.utils.io.UnsafeFileError`).
+        Call it before :meth:`claim`, so a refused start leaves nothing behind."""
+        path = self.checkpoint_path
+        if not path.exists():
+            return None
+        verify_artifact(path, what, f"delete it to train {self.method} seed {self.seed} from the start")
+        return load_torch(path, what) if error is None else load_torch(path, what, error)
+
+    def save(self, state: dict) -> Path:
+        """Write the resumable ``state`` (tensors and plain containers) atomically to ``checkpoint.pt``, its digest
+        recorded in ``run.json`` before the file is replaced; returns the path."""
+        atomic_save_torch(state, self.checkpoint_path, self.checkpoint_recorder())
+        return self.checkpoint_path
+
+    def finish(self, payload: dict, artifact: str = "final.pt") -> Path:
+        """Write the finished ``artifact`` atomically, record its digest in ``run.json`` and drop the checkpoint (the
+        artifact is the result; the resumable state is obsolete). Returns the artifact's path."""
+        path = self.dir / artifact
+        atomic_save_torch(payload, path)
+        self.record(artifact_digest=file_digest(path))
+        self.checkpoint_path.unlink(missing_ok=True)
+        return path
+
     def release(self) -> None:
         """Release the lock taken by :meth:`claim`."""
         release_lock(self.dir)
@@ -409,25 +459,25 @@ class MetricsLog:
             self.tb.close()
 
 
-# ---------------------------------------------------------------- the training lifecycle
+# ---------------------------------------------------------------- training hooks
 class Callback:
-    """Hooks into a training run's lifecycle (:class:`TrainingLoop`), as Stable-Baselines3's callbacks are.
+    """Hooks a training loop calls (pretraining and every RL method), as Stable-Baselines3's callbacks are.
 
     Override what you need; ``on_step`` returning False stops the run unfinished (its last checkpoint stays, so
-    the next call resumes from there).
+    the next call resumes from there). ``run`` is the :class:`Run` being trained.
     """
 
-    def on_start(self, loop: TrainingLoop, step: int) -> None:
+    def on_start(self, run: Run, step: int) -> None:
         """Before the first step of this session (``step``: where it starts, > 0 when resumed)."""
 
-    def on_step(self, loop: TrainingLoop, step: int, metrics: dict[str, float]) -> bool:
+    def on_step(self, run: Run, step: int, metrics: dict[str, float]) -> bool:
         """After each step, its metrics logged and any checkpoint written; False stops the run."""
         return True
 
-    def on_checkpoint(self, loop: TrainingLoop, step: int, path: Path) -> None:
+    def on_checkpoint(self, run: Run, step: int, path: Path) -> None:
         """After a checkpoint was written (atomically, its digest recorded in ``run.json``)."""
 
-    def on_end(self, loop: TrainingLoop, step: int, finished: bool) -> None:
+    def on_end(self, run: Run, step: int, finished: bool) -> None:
         """After the last step of this session (``finished``: the run reached its total)."""
 
 
@@ -437,88 +487,18 @@ class StopAfter(Callback):
     def __init__(self, step: int) -> None:
         self.step = int(step)
 
-    def on_step(self, loop: TrainingLoop, step: int, metrics: dict[str, float]) -> bool:
+    def on_step(self, run: Run, step: int, metrics: dict[str, float]) -> bool:
         return step < self.step
 
 
-class Trainer:
-    """What :class:`TrainingLoop` drives: one algorithm's run, set up (models built, a checkpoint loaded) by its
-    entry point. Subclasses implement :meth:`step` and :meth:`state`."""
-
-    def step(self) -> tuple[int, dict[str, float], dict[str, str]]:
-        """Advance by one unit of the loop (a pretraining iteration, a PPO rollout + update).
-
-        Returns
-        -------
-        (progress reached in the run's units, the metrics row to log, the progress bar's postfix)
-        """
-        raise NotImplementedError
-
-    def state(self, step: int) -> dict:
-        """Everything a resume needs at ``step`` (written to the checkpoint with ``weights_only``-safe values)."""
-        raise NotImplementedError
+def checkpoint_due(before: int, step: int, every: int) -> bool:
+    """Did progress from ``before`` to ``step`` units cross a multiple of ``every`` (a checkpoint is then due)?"""
+    return step // every > before // every
 
 
-@dataclass
-class TrainingLoop:
-    """The one training lifecycle of every trainer (pretraining and each RL method).
-
-    Around a :class:`Trainer` that its entry point has set up in a claimed run folder (:meth:`Run.claim`: locked,
-    ``run.json`` written, a finished run already skipped with its digest checked, a checkpoint loaded): the tidy
-    ``metrics.csv`` and TensorBoard events (:class:`MetricsLog`, rows past the resume point dropped), the
-    progress bar, periodic atomic checkpoints whose digests go to ``run.json``, and :class:`Callback` s. The entry
-    point then writes the final artifact and releases the run.
-
-    Attributes
-    ----------
-    run : the claimed run.
-    total : units of the whole run (pretraining iterations, env steps).
-    label, unit : the progress bar's description and unit.
-    checkpoint_path : the resumable state's file; ``checkpoint_every`` units between checkpoints (one is written
-        whenever progress crosses a multiple), and ``checkpoint_at_end`` also at the end (pretraining: the
-        encoder can be rebuilt from it).
-    digits : significant digits of metrics values (None: all).
-    """
-
-    run: Run
-    total: int
-    label: str
-    unit: str
-    checkpoint_path: Path
-    checkpoint_every: int
-    checkpoint_at_end: bool = False
-    progress: bool = True
-    digits: int | None = 6
-    callbacks: tuple[Callback, ...] = ()
-
-    def run_from(self, trainer: Trainer, start: int, resumed: bool) -> tuple[int, bool]:
-        """Drive ``trainer`` from ``start`` units (``resumed``: from a checkpoint) until ``total`` or a callback
-        stops it. Returns ``(units reached, finished)``."""
-        log = MetricsLog(self.run.dir, start if resumed else None, digits=self.digits)
-        bar = Progress(self.total, self.label, unit=self.unit, initial=start, enabled=self.progress)
-        step, finished = start, start >= self.total
-        try:
-            for cb in self.callbacks:
-                cb.on_start(self, step)
-            while step < self.total:
-                before = step
-                step, metrics, postfix = trainer.step()
-                log.log(step, metrics)
-                bar.update(step - before, **postfix)
-                crossed = step // self.checkpoint_every > before // self.checkpoint_every
-                if (crossed and step < self.total) or (self.checkpoint_at_end and step >= self.total):
-                    atomic_save_torch(trainer.state(step), self.checkpoint_path, self.run.checkpoint_recorder())
-                    for cb in self.callbacks:
-                        cb.on_checkpoint(self, step, self.checkpoint_path)
-                if not all([cb.on_step(self, step, metrics) for cb in self.callbacks]) and step < self.total:
-                    break
-            finished = step >= self.total
-        finally:
-            bar.close()
-            log.close()
-        for cb in self.callbacks:
-            cb.on_end(self, step, finished)
-        return step, finished
+def keep_going(callbacks: Sequence[Callback], run: Run, step: int, metrics: dict[str, float]) -> bool:
+    """Call every callback's ``on_step`` (all of them, even after one says stop); False when one says stop."""
+    return all([cb.on_step(run, step, metrics) for cb in callbacks])
 
 
 # ---------------------------------------------------------------- RNG state

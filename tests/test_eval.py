@@ -152,11 +152,11 @@ def _smoke_student(tmp_path):
 
 def test_parallel_evaluation_gives_the_same_rows_as_in_process(tmp_path):
     from omcrl.eval import EvalPool
-    from omcrl.eval.stage import planner_for
+    from omcrl.planners import make_planner
 
     cfg, student = _smoke_student(tmp_path)
     with EvalPool(2) as pool:
-        for policy in (student, planner_for("hybrid-apf-perceptive"), planner_for("hybrid-apf")):
+        for policy in (student, make_planner("hybrid-apf-perceptive"), make_planner("hybrid-apf")):
             kw = {"seed": 1, "seed_offset": 5_000, "config": cfg.env}
             one = evaluate(policy, "furniture", 5, **kw)
             two = evaluate(policy, "furniture", 5, workers=pool, **kw)

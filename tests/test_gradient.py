@@ -88,11 +88,11 @@ def test_v1_suite_is_flown_blind_which_v2_was_built_against():
     """The reason v2 exists, measured the same way: in v1's box and tree a pilot that senses nothing reaches more
     than 20 % of the goals (criteria layouts, as above)."""
     from omcrl.eval.runner import evaluate
-    from omcrl.eval.stage import planner_for
     from omcrl.interpret.gradient import CRITERIA_SEED_OFFSET
+    from omcrl.planners import make_planner
 
     for scene in ("box-v0", "tree-v0"):
-        ep = evaluate(planner_for("blind"), scene, FAST_LAYOUTS, 0, seed_offset=CRITERIA_SEED_OFFSET, workers=2)
+        ep = evaluate(make_planner("blind"), scene, FAST_LAYOUTS, 0, seed_offset=CRITERIA_SEED_OFFSET, workers=2)
         assert ep.success.mean() > 0.2, scene
 
 

@@ -11,7 +11,7 @@ import pytest
 from omcrl.__main__ import main
 from omcrl.config import load_config
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
-from omcrl.pipeline.sweep import record_planners, run_sweep
+from omcrl.pipeline.sweep import record_planners, run_sweep, sweep_stage
 
 
 def test_a_grid_is_recorded_resumed_from_its_records_and_rebuilt_without_training(tmp_path, monkeypatch):
@@ -30,12 +30,18 @@ def test_a_grid_is_recorded_resumed_from_its_records_and_rebuilt_without_trainin
     assert not [f for f in files if f.endswith(".pt")]
     text = gzip.decompress((record.root / "PPO" / "seed0" / "episodes.csv.gz").read_bytes()).decode()
     assert str(tmp_path) not in text
+    # The measured wall times travel too (the plan's rates on a fresh checkout), with portable job ids.
+    times = pd.read_csv(record.root / "jobs.csv")
+    assert len(times) == 6 and (times["seconds"] > 0).all() and not times["id"].str.contains(str(tmp_path)).any()
+    assert times["id"].str.contains("<results>/smoke/runs/").any()
     # A second machine with the checkout's records only: nothing to run, the same rows read back.
     monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-b"))
     (tmp_path / "machine-b" / "reference").mkdir(parents=True)
     (tmp_path / "machine-b" / "reference" / "smoke").symlink_to(record.root.parent)
     again = run_sweep(load_config("smoke"), "smoke", [0], backend="local", progress=False, record=record)
     assert again.counts() == {"recorded": 6}
+    plan = sweep_stage(load_config("smoke"), "smoke", seeds=[0], plan=True, to_reference=True)
+    assert ": 0 jobs" in plan and "6 more jobs are recorded in the checkout" in plan
     cols = ["label", "scene", "seed", "success", "final_distance"]
     pd.testing.assert_frame_equal(first.episodes[cols].reset_index(drop=True), again.episodes[cols])
     # One variant's episodes lost: only it (and its upstream jobs) runs again, trained afresh on this machine.

@@ -8,9 +8,9 @@ import pytest
 
 from omcrl.config import load_config
 from omcrl.envs import make_env
-from omcrl.eval.stage import _load, planner_for
-from omcrl.planners import BlindPilot, HybridAPF, LocalAPF, PerceptiveHybridAPF
-from omcrl.rl.methods import METHODS, PlannerRecipe
+from omcrl.eval.stage import _load
+from omcrl.planners import GUIDES, PLANNERS, BlindPilot, HybridAPF, LocalAPF, PerceptiveHybridAPF, make_planner
+from omcrl.rl.methods import METHODS
 
 # A U-shaped pocket open towards the start, the goal behind its bottom wall: the straight line to the goal runs
 # into the pocket, where attraction and repulsion cancel (the classical local minimum of potential fields).
@@ -52,8 +52,12 @@ def test_every_planner_method_is_flown_by_its_recipe_and_cached_by_its_name():
         assert type(agent) is kinds[name] and spec.recipe.run(cfg, spec) is None
         with pytest.raises(Exception, match="is a planner: it is not trained"):
             spec.recipe.train(cfg, spec)
-    assert type(planner_for("local-apf")) is LocalAPF and type(planner_for("HybridAPF")) is HybridAPF
-    assert set(PlannerRecipe.PLANNERS) >= set(planners)
+    assert type(make_planner("local-apf")) is LocalAPF and type(make_planner("HybridAPF")) is HybridAPF
+    # One table of planners: every planner method and every planner guide of a student is in it.
+    assert set(PLANNERS) >= set(planners) and {p for p, _ in GUIDES.values()} <= set(PLANNERS)
+    assert {s.guide for s in METHODS.values() if s.guide not in (None, "oracle")} <= set(GUIDES)
+    with pytest.raises(ValueError, match="unknown planner 'astar'.*'hybrid-apf'"):
+        make_planner("astar")
     # An evaluation of a planner is cached under its name, with the planners' behaviour version beside it
     # (tests/test_identity.py: bumping it flies the planner again).
     _, key = _load("hybrid-apf", "hybrid-apf")
@@ -93,4 +97,4 @@ def test_the_blind_pilot_flies_the_straight_line_and_senses_nothing():
     np.testing.assert_array_equal(a, pilot.act(blank, info))
     env.close()
     assert blocked["collision"] and not blocked["success"]
-    assert type(planner_for("blind")) is BlindPilot
+    assert type(make_planner("blind")) is BlindPilot

@@ -23,6 +23,7 @@ from omcrl.rl import (
     gaussian_kl,
     load_policy,
     ppo_loss,
+    ppo_update,
     train_oracle,
     train_ppo,
     train_student,
@@ -408,28 +409,45 @@ def test_device_setting_resolves_and_refuses_a_missing_gpu_before_training(tmp_p
     assert not (tmp_path / "smoke" / "runs").exists()  # refused before a run folder appeared
 
 
-def test_ppo_settings_coerce_by_annotation_and_refuse_an_unknown_type():
-    """A bool knob stays a bool (it used to become 1.0: every non-int field was coerced to float)."""
-    import dataclasses
+def test_one_update_takes_its_settings_from_the_rl_section():
+    """ppo_update reads cfg.rl itself (no settings object to keep in step): rl.epochs × ceil(M / rl.minibatch)
+    optimiser steps, and a knob changed in the config changes the update."""
+    import copy
 
-    from omcrl.config import load_config
-    from omcrl.rl.ppo import PPOSettings
+    from omcrl.rl.ppo import Rollout
 
     rl = load_config("smoke").rl
-    s = PPOSettings.from_config(rl)
-    assert type(s.epochs) is int and type(s.lr) is float and s.lr == rl.lr
+    t, n = 8, 4
+    g = torch.Generator().manual_seed(0)
+    roll = Rollout(
+        obs={"x": torch.randn(t, n, 4, generator=g)},
+        actions=torch.randn(t, n, 3, generator=g),
+        log_probs=torch.randn(t, n, generator=g) - 3.0,
+        values=torch.randn(t, n, generator=g),
+        next_values=torch.randn(t, n, generator=g),
+        rewards=torch.randn(t, n, generator=g),
+        terminated=torch.zeros(t, n),
+        ends=torch.zeros(t, n),
+        valid=torch.ones(t, n),
+    )
+    roll.advantages, roll.returns = compute_gae(
+        roll.rewards, roll.values, roll.next_values, roll.terminated, roll.ends, rl.gamma, rl.gae_lambda
+    )
 
-    @dataclasses.dataclass(frozen=True)
-    class WithFlag(PPOSettings):
-        norm_adv: bool = True
+    def update(**knobs):
+        torch.manual_seed(0)
+        agent = ActorCritic(IdentityFeatures(4), act_dim=3, hidden=16)
+        opt = torch.optim.Adam(agent.parameters(), lr=1e-3)
+        cfg_rl = copy.deepcopy(rl)
+        for k, v in knobs.items():
+            setattr(cfg_rl, k, v)
+        ppo_update(agent, opt, roll, cfg_rl, alpha=0.0)
+        steps = {int(st["step"]) for st in opt.state.values()}
+        return steps, torch.cat([p.detach().flatten() for p in agent.parameters()])
 
-    rl.norm_adv = False
-    assert WithFlag.from_config(rl).norm_adv is False
-
-    @dataclasses.dataclass(frozen=True)
-    class WithName(PPOSettings):
-        schedule: str = "linear"
-
-    rl.schedule = "linear"
-    with pytest.raises(TypeError, match="schedule"):
-        WithName.from_config(rl)
+    steps, w = update(epochs=2, minibatch=12)
+    assert steps == {2 * 3}  # 32 transitions in minibatches of 12: three a pass
+    steps, _ = update(epochs=1, minibatch=32)
+    assert steps == {1}
+    _, w_clipped = update(epochs=2, minibatch=12, max_grad_norm=1e-6)
+    assert not torch.equal(w, w_clipped)

@@ -15,6 +15,7 @@ import torch
 from omcrl.config import load_config
 from omcrl.runs import (
     MetricsLog,
+    Run,
     RunConfigMismatch,
     find_runs,
     make_run,
@@ -106,24 +107,25 @@ class _Recorder:
     def __init__(self):
         self.events = []
 
-    def on_start(self, loop, step):
+    def on_start(self, run, step):
+        assert isinstance(run, Run)
         self.events.append(("start", step))
 
-    def on_step(self, loop, step, metrics):
+    def on_step(self, run, step, metrics):
         assert "loss" in metrics
         self.events.append(("step", step))
         return True
 
-    def on_checkpoint(self, loop, step, path):
+    def on_checkpoint(self, run, step, path):
         assert path.exists()
         self.events.append(("checkpoint", step))
 
-    def on_end(self, loop, step, finished):
+    def on_end(self, run, step, finished):
         self.events.append(("end", step, finished))
 
 
 def test_one_lifecycle_stops_on_a_callback_and_resumes_from_its_checkpoint(tmp_path):
-    """Every trainer runs in :class:`omcrl.runs.TrainingLoop`: callbacks see start, steps, checkpoints and the end;
+    """Every training loop calls the same hooks (:class:`omcrl.runs.Callback`): start, steps, checkpoints and the end;
     StopAfter interrupts a run after its checkpoint, and the next call resumes there and finishes the run. (A
     resumed RL run does not repeat the uninterrupted run's weights: its envs restart with a new seed, since an
     episode in flight cannot be checkpointed; pretraining resumes bit for bit, tests/test_pretrain.py.)"""

@@ -120,6 +120,21 @@ def test_readme_results_at_a_glance_match_the_reference_table(repo_root):
     assert current_block(readme) == render_glance(reference_table_dir("quick"))
 
 
+def test_readme_v2_table_and_verdicts_are_what_the_grid_data_gives(repo_root):
+    """The README's v2 block is rebuilt from reference/quick/table1-v2/ alone (Table I, the ledger's verdicts): re-run
+    `python -m omcrl summary --preset quick --readme` after grid data is committed. A hand-edited cell fails here."""
+    from omcrl.pipeline.glance import FULL_END, FULL_START, V2_END, V2_START, current_block, v2_blocks
+
+    short, full = v2_blocks("quick")
+    readme = (repo_root / "README.md").read_text(encoding="utf-8")
+    block = current_block(readme, start=V2_START, end=V2_END)
+    assert "| Blind pilot (senses nothing) |" in block and "ledger fixed before any v2 evaluation" in block
+    assert block == short
+    results = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
+    assert current_block(results, "docs/results.md", FULL_START, FULL_END) == full
+    assert "**tree-v2 (hard)**" in full and "| E1 | ours > npe on SR in tree-v2 |" in full
+
+
 def test_readme_block_is_replaced_between_its_markers_only(tmp_path):
     from omcrl.pipeline.glance import END, START, GlanceError, current_block, replace_block
 

@@ -570,3 +570,22 @@ def test_sweep_episodes_list_variants_in_the_grid_order_not_the_finishing_order(
     assert list(dict.fromkeys(out.label)) == ["rho=0.1", "rho=0.5", "CURL"]
     assert out[out.label == "CURL"].train_seed.tolist()[:4] == [0, 0, 0, 0]  # then by seed
     assert len(out) == len(finished) and _in_grid_order(finished.iloc[:0], jobs).empty
+
+
+def test_a_sweep_of_some_variants_keeps_what_they_need_and_names_a_wrong_one():
+    from omcrl.config import ConfigError, load_config
+    from omcrl.pipeline.plan import expand
+    from omcrl.pipeline.sweep import only_variants
+
+    jobs = expand(load_config("smoke"), "table1", [0])
+    some = only_variants(jobs, ["ours-lapf"], "table1")
+    assert {(j.kind, j.method) for j in some} == {
+        ("collect", "ours"),
+        ("pretrain", "ours"),
+        ("train", "ours-lapf"),
+        ("evaluate", "ours-lapf"),
+    }  # the OMC encoder it shares with ours, and no oracle: its guide is the local APF
+    assert [j.id for j in jobs if j.id in {s.id for s in some}] == [s.id for s in some]  # the grid's order
+    assert only_variants(jobs, None, "table1") == jobs
+    with pytest.raises(ConfigError, match=r"variants \['ourz'\] are not in the grid; its variants are \['oracle'"):
+        only_variants(jobs, ["ourz"], "table1")

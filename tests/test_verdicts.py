@@ -81,3 +81,35 @@ def test_a_learned_method_of_one_seed_is_shown_not_judged():
     assert row["verdict"] == "one seed" and row["estimate"] > 50 and math.isnan(row["p_holm"])
     counts = verdict_counts(ledger_verdicts(ep, reps=200)).set_index("claim")
     assert counts.loc["E8", "verdict"] == "one seed"
+
+
+def test_changes_from_v1_pairs_each_ordering_with_the_same_hypothesis_on_v2():
+    import pandas as pd
+
+    from omcrl.eval.verdicts import changes_from_v1
+
+    v1 = pd.DataFrame(
+        [
+            {"claim": "ours > npe", "scene": "tree-v0", "diff": -27.0, "lo": -45.0, "hi": -10.0, "verdict": "reversed"},
+            {"claim": "ours > npe", "scene": "box-v0", "diff": -1.0, "lo": -6.0, "hi": 5.0, "verdict": "undecided"},
+            {"claim": "curl > ppo", "scene": "barrier-v0", "diff": 0.0, "lo": -12.0, "hi": 11.0, "verdict": "undecided"},
+        ]
+    )
+    nan = float("nan")
+    v2 = pd.DataFrame(
+        [
+            {"metric": "SR", "versus_scene": "", "a": "ours", "b": "npe", "scene": "tree-v2", "estimate": 8.0,
+             "lo": 1.0, "hi": 15.0, "verdict": "holds"},
+            {"metric": "SR", "versus_scene": "", "a": "curl", "b": "ppo", "scene": "barrier-v2", "estimate": nan,
+             "lo": nan, "hi": nan, "verdict": "not run"},
+            {"metric": "SR", "versus_scene": "barrier-v2", "a": "npe", "b": "npe", "scene": "box-v2", "estimate": 5.0,
+             "lo": 1.0, "hi": 9.0, "verdict": "holds"},
+        ]
+    )  # fmt: skip
+    ch = changes_from_v1(v1, v2)
+    # box has no paper scene family (the training room is not a claim's scene): two rows, not three.
+    assert list(ch["ordering"]) == ["ours > npe", "curl > ppo"]
+    tree = ch.iloc[0]
+    assert (tree.v1_verdict, tree.v2_verdict, tree.changed) == ("reversed", "holds", True)
+    assert tree.v1 == "-27 [-45, -10]" and tree.v2 == "+8 [+1, +15]"
+    assert ch.iloc[1].changed is None and ch.iloc[1].v2 == "–"  # not judged on v2: no verdict change claimed

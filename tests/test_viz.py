@@ -45,3 +45,25 @@ def test_a_method_has_one_colour_by_name_or_by_label():
     assert method_color("HybridAPF") == method_color("hybrid-apf")
     assert len({METHOD_COLORS[m] for m in METHOD_COLORS if m != "HybridAPF"}) == len(METHOD_COLORS) - 1
     assert method_color("something else") == "#4c72b0"
+
+
+def test_the_ledger_figure_stacks_each_claims_hypotheses_by_verdict():
+    import pandas as pd
+
+    from omcrl.viz.compare import VERDICT_COLORS, plot_ledger_verdicts
+
+    v = pd.DataFrame(
+        {
+            "claim": ["E1", "E1", "E1", "T1"],
+            "family": ["primary"] * 3 + ["secondary"],
+            "verdict": ["holds", "reversed", "one seed", "not run"],
+        }
+    )
+    fig = plot_ledger_verdicts(v)
+    ax = fig.axes[0]
+    bars = [(round(p.get_width()), p.get_facecolor()) for p in ax.patches]
+    assert len(bars) == 4 and all(w == 1 for w, _ in bars)  # one hypothesis per verdict, none drawn twice
+    texts = [t.get_text() for t in ax.texts]
+    assert texts == ["mixed", "not run"]  # E1 holds and is reversed: mixed
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["E1 (p)", "T1 (s)"]
+    assert set(VERDICT_COLORS) == {"holds", "reversed", "undecided", "one seed", "not run"}

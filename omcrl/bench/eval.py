@@ -31,9 +31,9 @@ from omcrl.bench.rl import _vec_env_rate
 from omcrl.config import Config, load_config
 from omcrl.envs import make_env, make_vec_env
 from omcrl.eval.runner import EvalPool, evaluate
-from omcrl.eval.stage import planner_for
 from omcrl.models import random_encoder, save_encoder
 from omcrl.models.actor_critic import ActorCritic
+from omcrl.planners import make_planner
 from omcrl.rl import load_policy
 from omcrl.rl.policy import make_student_features, policy_payload, space_shapes
 
@@ -60,7 +60,7 @@ def measure(
     student = _student_policy(cfg, root)
     enc_path = root / "encoder.pt"
     vec_steps = max(50, int(vec_seconds * 100))
-    makers = {"student": lambda: load_policy(student, name="student"), "hybrid-apf": lambda: planner_for("hybrid-apf")}
+    makers = {"student": lambda: load_policy(student, name="student"), "hybrid-apf": lambda: make_planner("hybrid-apf")}
     n = cfg.rl.n_envs
     vec = make_vec_env(cfg.env.scene, n, seed=0, config=cfg.env)
     vec.reset(seed=0)

@@ -40,7 +40,7 @@ from omcrl.models import random_encoder, save_encoder
 from omcrl.models.actor_critic import ActorCritic
 from omcrl.models.features import make_oracle_features, make_pixel_features, make_student_features
 from omcrl.pretrain.learner import ContrastiveLearner
-from omcrl.rl.ppo import PPO, Rollout
+from omcrl.rl.ppo import Rollout, compute_gae, ppo_update
 from omcrl.utils.precision import autocast, native_bf16
 from omcrl.utils.runtime import cpu_count
 
@@ -102,6 +102,15 @@ def _rollout(agent: Any, space: Any, cfg: Config, transitions: int, rng: np.rand
     )
 
 
+def _update(agent: Any, opt: Any, roll: Any, rl: Any) -> None:
+    """One PPO update as the training loop makes it (omcrl.rl.train.train): GAE, then the minibatch epochs."""
+    roll.advantages, roll.returns = compute_gae(
+        roll.rewards, roll.values, roll.next_values, roll.terminated, roll.ends, float(rl.gamma), float(rl.gae_lambda)
+    )
+    agent.train()
+    ppo_update(agent, opt, roll, rl, alpha=0.0)
+
+
 ROLLOUT_BLOCK = 32
 
 
@@ -158,9 +167,9 @@ def units(cfg: Config, root: Path, paper_batch: int | None = None) -> dict[str, 
         for p in PRECISIONS:
             agent = copy.deepcopy(base)
             agent.precision = p
-            algo = PPO.from_config(agent, rl)
+            opt = torch.optim.Adam([q for q in agent.parameters() if q.requires_grad], lr=float(rl.lr), eps=1e-5)
             roll = _rollout(agent, space, cfg, rl.buffer_size, rng)
-            ppo_fns[p] = lambda algo=algo, roll=roll: algo.update(roll, alpha=0.0)
+            ppo_fns[p] = lambda agent=agent, opt=opt, roll=roll: _update(agent, opt, roll, rl)
             step_fns[p] = lambda agent=agent, batch=batch: _steps(agent, batch)
         out[f"ppo update {kind}"] = ppo_fns
         out[f"rollout forward {kind}"] = step_fns

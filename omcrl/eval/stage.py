@@ -33,14 +33,13 @@ from omcrl.envs.render import env_identity
 from omcrl.eval.metrics import format_table, summary_table
 from omcrl.eval.runner import EvalPool, evaluate
 from omcrl.rl import load_policy
-from omcrl.rl.methods import PlannerRecipe
 from omcrl.runs import behaviour, find_runs
 from omcrl.scenes import scene_id
 from omcrl.utils.io import atomic_write_text, file_digest
 
 HYBRID_APF = "HybridAPF"
-# Planner methods evaluated by name (no checkpoint); see omcrl.rl.methods.
-PLANNERS = (HYBRID_APF, *PlannerRecipe.PLANNERS)
+# Planners are evaluated by name (no checkpoint): omcrl.planners.PLANNERS and its aliases.
+PLANNER_NAMES = (*planners.ALIASES, *planners.PLANNERS)
 
 
 @dataclass(repr=False)
@@ -81,18 +80,12 @@ def find_policies(cfg: Config) -> dict[str, Path]:
     }
 
 
-def planner_for(name: str, env_config: Any = None) -> Any:
-    """A fresh planner for a planner method name (``hybrid-apf``, ``hybrid-apf-perceptive``, ``local-apf``;
-    ``HybridAPF``), as :class:`~omcrl.rl.methods.PlannerRecipe` names them."""
-    return getattr(planners, PlannerRecipe.PLANNERS["hybrid-apf" if name == HYBRID_APF else name])(env_config)
-
-
 def _load(method: str, source: Any) -> tuple[Any, str]:
     """A policy object and a cache key for ``source``: a checkpoint path, a planner name or a policy."""
 
-    if isinstance(source, str) and source in PLANNERS:
+    if isinstance(source, str) and source in PLANNER_NAMES:
         # Planners are code, not files: their name, with the planners' behaviour version in the cache identity.
-        return planner_for(source), source
+        return planners.make_planner(source), source
     if isinstance(source, (str, Path)):
         return load_policy(source, name=method), file_digest(Path(source))
     # An object: only cached under its explicit checkpoint, if it names one.
@@ -251,7 +244,7 @@ def evaluate_methods(
             pool = stack.enter_context(EvalPool(cfg.eval.workers))
         for label, source in methods.items():
             policy, pkey = _load(label, source)
-            planner = isinstance(source, str) and source in PLANNERS
+            planner = isinstance(source, str) and source in PLANNER_NAMES
             lanes = cfg.eval.lanes if callable(getattr(policy, "act_batch", None)) else 1
             for scene in scenes:
                 env = replace(cfg.env, scene=scene)

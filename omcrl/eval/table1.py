@@ -3,7 +3,7 @@
 ``evaluate_grid(cfg)`` evaluates each finished learned run (every method at every seed of ``cfg.seeds``) and
 each planner in every scene on the same evaluation episodes (cached per checkpoint, see
 :func:`omcrl.eval.evaluate_methods`). ``write_table1`` aggregates with :func:`omcrl.eval.stats.aggregate`
-(mean and 95% two-stage bootstrap CI over seeds and episodes) and writes, under ``<run_root>/tables/``::
+(mean and 95% CI with training seeds and layouts as crossed factors) and writes, under ``<run_root>/tables/``::
 
     table1.csv            long form: method, scene, metric, mean, lo, hi, seeds, episodes
     table1.md, .tex       the paper's layout (methods × scenes × NE OS SR SPL CR TTS), mean ± CI half-width,
@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from omcrl import planners
 from omcrl.config import Config
 from omcrl.eval.metrics import GLOSSARY, METRICS
 from omcrl.eval.runner import EvalPool
@@ -285,7 +286,7 @@ def write_table1(
     d.mkdir(parents=True, exist_ok=True)
     table = aggregate(episodes, ("method", "scene"), os_threshold=os_threshold, reps=reps)
     long, wide = table1_frames(table)
-    labels = {m: s.label for m, s in METHODS.items()}
+    labels = {**planners.LABELS, **{m: s.label for m, s in METHODS.items()}}
     seeds = int(table["seeds"].max()) if len(table) else 0
     n = int(episodes.groupby(["method", "scene", "train_seed"]).size().min()) if len(episodes) else 0
     note = (
@@ -351,25 +352,3 @@ def tables_stage(cfg: Config, *, progress: bool = True) -> Table1Result:
     suite = suite_of(cfg.env.scene) or DEFAULT_SUITE
     verdicts, vpaths = write_verdicts(episodes, training_runs(cfg), cfg.run_root / "tables", suite)
     return Table1Result(episodes, table, sig, missing, paths | vpaths, time.perf_counter() - t0, verdicts)
-
-
-# The paper's orderings (Table I, VI-A), as (better, worse): checked per scene on SR.
-PAPER_CLAIMS = (("ours", "curl"), ("curl", "ppo"), ("curl", "npe"), ("ours", "ours-noOT"), ("ours", "npe"))
-
-
-def paper_claims(episodes: pd.DataFrame, reps: int = 2000) -> pd.DataFrame:
-    """Does each ordering of the paper hold here? Per scene and claim (a > b in SR): the measured SR
-    difference with its 95% CI and a verdict ``holds`` / ``reversed`` (significant either way) or
-    ``undecided`` (CI spans 0). Claims whose methods were not evaluated are left out."""
-    rows = []
-    have = set(episodes["method"])
-    for a, b in PAPER_CLAIMS:
-        if a not in have or b not in have:
-            continue
-        sig = compare_sr(episodes[episodes.method.isin([a, b])], reference=a, reps=reps)
-        for r in sig.itertuples():
-            verdict = "holds" if r.lo > 0 else ("reversed" if r.hi < 0 else "undecided")
-            rows.append(
-                {"claim": f"{a} > {b}", "scene": r.scene, "diff": r.diff, "lo": r.lo, "hi": r.hi, "verdict": verdict}
-            )
-    return pd.DataFrame(rows, columns=["claim", "scene", "diff", "lo", "hi", "verdict"])

@@ -32,6 +32,7 @@ from omcrl.eval.metrics import episode_values
 from omcrl.eval.stats import DEFAULT_REPS, Term, contrast, term
 from omcrl.rl.methods import METHODS
 from omcrl.runs import metric_series
+from omcrl.scenes import scene_spec
 from omcrl.utils.io import atomic_write_text
 
 ALPHA = 0.05
@@ -239,3 +240,44 @@ def write_verdicts(
     atomic_write_text(paths["verdicts_csv"], v.to_csv(index=False))
     atomic_write_text(paths["verdicts_md"], verdicts_markdown(v))
     return v, paths
+
+
+def changes_from_v1(v1_claims: pd.DataFrame, verdicts: pd.DataFrame) -> pd.DataFrame:
+    """Which verdicts changed from the v1 suite: each ordering the v1 reference checked (``a > b`` on SR in one of
+    the paper's unseen scenes) beside the ledger hypothesis on v2 that tests the same ordering in the same scene
+    family (furniture, barrier, tree).
+
+    Parameters
+    ----------
+    v1_claims : the v1 reference's rows ``claim`` (``"a > b"``), ``scene``, ``diff``, ``lo``, ``hi`` (SR points),
+        ``verdict`` (:class:`omcrl.pipeline.records.Table1Record` ``claims``).
+    verdicts : :func:`ledger_verdicts` on v2.
+
+    Returns
+    -------
+    One row per matched pair: ``ordering``, ``family``, ``v1_scene``, ``v1`` (difference [CI] in points),
+    ``v1_verdict``, ``v2_scene``, ``v2`` (estimate [CI]), ``v2_verdict``, ``changed`` (both judged and different;
+    None while v2 has no judged verdict: ``one seed`` / ``not run``).
+    """
+    v2 = verdicts[(verdicts["metric"] == "SR") & (verdicts["versus_scene"].fillna("") == "")]
+    by = {(r.a, r.b, scene_spec(r.scene).paper_scene): r for r in v2.itertuples()}
+    rows = []
+    for c in v1_claims.itertuples():
+        a, _, b = str(c.claim).partition(" > ")
+        fam = scene_spec(c.scene).paper_scene
+        r = by.get((a, b, fam))
+        if fam is None or r is None:
+            continue
+        judged = r.verdict in ("holds", "reversed", "undecided")
+        rows.append({
+            "ordering": c.claim,
+            "family": fam,
+            "v1_scene": c.scene,
+            "v1": f"{c.diff:+.0f} [{c.lo:+.0f}, {c.hi:+.0f}]",
+            "v1_verdict": c.verdict,
+            "v2_scene": r.scene,
+            "v2": "–" if not math.isfinite(r.estimate) else f"{r.estimate:+.0f} [{r.lo:+.0f}, {r.hi:+.0f}]",
+            "v2_verdict": r.verdict,
+            "changed": (r.verdict != c.verdict) if judged else None,
+        })  # fmt: skip
+    return pd.DataFrame(rows)

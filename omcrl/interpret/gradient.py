@@ -47,11 +47,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from omcrl import planners
 from omcrl.config import Config
 from omcrl.envs.difficulty import difficulty_stats
 from omcrl.envs.stats import geometry_stats
 from omcrl.eval.runner import EvalPool, eval_seeds, evaluate
-from omcrl.eval.stage import evaluate_methods, planner_for
+from omcrl.eval.stage import evaluate_methods
 from omcrl.eval.stats import aggregate
 from omcrl.interpret.shift import encode, mmd_rbf, pilot_frames
 from omcrl.interpret.transfer import PILOT_SEED, pilot_episodes
@@ -65,8 +66,8 @@ REFERENCE = "box"
 FLOOR = "box, other layouts"
 PIXEL_SIDE = 8
 HIST_BINS = 8
-# The navigation table's planners, from no sensing to the true map (omcrl.rl.methods.PlannerRecipe.PLANNERS).
-PLANNERS = ("blind", "local-apf", "hybrid-apf-perceptive", "hybrid-apf")
+# The navigation table's planners, from no sensing to the true map: every planner of the kit.
+PLANNERS = tuple(planners.PLANNERS)
 MEASURES = ("random_mmd", "pixel_mmd", "colour_js")
 # Layouts of the suite criteria: episode seeds from here on, which no table, training or pilot uses.
 CRITERIA_SEED_OFFSET = 7_000_000
@@ -266,7 +267,9 @@ def _criteria_rows(
         det = difficulty_stats(sc, seeds, cfg.env).detour.to_numpy()
         counts["bent10_pct"] = (int((det > 1.10).sum()), len(det))
         for p in CRITERIA_PLANNERS:
-            ep = evaluate(planner_for(p), sc, layouts, 0, seed_offset=seed_offset, workers=pool, config=cfg.env)
+            ep = evaluate(
+                planners.make_planner(p), sc, layouts, 0, seed_offset=seed_offset, workers=pool, config=cfg.env
+            )
             counts[f"{p}_SR"] = (int(ep.success.sum()), len(ep))
         training = scene_spec(sc).difficulty == "training"
         for c in CRITERIA:

@@ -1,5 +1,7 @@
-"""The README's "Results at a glance": the reference Table I (success rate with its CI over seeds, the paper's value
-beside) and one line per claim of the paper, rendered from the committed reference tables.
+"""The README's "Results at a glance": Table I on the v2 suite with the claim ledger's verdicts, rebuilt from the
+grid data in ``reference/<preset>/table1-v2/`` (:func:`render_v2`), and the v1 suite's Table I (success rate with its
+CI over seeds, the paper's value beside) with one line per ordering of the paper, rendered from the committed
+reference tables (:func:`render_glance`).
 
 The reference tables live in ``reference/<preset>/table1/`` (``table1.csv``, long rows as the ``tables`` stage
 writes them, and ``table1_summary.json``, notebook 07's :class:`~omcrl.pipeline.records.Table1Record` with the
@@ -10,28 +12,44 @@ claims). ``python -m omcrl summary --preset quick --readme`` rewrites the block 
 from __future__ import annotations
 
 import math
+import shutil
+import tempfile
+import textwrap
 from pathlib import Path
 
 import pandas as pd
 
-from omcrl.config import project_root
-from omcrl.eval.table1 import paper_table1, read_table1_csv
+from omcrl import planners
+from omcrl.config import load_config, project_root
+from omcrl.eval.ledger import LEDGER
+from omcrl.eval.table1 import Table1Result, paper_table1, read_table1_csv, table1_frames
+from omcrl.eval.verdicts import changes_from_v1, verdict_counts
+from omcrl.pipeline.griddata import tables_from_reference
 from omcrl.pipeline.records import Table1Record
-from omcrl.rl.methods import METHODS
+from omcrl.pipeline.reference import reference_table_dir
+from omcrl.rl.methods import METHODS, TABLE1_METHODS
 from omcrl.scenes import scene_label, scene_spec
 from omcrl.utils.io import atomic_write_text
 
 START = "<!-- results-at-a-glance: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 END = "<!-- results-at-a-glance: end -->"
+V2_START = "<!-- results-v2: start (python -m omcrl summary --preset quick --readme writes this block) -->"
+V2_END = "<!-- results-v2: end -->"
+FULL_START = "<!-- results-v2-full: start (python -m omcrl summary --preset quick --readme writes this block) -->"
+FULL_END = "<!-- results-v2-full: end -->"
+V2_FIGURE = "docs/figures/quick/v2/fig5_training_curves.png"
+# The commit that fixed the claim ledger before any v2 Table I evaluation (omcrl.eval.ledger; docs/results.md).
+LEDGER_COMMIT = "2cdf7b5"
+# What the v1 suite's table measures (docs/generalization.md, "The scene suite, versioned").
+V1_CAVEAT = (
+    "**v1 suite, superseded**: a pilot that flies straight at the goal and senses nothing succeeds in 37–78 % of "
+    "these layouts and box-v0 never asks for a detour, so this table measures goal-seeking under a change of look "
+    "more than navigation from pixels; its runs were lost, so its cells cannot be recomputed."
+)
 
 
 class GlanceError(RuntimeError):
     """The reference tables or the README's markers are missing or malformed; the message names the file."""
-
-
-def reference_table_dir(preset: str) -> Path:
-    """``<checkout>/reference/<preset>/table1``: the reference Table I the README shows."""
-    return project_root() / "reference" / preset / "table1"
 
 
 def _read(table_dir: Path) -> tuple[pd.DataFrame, Table1Record]:
@@ -82,7 +100,7 @@ def wide_table(rows: pd.DataFrame, with_paper: bool = True, digits: int = 0) -> 
             if with_paper and psc is not None and (m, psc) in paper.index and pd.notna(paper[(m, psc)]):
                 text += f" *{paper[(m, psc)]:g}*"
             out.append(text)
-        lines.append(f"| {METHODS[m].label if m in METHODS else m} | " + " | ".join(out) + " |")
+        lines.append(f"| {METHODS[m].label if m in METHODS else planners.LABELS.get(m, m)} | " + " | ".join(out) + " |")
     return lines
 
 
@@ -91,6 +109,8 @@ def render_glance(table_dir: str | Path, figure: str = "docs/figures/quick/v1/fi
     sr, record = _read(Path(table_dir))
     seeds, n = int(sr["seeds"].max()), int(sr["episodes"].min())
     lines = [
+        V1_CAVEAT,
+        "",
         f"Success rate % over {seeds} training seeds × {n} episodes per scene, mean [95 % CI] (two-stage bootstrap); "
         "the paper's value (200 episodes, Unity scenes) in *italics*. Trained in box only; every other scene unseen.",
         "",
@@ -113,30 +133,163 @@ def render_glance(table_dir: str | Path, figure: str = "docs/figures/quick/v1/fi
                     parts.append(f"**{verdict}** in {where}")
             lines.append(f"- `{claim}`: " + "; ".join(parts) + ".")
     lines += ["", f"![Fig. 5: training curves]({figure})"]
-    return "\n".join(lines)
+    return "\n".join(_wrap(x) for x in lines)
 
 
-def replace_block(text: str, block: str, where: str = "README.md") -> str:
-    """``text`` with the part between :data:`START` and :data:`END` replaced by ``block``."""
-    i, j = text.find(START), text.find(END)
+def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
+    """The markdown block (without the markers) of Table I on the v2 suite from a rebuild of the grid data
+    (:func:`omcrl.pipeline.griddata.tables_from_reference`): SR per method and scene with the paper's value, every
+    recorded method's training seeds, and one line per claim of the ledger with its verdict.
+
+    Parameters
+    ----------
+    result : the rebuild's Table I (``table``: every metric's aggregates) and ledger verdicts (``verdicts``).
+    grid_seeds : the training seeds the grid is to have (the issue's five), to say how far it has come.
+    """
+    table = table1_frames(result.table)[0]
+    # Table I's order: the learned methods, its planners, then the local APF and the blind pilot.
+    order = {m: i for i, m in enumerate((*TABLE1_METHODS, *planners.LABELS))}
+    sr = table[table.metric == "SR"].sort_values("method", key=lambda m: m.map(order).fillna(len(order)), kind="stable")
+    seeds = sr.groupby("method", sort=False)["seeds"].max()
+    learned = [m for m in seeds.index if m in METHODS and METHODS[m].learned]
+    counts = sorted({int(seeds[m]) for m in learned}) or [0]
+    layouts = int((sr["episodes"] / sr["seeds"].clip(lower=1)).min())
+    done = f"{counts[0]}" if counts[0] == counts[-1] else f"{counts[0]}–{counts[-1]}"
+    lines = [
+        f"**Scenes v2** (navigation that needs sight; trained in box-v2 only, every other scene unseen). Success rate "
+        f"% over {layouts} layouts per scene and {done} of the grid's {grid_seeds} training seeds per learned "
+        "method (the column `seeds`), mean [95 % CI] with training seeds and layouts as crossed factors (a row of "
+        "one seed: layouts only); planners fly once. The paper's value (Unity scenes) in *italics* where its scene "
+        "matches. Rebuilt by `python -m omcrl tables --preset quick --from-reference` from "
+        "`reference/quick/table1-v2/`; all six metrics and every hypothesis: [docs/results.md](docs/results.md).",
+        "",
+    ]
+    body = wide_table(sr)
+    body[0] = body[0] + " seeds |"
+    body[1] = body[1] + "---|"
+    for i, m in enumerate(dict.fromkeys(sr["method"]), start=2):
+        body[i] = body[i] + f" {int(seeds[m]) if m in learned else 'planner'} |"
+    lines += body
+    v = result.verdicts
+    if v is not None and len(v):
+        c = verdict_counts(v)
+        n = v["verdict"].value_counts()
+        tally = ", ".join(f"{int(n.get(k, 0))} {k}" for k in ("holds", "reversed", "undecided", "one seed", "not run"))
+        lines += [
+            "",
+            f"The paper's claims as a ledger fixed before any v2 evaluation (commit {LEDGER_COMMIT}; "
+            f"`omcrl.eval.ledger`), {len(v)} hypotheses, Holm–Bonferroni within the primary and the secondary "
+            f"family: {tally}. A row of one training seed is shown, not judged.",
+            "",
+        ]
+        quotes = {cl.id: cl for cl in LEDGER}
+        for r in c.itertuples():
+            cl = quotes[r.claim]
+            parts = {
+                "holds": r.holds,
+                "reversed": r.reversed,
+                "undecided": r.undecided,
+                "one seed": r[8],
+                "not run": r[7],
+            }
+            of = ", ".join(f"{k} {x}" for k, x in parts.items() if x)
+            lines.append(f"- **{r.claim}** ({cl.source}; {cl.metric}) “{cl.quote}”: **{r.verdict}** ({of})")
+    if "fig5" in result.paths:
+        lines += ["", f"![Fig. 5 on v2: training curves in box-v2, every recorded seed]({V2_FIGURE})"]
+    return "\n".join(_wrap(x) for x in lines)
+
+
+def _wrap(line: str, width: int = 120) -> str:
+    """A prose line or list item wrapped at ``width`` (Markdown renders it the same); table rows as they are."""
+    if line.startswith("|") or len(line) <= width:
+        return line
+    indent = "  " if line.startswith("- ") else ""
+    return textwrap.fill(line, width, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
+
+
+def _span(text: str, start: str, end: str, where: str) -> tuple[int, int]:
+    i, j = text.find(start), text.find(end)
     if i < 0 or j < i:
-        raise GlanceError(f"{where}: the markers {START!r} and {END!r} are missing or out of order")
-    return text[: i + len(START)] + "\n" + block + "\n" + text[j:]
+        raise GlanceError(f"{where}: the markers {start!r} and {end!r} are missing or out of order")
+    return i + len(start), j
 
 
-def current_block(text: str, where: str = "README.md") -> str:
-    """The block between the markers of ``text``."""
-    i, j = text.find(START), text.find(END)
-    if i < 0 or j < i:
-        raise GlanceError(f"{where}: the markers {START!r} and {END!r} are missing or out of order")
-    return text[i + len(START) : j].strip("\n")
+def replace_block(text: str, block: str, where: str = "README.md", start: str = START, end: str = END) -> str:
+    """``text`` with the part between ``start`` and ``end`` (default :data:`START`, :data:`END`) replaced by
+    ``block``."""
+    i, j = _span(text, start, end, where)
+    return text[:i] + "\n" + block + "\n" + text[j:]
 
 
-def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bool:
-    """Rewrite the README's block from ``reference/<preset>/table1``; True when the README changed."""
-    path = Path(readme) if readme is not None else project_root() / "README.md"
+def current_block(text: str, where: str = "README.md", start: str = START, end: str = END) -> str:
+    """The block between the markers ``start`` and ``end`` of ``text``."""
+    i, j = _span(text, start, end, where)
+    return text[i:j].strip("\n")
+
+
+def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str]:
+    """The README's block (:func:`render_v2`) and docs/results.md's (Table I's six metrics per scene, then every
+    hypothesis of the ledger) from a rebuild of ``reference/<preset>/table1-v2/`` under a temporary folder; with
+    ``figure_to``, Fig. 5 of the rebuild is copied there."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
+        res = tables_from_reference(cfg)
+        full = "\n".join(
+            [
+                Path(res.paths["md"]).read_text(encoding="utf-8").strip(),
+                "",
+                "**Claim ledger, every hypothesis** (estimates signed so that the paper's direction is positive)",
+                "",
+                Path(res.paths["verdicts_md"]).read_text(encoding="utf-8").strip(),
+                "",
+                *_changes_md(res.verdicts, preset),
+            ]
+        )
+        if figure_to is not None and "fig5" in res.paths:
+            Path(figure_to).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(res.paths["fig5"], figure_to)
+        return render_v2(res), full
+
+
+def _changes_md(verdicts: pd.DataFrame, preset: str) -> list[str]:
+    """Markdown lines: the v1 reference's orderings beside the v2 ledger's verdicts on the same ones
+    (:func:`omcrl.eval.verdicts.changes_from_v1`)."""
+    record = Table1Record.read(reference_table_dir(preset))
+    ch = changes_from_v1(pd.DataFrame(record.claims if record else []), verdicts)
+    if ch.empty:
+        return []
+    n = ch["changed"].dropna()
+    lines = [
+        "**Which verdicts changed from v1**: the v1 reference's orderings (SR points, 95 % CI per cell, no "
+        "multiplicity correction, a two-stage bootstrap) beside the ledger's hypothesis on the same ordering and "
+        f"scene family on v2 (Holm-adjusted). {int(n.sum())} of {len(n)} judged on both changed; "
+        f"{int(ch['changed'].isna().sum())} not judged on v2 yet.",
+        "",
+        "| ordering | family | v1 scene | v1 | v1 verdict | v2 scene | v2 | v2 verdict | changed |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in ch.itertuples():
+        changed = "–" if r.changed is None else ("**yes**" if r.changed else "no")
+        lines.append(f"| {r.ordering} | {r.family} | {r.v1_scene} | {r.v1} | {r.v1_verdict} | {r.v2_scene} | {r.v2} | "
+                     f"{r.v2_verdict} | {changed} |")  # fmt: skip
+    return [_wrap(x) for x in lines]
+
+
+def _rewrite(path: Path, blocks: list[tuple[str, str, str]]) -> bool:
     text = path.read_text(encoding="utf-8")
-    new = replace_block(text, render_glance(reference_table_dir(preset)), str(path))
+    new = text
+    for block, start, end in blocks:
+        new = replace_block(new, block, str(path), start, end)
     if new != text:
         atomic_write_text(path, new)
     return new != text
+
+
+def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bool:
+    """Rewrite the README's blocks (v2 from ``reference/<preset>/table1-v2/``, v1 from ``reference/<preset>/table1``),
+    docs/results.md's v2 block and the v2 Fig. 5 beside them (:data:`V2_FIGURE`); True when the README changed."""
+    root = project_root()
+    path = Path(readme) if readme is not None else root / "README.md"
+    short, full = v2_blocks(preset, figure_to=root / V2_FIGURE)
+    _rewrite(root / "docs" / "results.md", [(full, FULL_START, FULL_END)])
+    return _rewrite(path, [(render_glance(reference_table_dir(preset)), START, END), (short, V2_START, V2_END)])

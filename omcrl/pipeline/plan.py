@@ -11,7 +11,7 @@ them (:mod:`omcrl.runs`), so variants that share an encoder or an oracle share o
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -298,12 +298,15 @@ def job_gpus(cfg: Config, job: Job) -> int:
 def measured_rates(cfg: Config, grids: Sequence[str] | None = None) -> pd.DataFrame:
     """Rates (work units per second, see :data:`UNITS`) of the jobs that really ran in this preset's sweeps.
 
-    Reads ``results/<preset>/sweeps/<grid>/jobs.csv`` for ``grids`` (default: every grid that has one); cached
-    jobs are left out. Returns one row per ``rate_key``: ``jobs``, ``median_s`` (per job), ``rate`` (median of
-    work / seconds).
+    Reads ``results/<preset>/sweeps/<grid>/jobs.csv`` for ``grids`` (default: every grid that has one) and the
+    ``jobs.csv`` committed beside each grid's data (``reference/<preset>/<grid>-<suite>/``, so a fresh checkout has
+    the rates its grids measured); cached jobs are left out. Returns one row per ``rate_key``: ``jobs``,
+    ``median_s`` (per job), ``rate`` (median of work / seconds).
     """
-    root = cfg.run_root / "sweeps"
+    root, shipped = cfg.run_root / "sweeps", project_root() / "reference" / cfg.preset
     files = [root / g / "jobs.csv" for g in grids] if grids else sorted(root.glob("*/jobs.csv"))
+    for pattern in [f"{g}-*/jobs.csv" for g in grids] if grids else ["*/jobs.csv"]:
+        files += sorted(shipped.glob(pattern))
     frames = [pd.read_csv(f) for f in files if f.exists()]
     if not frames:
         return pd.DataFrame(columns=["rate_key", "jobs", "median_s", "rate"])
@@ -320,16 +323,22 @@ def describe_plan(
     seeds: Sequence[int] | None = None,
     rates: dict[str, float] | None = None,
     nodes: Sequence[int] = (1, 4, 16),
+    recorded: Collection[str] = (),
 ) -> str:
     """A plain-text account of :func:`sweep_plan`: jobs and work per kind, what the main comparison already ran,
-    and, with ``rates`` (units/s per rate_key on one machine), :func:`sweep_cost` on each number of ``nodes``."""
+    and, with ``rates`` (units/s per rate_key on one machine), :func:`sweep_cost` on each number of ``nodes``.
+    ``recorded``: ids of jobs whose results the checkout already keeps (``--to-reference``); they are left out."""
     plan = sweep_plan(cfg, grids, seeds)
     seeds = list(seeds if seeds is not None else cfg.seeds)
+    kept = plan["id"].isin(list(recorded))
+    plan = plan[~kept]
     lines = [
         f"sweep plan, preset {cfg.preset}, seeds {seeds}, grids {list(grids or ABLATION_GRIDS)}: {len(plan)} jobs "
         f"({int(plan['table1'].sum())} of them are runs of the main comparison, found finished once Table I ran)",
-        "  rate_key        jobs  work",
     ]
+    if kept.any():
+        lines.append(f"  {int(kept.sum())} more jobs are recorded in the checkout (reference/): not run again")
+    lines.append("  rate_key        jobs  work")
     for key, g in plan.groupby("rate_key", sort=False):
         unit = UNITS[g["kind"].iloc[0]]
         lines.append(f"  {key:<15} {len(g):>4}  {int(g['work'].sum()):,} {unit} ({int(g['table1'].sum())} shared)")

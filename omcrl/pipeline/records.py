@@ -149,7 +149,9 @@ class BaselinesRecord(StageRecord):
 @dataclass
 class Table1Record(StageRecord):
     """Notebook 07: Table I's evaluation (seeds, episodes per scene, wall time s), its SR % per ``method/scene``,
-    the runs it lacked, the paper's claims checked (rows of ``claims``) and the files written."""
+    the runs it lacked, the claim ledger's verdict per claim (rows of ``ledger``:
+    :func:`omcrl.eval.verdicts.verdict_counts`) and the files written. ``claims`` holds the v1 reference's
+    orderings (SR differences per scene), as they were published; new records leave it empty."""
 
     FILE: ClassVar[str] = "table1_summary.json"
     seeds: list = field(default_factory=list)
@@ -158,6 +160,7 @@ class Table1Record(StageRecord):
     missing_runs: list = field(default_factory=list)
     SR: dict = field(default_factory=dict)
     claims: list = field(default_factory=list)
+    ledger: list = field(default_factory=list)
     files: dict = field(default_factory=dict)
 
 

@@ -39,13 +39,12 @@ from typing import Any
 from omcrl.config import Config, field_default, load_config, project_root, section_identity
 from omcrl.eval.stage import eval_cache_root
 from omcrl.eval.table1 import evaluate_grid
-from omcrl.pipeline.glance import reference_table_dir
 from omcrl.pipeline.storage import sha256
-from omcrl.pipeline.summary import code_commit
 from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path
 from omcrl.runs import DIGEST_FIELDS, read_identity, recorded_digest, run_key
 from omcrl.scenes import SUITES, suite_of, suite_overrides
 from omcrl.utils.io import atomic_save_torch, atomic_write_bytes, atomic_write_text, load_torch
+from omcrl.utils.runtime import code_commit
 
 FORMAT = 1
 MANIFEST = "MANIFEST.json"
@@ -109,6 +108,11 @@ class ReferenceResult:
                 "made by other code or settings"
             )
         return "\n".join(lines)
+
+
+def reference_table_dir(preset: str) -> Path:
+    """``<checkout>/reference/<preset>/table1``: the reference Table I the README shows."""
+    return project_root() / "reference" / preset / "table1"
 
 
 def default_bundle(preset: str) -> Path:

@@ -10,7 +10,6 @@ cheap to regenerate at any point of a run.
 from __future__ import annotations
 
 import json
-import subprocess
 import time
 from pathlib import Path
 from typing import Any
@@ -27,7 +26,7 @@ from omcrl.pipeline.records import DataRecord, DeployRecord, OracleRecord, Pretr
 from omcrl.scenes import PAPER_SUITE
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import format_duration
-from omcrl.utils.runtime import machine_info
+from omcrl.utils.runtime import code_commit, machine_info
 
 SMOKE_NOTE = (
     "**Smoke preset: these numbers only check the plumbing.** Every learned method trained a few hundred env "
@@ -69,30 +68,6 @@ def _read_json(path: Path) -> dict | None:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-
-
-def code_commit(short: bool = True) -> str:
-    """``<sha>`` (``short``: abbreviated) of the checkout the running ``omcrl`` code comes from (not of the results
-    folder, which ``OMCRL_ROOT`` may put elsewhere), ``+ local changes`` when dirty; ``unknown`` outside git."""
-    root = Path(__file__).resolve().parents[2]
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", *(["--short"] if short else []), "HEAD"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=10,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=10,
-        ).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return (sha + (" + local changes" if dirty else "")) if sha else "unknown"
 
 
 def _machine() -> str:
@@ -297,7 +272,7 @@ def _section_table1(d: dict, tables: Path) -> list[str]:
     except ValueError as e:
         return [f"_Table I cannot be read: {e}._", ""]
     out = [
-        "Mean [95% CI] over training seeds and evaluation episodes (two-stage bootstrap); the paper's value in "
+        "Mean [95% CI] over training seeds and evaluation layouts (crossed factors); the paper's value in "
         "*italics*. Every method trained in box only; every other scene is zero-shot (furniture-v0: the stress "
         "test). Every metric (NE, OS, SR, SPL, CR, TTS): [tables/table1.md](tables/table1.md); beside the paper's: "
         "[tables/table1_vs_paper.md](tables/table1_vs_paper.md).",
@@ -313,6 +288,11 @@ def _section_table1(d: dict, tables: Path) -> list[str]:
     ]
     s = Table1Record.read(tables) or Table1Record()
     claims = s.claims
+    if s.ledger:
+        out += ["### The paper's claims: the ledger's verdicts (Holm within the primary and the secondary family)", ""]
+        cols = ("claim", "family", "hypotheses", "holds", "reversed", "undecided", "one seed", "not run", "verdict")
+        out += [_md_table([{k: c.get(k, "") for k in cols} for c in s.ledger]), ""]
+        out += ["Every hypothesis: [tables/ledger_verdicts.md](tables/ledger_verdicts.md).", ""]
     if claims:
         out += ["### The paper's orderings, checked here (SR, percentage points)", ""]
         out += [

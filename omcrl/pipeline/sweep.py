@@ -51,7 +51,8 @@ from omcrl.pipeline.plan import (
 from omcrl.pipeline.recipes import pretrain_method, train_method
 from omcrl.pipeline.stages import collect_stage, oracle_policy
 from omcrl.pipeline.storage import Storage, job_key
-from omcrl.rl.methods import PlannerRecipe, final_policy_path, get_method
+from omcrl.planners import PLANNERS
+from omcrl.rl.methods import final_policy_path, get_method
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import cpu_count
@@ -221,6 +222,7 @@ def run_sweep(
     num_cpus: int | None = None,
     progress: bool = True,
     record: GridData | None = None,
+    variants: Sequence[str] | None = None,
 ) -> SweepResult:
     """Run ``grid`` at ``seeds`` (default ``cfg.seeds``) on ``backend`` (``ray`` or ``local``).
 
@@ -231,12 +233,14 @@ def run_sweep(
     ``record``: keep each finished job's small data there (:class:`omcrl.pipeline.griddata.GridData`: the runs'
     records after their training, the episodes after their evaluation) and run only the variants whose episodes it
     does not hold yet, with what they need upstream; the others are marked ``recorded`` and their rows read back.
+    ``variants``: only these variants (labels) and what they need upstream (ConfigError naming the grid's labels
+    for an unknown one, before any job runs).
     A teacher's weights (a training run other training jobs need: the oracle) are kept there too, and laid out as
     its finished run folder before anything runs, so a new machine trains its students without training it again.
     """
     if backend not in ("ray", "local"):
         raise ConfigError(f"sweep backend: got {backend!r}, expected 'ray' or 'local'")
-    jobs = expand(cfg, grid, seeds)
+    jobs = only_variants(expand(cfg, grid, seeds), variants, grid)
     targets = _record_targets(jobs) if record is not None else {}
     recorded = _recorded(jobs, record) if record is not None else set()
     teachers = _teachers(jobs, targets)
@@ -267,6 +271,8 @@ def run_sweep(
                     record.save_episodes(job.label, job.seed, pd.DataFrame(out["rows"]))
             # After every job, not at the end: a killed driver loses no measured time.
             _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
+            if record is not None:
+                _record_job_times(cfg, res, record.root / "jobs.csv", portable=True)
         bar.update(1, **_postfix(res, running))
 
     running: set[str] = set()
@@ -322,12 +328,30 @@ def _record_targets(jobs: Sequence[Job]) -> dict[str, list[tuple[str, str]]]:
     return out
 
 
+def only_variants(jobs: list[Job], variants: Sequence[str] | None, grid: str) -> list[Job]:
+    """``jobs`` of the ``variants`` (labels) and every job they need, in their order; all jobs for None."""
+    if variants is None:
+        return jobs
+    labels = list(dict.fromkeys(j.label for j in jobs if j.kind == "evaluate"))
+    unknown = [v for v in variants if v not in labels]
+    if unknown:
+        raise ConfigError(f"sweep {grid}: variants {unknown} are not in the grid; its variants are {labels}")
+    up = upstream(jobs)
+    keep = {j.id for j in jobs if j.kind == "evaluate" and j.label in variants}
+    keep |= {d for jid in list(keep) for d in up[jid]}
+    return [j for j in jobs if j.id in keep]
+
+
 def _teachers(jobs: Sequence[Job], targets: dict[str, list[tuple[str, str]]]) -> dict[str, tuple[str]]:
     """``{job id: (variant label,)}`` of the training jobs another training job needs (teachers: the oracle), with
     the variant whose folder keeps their weights (the first that records the run)."""
     by_id = {j.id: j for j in jobs}
     need = {d for j in jobs if j.kind == "train" for d in j.deps if by_id[d].kind == "train"}
     return {jid: (targets[jid][0][0],) for jid in sorted(need) if targets.get(jid)}
+
+
+def _seed(jobs: Sequence[Job], job_id: str) -> int:
+    return next(j.seed for j in jobs if j.id == job_id)
 
 
 def _train_run(preset_cfg: dict, job: Job) -> Any:
@@ -363,20 +387,27 @@ def _shares(jobs: Sequence[Job], grid: str, store: Storage | None) -> dict[str, 
 JOB_TIME_COLUMNS = ["id", "kind", "method", "seed", "status", "seconds", "rate_key", "work"]
 
 
-def _record_job_times(cfg: Config, res: SweepResult, path: Path) -> None:
+def _record_job_times(cfg: Config, res: SweepResult, path: Path, portable: bool = False) -> None:
     """Keep each job's measured wall time in ``jobs.csv`` beside the sweep's logs.
 
     A job that was cached this time keeps the time it took when it really ran, so re-runs do not erase what was
-    measured. :func:`measured_rates` reads these files.
+    measured. :func:`measured_rates` reads these files. ``portable``: job ids with this machine's results folder and
+    checkout written ``<results>`` and ``<root>`` (the copy committed beside a grid's data).
     """
     plan = {r.id: r for r in work_rows(cfg, res.jobs)}
     old = pd.read_csv(path) if path.exists() else pd.DataFrame(columns=JOB_TIME_COLUMNS)
     kept = {r["id"]: r for r in old.to_dict("records")}
+
+    def name(jid: str) -> str:
+        if not portable:
+            return jid
+        return jid.replace(str(cfg.run_root.parent), "<results>").replace(str(project_root()), "<root>")
+
     for j in res.jobs:
         st = res.status.get(j.id)
-        if st == "done" or (st == "skipped" and j.id not in kept):
+        if st == "done" or (st == "skipped" and name(j.id) not in kept):
             w = plan[j.id]
-            kept[j.id] = {"id": j.id, "kind": j.kind, "method": j.method, "seed": j.seed, "status": st,
+            kept[name(j.id)] = {"id": name(j.id), "kind": j.kind, "method": j.method, "seed": j.seed, "status": st,
                           "seconds": round(res.seconds.get(j.id, float("nan")), 2), "rate_key": w.rate_key,
                           "work": w.work}  # fmt: skip
     # Named columns: a sweep that measured nothing (every job recorded) still writes a file that reads back.
@@ -648,7 +679,14 @@ def sweep_stage(
         else:
             m = measured_rates(cfg)
             r = dict(zip(m["rate_key"], m["rate"], strict=True)) or None
-        return describe_plan(cfg, grids, seeds, r)
+        recorded: set[str] = set()
+        if kw.get("to_reference"):
+            for g in grids:
+                jobs, record = expand(cfg, g, seeds), GridData(grid_data_dir(cfg, g))
+                teachers = _teachers(jobs, _record_targets(jobs))
+                kept = {j for j, (label,) in teachers.items() if record.has_weights(label, _seed(jobs, j), "rl")}
+                recorded |= _recorded(jobs, record) | kept
+        return describe_plan(cfg, grids, seeds, r, recorded=recorded)
     out = run_ablations(cfg, grids, seeds, progress=progress, **kw)
     text = "\n".join(repr(v["result"]) for v in out.values())
     bad = {g: v["result"].counts() for g, v in out.items() if set(v["result"].status.values()) & {"failed", "blocked"}}
@@ -684,7 +722,7 @@ def variant_runs(cfg: Config, res: SweepResult) -> dict[str, dict[int, Path]]:
 
 # The planners Table I flies beside the learned methods: its two rows, and the local APF and the blind pilot (what
 # NPE's guide and a pilot without sight reach in the same layouts): every planner method of the kit.
-TABLE1_PLANNERS = tuple(PlannerRecipe.PLANNERS)
+TABLE1_PLANNERS = tuple(PLANNERS)
 
 
 def record_planners(cfg: Config, record: GridData, planners: Sequence[str] = TABLE1_PLANNERS) -> list[str]:
@@ -708,12 +746,14 @@ def run_ablations(
     num_cpus: int | None = None,
     progress: bool = True,
     to_reference: bool = False,
+    variants: Sequence[str] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run each grid (:func:`run_sweep`) and write its table (:func:`omcrl.eval.ablation.write_ablation`; a
     remedy grid also its verdicts, :func:`omcrl.eval.ablation.write_remedies`).
 
     ``to_reference``: keep each grid's data in the checkout as its jobs finish (:func:`grid_data_dir`; Table I's
-    grid also the planners' episodes, flown once) and train only what is not kept there yet.
+    grid also the planners' episodes, flown once) and train only what is not kept there yet. ``variants``: only
+    these variants of each grid (:func:`run_sweep`).
 
     Returns ``{grid: {"result": SweepResult, "table": aggregate table, "paths": written files}}``; a grid whose
     evaluations all failed has an empty table and no files.
@@ -726,7 +766,15 @@ def run_ablations(
         if record is not None and g == "table1":
             record_planners(cfg, record)
         res = run_sweep(
-            cfg, g, seeds, backend=backend, address=address, num_cpus=num_cpus, progress=progress, record=record
+            cfg,
+            g,
+            seeds,
+            backend=backend,
+            address=address,
+            num_cpus=num_cpus,
+            progress=progress,
+            record=record,
+            variants=variants,
         )
         if g == "table1":
             # Not an ablation: Table I itself comes from `python -m omcrl tables` (which adds the planners and

@@ -21,7 +21,6 @@ import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 
@@ -32,9 +31,10 @@ from omcrl.data.sampler import SequenceSampler
 from omcrl.envs.render import env_identity
 from omcrl.models.artifact import save_encoder
 from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
-from omcrl.runs import ArtifactMismatch, Run, StopAfter, Trainer, TrainingLoop, make_run, verify_artifact
-from omcrl.utils.io import atomic_write_text, file_digest, load_torch
+from omcrl.runs import ArtifactMismatch, MetricsLog, Run, StopAfter, checkpoint_due, keep_going, make_run
+from omcrl.utils.io import atomic_write_text, file_digest
 from omcrl.utils.precision import section_precision
+from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import resolve_device, set_threads
 
 log = logging.getLogger(__name__)
@@ -145,51 +145,6 @@ def _read_metrics(path: Path, upto: int) -> list[tuple[int, str, float]]:
         return [(int(r["step"]), r["metric"], float(r["value"])) for r in csv.DictReader(fh) if int(r["step"]) <= upto]
 
 
-class _Iterations(Trainer):
-    """Pretraining as a :class:`omcrl.runs.Trainer`: one step is one iteration (a batch of sequences for OMC,
-    of stack pairs for CURL), its metrics the loss terms and learning rates."""
-
-    def __init__(self, p: Any, learner: Any, opt: Any, sampler: Any, gen: Any, start: int, made_of: dict) -> None:
-        self.p, self.learner, self.opt, self.sampler, self.gen = p, learner, opt, sampler, gen
-        self.it, self.made_of = start, made_of
-        # CURL sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
-        self.n_pairs = p.batch_size * p.seq_len
-        self.stride = p.cons_stride if p.method == "curl_cons" else 0
-        self.loss_val = float("nan")
-
-    def step(self) -> tuple[int, dict[str, float], dict[str, str]]:
-        p, learner, opt = self.p, self.learner, self.opt
-        self.it = it = self.it + 1
-        lrs = {"lr_encoder": p.lr_encoder}
-        for g in opt.param_groups:
-            if g["name"] == "transformer":
-                g["lr"] = lrs["lr_transformer"] = p.lr_transformer * transformer_lr_factor(it, p.warmup_steps)
-        if p.method == "omc":
-            seq = self.sampler.sample_sequences()
-            pool = self.sampler.sample_stacks(p.batch_size)
-            loss, metrics = learner.omc_loss(seq, self.gen, pool)
-        else:
-            anchor, positive = self.sampler.sample_pairs(self.n_pairs, stride=self.stride)
-            loss, metrics = learner.curl_loss(anchor, positive)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        learner.momentum_update()
-        self.loss_val = metrics["loss"]
-        return it, {**metrics, **lrs}, {"loss": f"{self.loss_val:.3f}", "acc": f"{metrics['accuracy']:.2f}"}
-
-    def state(self, step: int) -> dict:
-        return {
-            "step": step,
-            **self.made_of,
-            "learner": self.learner.state_dict(),
-            "optim": self.opt.state_dict(),
-            "sampler_rng": json.dumps(self.sampler.rng.bit_generator.state),
-            "mask_rng": self.gen.get_state(),
-            "torch_rng": torch.get_rng_state(),
-        }
-
-
 def pretrain_encoder(
     cfg: Config,
     dataset_path: str | Path | None = None,
@@ -214,9 +169,7 @@ def pretrain_encoder(
     run_rec = pretrain_run(cfg)
     run_rec.check()
     out = run_rec.dir
-    enc_path, metrics_path, ck_path, done_path = (
-        out / n for n in ("encoder.pt", "metrics.csv", "checkpoint.pt", "done.json")
-    )
+    enc_path, metrics_path, done_path = (out / n for n in ("encoder.pt", "metrics.csv", "done.json"))
     done = _read_done(done_path) if done_path.exists() and enc_path.exists() else None
     if done is not None and not path.exists():
         # A finished run needs its dataset only to notice re-collected data; without the file, the fingerprint
@@ -254,8 +207,7 @@ def pretrain_encoder(
         ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
         fp = ds.fingerprint
     made_of = _made_of(run_rec, fp)
-    if ck_path.exists():  # before anything is written: a damaged checkpoint is refused, never resumed
-        verify_artifact(ck_path, "pretraining checkpoint", f"delete it to pretrain {name} seed {cfg.seed} anew")
+    state = run_rec.load("pretraining checkpoint")  # before anything is written: a damaged one is refused
     run_rec.claim()
     try:
         save_config(cfg, out)
@@ -280,8 +232,7 @@ def pretrain_encoder(
         )
         gen = torch.Generator().manual_seed(cfg.seed + 1)
         start, rows = 0, []
-        if ck_path.exists():
-            state = load_torch(ck_path, "pretraining checkpoint")
+        if state is not None:
             if _made_by(state, made_of) and state["step"] <= p.iterations:
                 learner.load_state_dict(state["learner"])
                 opt.load_state_dict(state["optim"])
@@ -301,22 +252,62 @@ def pretrain_encoder(
                 log.info("pretrain %s: resuming from iteration %d", name, start)
             else:
                 log.warning("pretrain %s: checkpoint in %s is from other data or code; starting over", name, out)
-        trainer = _Iterations(p, learner, opt, sampler, gen, start, made_of)
+        # The objective, chosen once: OMC reconstructs masked latents of a sequence; CURL matches two views of a
+        # stack, and sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
+        omc = p.method == "omc"
+        n_pairs, stride = p.batch_size * p.seq_len, (p.cons_stride if p.method == "curl_cons" else 0)
+        callbacks = () if stop_after is None else (StopAfter(stop_after),)
+        metrics_log = MetricsLog(out, start if start > 0 else None, digits=None)
+        bar = Progress(p.iterations, f"pretrain/{name} seed{cfg.seed}", unit="it", initial=start, enabled=progress)
+        it, loss_val = start, float("nan")
         learner.train()
-        loop = TrainingLoop(
-            run_rec,
-            p.iterations,
-            f"pretrain/{name} seed{cfg.seed}",
-            "it",
-            ck_path,
-            p.checkpoint_every,
-            checkpoint_at_end=True,  # the encoder can be rebuilt from the final checkpoint
-            progress=progress,
-            digits=None,
-            callbacks=() if stop_after is None else (StopAfter(stop_after),),
-        )
-        it, finished = loop.run_from(trainer, start, resumed=start > 0)
-        loss_val = trainer.loss_val
+        for cb in callbacks:
+            cb.on_start(run_rec, it)
+        try:
+            while it < p.iterations:
+                it += 1
+                lrs = {"lr_encoder": p.lr_encoder}
+                for g in opt.param_groups:  # the Transformer warms up (paper V-D); the encoder's rate is fixed
+                    if g["name"] == "transformer":
+                        g["lr"] = lrs["lr_transformer"] = p.lr_transformer * transformer_lr_factor(it, p.warmup_steps)
+                if omc:
+                    seq = sampler.sample_sequences()
+                    pool = sampler.sample_stacks(p.batch_size)
+                    loss, metrics = learner.omc_loss(seq, gen, pool)
+                else:
+                    anchor, positive = sampler.sample_pairs(n_pairs, stride=stride)
+                    loss, metrics = learner.curl_loss(anchor, positive)
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                learner.momentum_update()
+                loss_val = metrics["loss"]
+                row = {**metrics, **lrs}
+                metrics_log.log(it, row)
+                bar.update(1, loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
+                # Checkpoints also at the end: the encoder can be rebuilt from the final one.
+                if it >= p.iterations or checkpoint_due(it - 1, it, p.checkpoint_every):
+                    path = run_rec.save(
+                        {
+                            "step": it,
+                            **made_of,
+                            "learner": learner.state_dict(),
+                            "optim": opt.state_dict(),
+                            "sampler_rng": json.dumps(sampler.rng.bit_generator.state),
+                            "mask_rng": gen.get_state(),
+                            "torch_rng": torch.get_rng_state(),
+                        }
+                    )
+                    for cb in callbacks:
+                        cb.on_checkpoint(run_rec, it, path)
+                if not keep_going(callbacks, run_rec, it, row) and it < p.iterations:
+                    break
+        finally:
+            bar.close()
+            metrics_log.close()
+        finished = it >= p.iterations
+        for cb in callbacks:
+            cb.on_end(run_rec, it, finished)
         if not finished:
             ds.close()
             return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp)

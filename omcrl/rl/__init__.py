@@ -10,14 +10,12 @@ from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_at, alpha_
 from omcrl.rl.methods import METHODS, MethodSpec, get_method
 from omcrl.rl.policy import CheckpointError, Policy, load_policy
 from omcrl.rl.ppo import (
-    PPO,
     ActorCritic,
     FeatureExtractor,
     IdentityFeatures,
     NonFiniteLossError,
     OracleFeatures,
     PixelFeatures,
-    PPOSettings,
     StudentFeatures,
     compute_gae,
     gaussian_kl,
@@ -29,7 +27,6 @@ from omcrl.rl.train import Result, RunConfigMismatch, train, train_oracle, train
 
 __all__ = [
     "METHODS",
-    "PPO",
     "ActorCritic",
     "CheckpointError",
     "FeatureExtractor",
@@ -38,7 +35,6 @@ __all__ = [
     "MethodSpec",
     "NonFiniteLossError",
     "OracleFeatures",
-    "PPOSettings",
     "PixelFeatures",
     "PlannerGuide",
     "Policy",

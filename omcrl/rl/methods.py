@@ -36,9 +36,6 @@ from omcrl.rl.policy import load_policy
 from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, train_pixel, train_student
 from omcrl.runs import Run
 
-# Planner guides: name -> (class in omcrl.planners, the factory name that enters a run's identity).
-PLANNER_GUIDES = {"apf": ("HybridAPF", "hybrid_apf"), "local-apf": ("LocalAPF", "local_apf")}
-
 
 @dataclass(frozen=True)
 class MethodSpec:
@@ -50,7 +47,7 @@ class MethodSpec:
     label : the paper's name in tables and figures.
     features : the method's kind, a key of :data:`RECIPES`: ``oracle`` | ``frozen`` | ``pixel`` | ``planner``.
     encoder : pretraining overrides for a frozen encoder (``{"method": "curl", "use_projection": False}``).
-    guide : the guide of a student: ``oracle`` | a planner guide of :data:`PLANNER_GUIDES` (``local-apf``,
+    guide : the guide of a student: ``oracle`` | a planner guide of :data:`omcrl.planners.GUIDES` (``local-apf``,
         ``apf``) | None. The oracle has none here: its own guide is ``rl.oracle_guide``, read by its recipe's
         trainer (:func:`omcrl.rl.train.train_oracle`).
     privileged : uses inputs a real robot does not have (true map or depth + obstacle vectors).
@@ -158,15 +155,14 @@ def oracle_path(cfg: Config) -> Path:
 def planner_factory(cfg: Config, guide: str | None) -> Callable[[], Any] | None:
     """A zero-argument factory of ``guide``'s planner (its ``__name__`` enters the run's identity), or None
     when the guide is not a planner (``"oracle"``, None)."""
-    if guide not in PLANNER_GUIDES:
+    if guide not in planners.GUIDES:
         return None
-
-    cls = getattr(planners, PLANNER_GUIDES[guide][0])
+    name, identity = planners.GUIDES[guide]
 
     def factory() -> Any:
-        return cls(cfg.env)
+        return planners.make_planner(name, cfg.env)
 
-    factory.__name__ = PLANNER_GUIDES[guide][1]
+    factory.__name__ = identity
     return factory
 
 
@@ -328,13 +324,6 @@ class PlannerRecipe(Recipe):
 
     kind = "planner"
     learned = False
-    # method name -> class in omcrl.planners
-    PLANNERS: ClassVar[dict[str, str]] = {
-        "hybrid-apf": "HybridAPF",
-        "hybrid-apf-perceptive": "PerceptiveHybridAPF",
-        "local-apf": "LocalAPF",
-        "blind": "BlindPilot",
-    }
 
     def needs(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> list[Need]:
         return []
@@ -346,7 +335,7 @@ class PlannerRecipe(Recipe):
         raise ConfigError(f"method {spec.name!r} is a planner: it is not trained (evaluate it directly)")
 
     def make_agent(self, cfg: Config, spec: MethodSpec, path: Path | None = None) -> Any:
-        return getattr(planners, self.PLANNERS[spec.name])(cfg.env)
+        return planners.make_planner(spec.name, cfg.env)
 
 
 RECIPES: dict[str, Recipe] = {}

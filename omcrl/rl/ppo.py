@@ -1,11 +1,12 @@
-"""PPO with an optional guide-KL term (paper IV-C, Eqs. 7-9) as an algorithm object.
+"""PPO's pieces with an optional guide-KL term (paper IV-C, Eqs. 7-9): the rollout buffer, GAE, the loss and one
+update. The training loop that uses them, top to bottom, is :func:`omcrl.rl.train.train`.
 
 Design
 ------
 A policy is ``features -> heads`` (:mod:`omcrl.models.features`, :mod:`omcrl.models.actor_critic`). The
-rollout runner (:mod:`omcrl.rl.rollout`) fills a :class:`Rollout`; :class:`PPO` owns the optimiser and turns a
-rollout into an update with ``update(batch, alpha=..., step=...) -> dict[str, float]`` of metrics (the trainer
-sets the learning rate before each update with ``set_lr``).
+rollout runner (:mod:`omcrl.rl.rollout`) fills a :class:`Rollout`; :func:`compute_gae` adds advantages and returns;
+:func:`ppo_update` runs the minibatch epochs of :func:`ppo_loss` on it with the settings of ``cfg.rl`` and returns
+the mean metrics (the loop sets the learning rate before each update).
 
 Action bounds: the policy samples an *unbounded* Gaussian action; the rollout sends ``clip(a, -1, 1)`` to the
 env and stores the unclipped sample, whose log-probability is used in the ratio (the usual PPO practice; the
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import torch
@@ -38,7 +39,6 @@ from omcrl.models.features import (
 from omcrl.utils.runtime import to_device
 
 __all__ = [
-    "PPO",
     "ActorCritic",
     "FeatureExtractor",
     "IdentityFeatures",
@@ -198,21 +198,21 @@ def ppo_update(
     agent: ActorCritic,
     optimizer: torch.optim.Optimizer,
     rollout: Rollout,
+    rl: Any,
     *,
-    epochs: int,
-    minibatch: int,
     alpha: float,
-    beta: float,
-    clip: float,
-    value_coef: float,
-    entropy_coef: float,
-    max_grad_norm: float,
     step: int = 0,
 ) -> dict[str, float]:
-    """Run ``epochs`` passes of minibatch SGD on one rollout; return mean loss statistics.
+    """Run ``rl.epochs`` passes of minibatch SGD (``rl.minibatch`` transitions) of :func:`ppo_loss` on one rollout
+    whose advantages and returns are set (:func:`compute_gae`); returns the mean loss statistics.
 
-    Raises :class:`NonFiniteLossError` before any parameter update with a non-finite loss is applied.
+    ``rl``: an :class:`omcrl.config.RLConfig` (``epochs``, ``minibatch``, ``beta``, ``clip``, ``value_coef``,
+    ``entropy_coef``, ``max_grad_norm``); ``alpha`` weighs the guide KL (0 without a guide); ``step`` (env steps)
+    only labels errors. Raises :class:`NonFiniteLossError` before any parameter update with a non-finite loss or
+    gradient is applied.
     """
+    epochs, minibatch, max_grad_norm = int(rl.epochs), int(rl.minibatch), float(rl.max_grad_norm)
+    beta, clip, value_coef, entropy_coef = float(rl.beta), float(rl.clip), float(rl.value_coef), float(rl.entropy_coef)
     # One transfer of the whole batch to the networks' device (a no-op on the CPU).
     data = to_device(rollout.flat(), next(agent.parameters()).device)
     n = data["actions"].shape[0]
@@ -260,103 +260,3 @@ def ppo_update(
                 sums[k] = sums.get(k, 0.0) + v
             count += 1
     return {k: v / count for k, v in sums.items()}
-
-
-# How PPOSettings.from_config coerces a field by its annotation (the module's annotations are strings).
-_COERCE = {"int": int, "float": float, "bool": bool}
-
-
-@dataclass(frozen=True)
-class PPOSettings:
-    """PPO's hyperparameters, stated once (the fields of :class:`omcrl.config.RLConfig` they are read from).
-
-    lr : initial learning rate (the trainer sets the current one per update; the paper decays it linearly).
-    epochs, minibatch : SGD passes over a rollout and minibatch size (transitions).
-    gamma, gae_lambda : discount and GAE λ.
-    clip, value_coef, entropy_coef, max_grad_norm : the usual PPO settings.
-    beta : the KL scale β of Eq. 9.
-    """
-
-    lr: float
-    epochs: int
-    minibatch: int
-    gamma: float
-    gae_lambda: float
-    clip: float
-    value_coef: float
-    entropy_coef: float
-    max_grad_norm: float
-    beta: float
-
-    @classmethod
-    def from_config(cls, rl: Any) -> PPOSettings:
-        """The settings of an :class:`omcrl.config.RLConfig` (same field names)."""
-        # Coerced as each field's annotation says, so the settings are exact whatever the source (a YAML 3 for a
-        # float); a field of another type is refused here rather than silently turned into a number.
-        out = {}
-        for f in fields(cls):
-            if f.type not in _COERCE:
-                raise TypeError(f"PPOSettings.{f.name}: type {f.type!r} not coercible, expected {list(_COERCE)}")
-            out[f.name] = _COERCE[f.type](getattr(rl, f.name))
-        return cls(**out)
-
-    def sgd(self) -> dict[str, Any]:
-        """The keyword arguments of :func:`ppo_update` these settings give."""
-        keys = ("epochs", "minibatch", "beta", "clip", "value_coef", "entropy_coef", "max_grad_norm")
-        return {k: getattr(self, k) for k in keys}
-
-
-class PPO:
-    """PPO with the guide-KL term as an algorithm object: it owns the optimiser; ``update`` returns metrics.
-
-    Parameters
-    ----------
-    agent : the actor-critic; its trainable parameters (heads and any trainable feature encoder) are optimised
-        with Adam (eps 1e-5).
-    settings : :class:`PPOSettings`.
-    """
-
-    def __init__(self, agent: ActorCritic, settings: PPOSettings) -> None:
-        self.agent, self.settings = agent, settings
-        params = [p for p in agent.parameters() if p.requires_grad]
-        self.optimizer = torch.optim.Adam(params, lr=settings.lr, eps=1e-5)
-
-    @classmethod
-    def from_config(cls, agent: ActorCritic, rl: Any) -> PPO:
-        """Build from an :class:`omcrl.config.RLConfig`."""
-        return cls(agent, PPOSettings.from_config(rl))
-
-    def set_lr(self, lr: float) -> None:
-        for g in self.optimizer.param_groups:
-            g["lr"] = lr
-
-    def update(self, batch: Rollout, *, alpha: float, step: int = 0) -> dict[str, float]:
-        """One PPO update on a rollout (GAE, then ``epochs`` of minibatch SGD); returns mean metrics.
-
-        ``alpha`` weighs the guide KL (0 without a guide); ``step`` only labels errors.
-        """
-        adv, ret = compute_gae(
-            batch.rewards,
-            batch.values,
-            batch.next_values,
-            batch.terminated,
-            batch.ends,
-            self.settings.gamma,
-            self.settings.gae_lambda,
-        )
-        batch.advantages, batch.returns = adv, ret
-        self.agent.train()
-        return ppo_update(
-            self.agent,
-            self.optimizer,
-            batch,
-            alpha=alpha,
-            step=step,
-            **self.settings.sgd(),
-        )
-
-    def state_dict(self) -> dict:
-        return {"optimizer": self.optimizer.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.optimizer.load_state_dict(state["optimizer"])

@@ -1,4 +1,4 @@
-"""PPO training runs: one generic trainer behind every RL method (oracle, ours, baselines).
+"""PPO training runs: one training loop (:func:`train`) behind every RL method (oracle, ours, baselines).
 
 Run folder (:mod:`omcrl.runs`) ``<run_root>/runs/rl/<method>-<key>/seed<k>/``::
 
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -30,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from omcrl.config import Config, field_default, save_config, section_identity
 from omcrl.envs import make_vec_env
@@ -48,22 +48,23 @@ from omcrl.rl.policy import (
     policy_payload,
     space_shapes,
 )
-from omcrl.rl.ppo import PPO, NonFiniteLossError
+from omcrl.rl.ppo import NonFiniteLossError, compute_gae, ppo_update
 from omcrl.rl.rollout import Runner
 from omcrl.runs import (
     Callback,
+    MetricsLog,
     Run,
     RunConfigMismatch,
-    Trainer,
-    TrainingLoop,
+    checkpoint_due,
+    keep_going,
     make_run,
     read_metrics,
     rng_state,
     set_rng_state,
-    verify_artifact,
 )
-from omcrl.utils.io import atomic_save_torch, file_digest, load_torch
+from omcrl.utils.io import file_digest, load_torch
 from omcrl.utils.precision import section_precision
+from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import cpu_count, resolve_device, seed_everything, set_threads
 
 __all__ = [
@@ -165,95 +166,6 @@ def rl_run(cfg: Config, method: str, identity: dict) -> Run:
     return make_run(cfg, "rl", method, identity)
 
 
-class _Updates(Trainer):
-    """PPO as a :class:`omcrl.runs.Trainer`: one step is a rollout of ``buffer_size`` env steps and the update on
-    it (α and the learning rate follow their schedules); its metrics the update's, the schedule, speed and the
-    episodes that ended."""
-
-    def __init__(
-        self,
-        rl: Any,
-        run: Run,
-        agent: ActorCritic,
-        algo: PPO,
-        runner: Runner,
-        guide: Any,
-        step: int,
-        update: int,
-        resumes: int,
-        update_threads: int,
-        rollout_threads: int,
-    ) -> None:
-        self.rl, self.run, self.agent, self.algo, self.runner, self.guide = rl, run, agent, algo, runner, guide
-        self.step_, self.update, self.resumes = step, update, resumes
-        self.update_threads, self.rollout_threads = update_threads, rollout_threads
-        self.length, self.per_update, self.n_updates, self.final_step = rollout_geometry(rl)
-        self.recent: deque = deque(maxlen=50)
-        self.alpha = self.lr = 0.0
-
-    def step(self) -> tuple[int, dict[str, float], dict[str, str]]:
-        rl, runner, algo, agent = self.rl, self.runner, self.algo, self.agent
-        step = self.step_
-        alpha = self.alpha = alpha_from_config(step, rl) if self.guide is not None else 0.0
-        lr = self.lr = rl.lr * max(0.0, 1.0 - step / max(self.final_step, 1))  # linear decay to 0 over the run
-        algo.set_lr(lr)
-        t0 = time.perf_counter()
-        n_done = len(runner.episodes)
-        agent.eval()
-        rollout = runner.collect(self.length, rl.horizon, use_guide=alpha > 0.0)
-        t_rollout = time.perf_counter() - t0
-        # The env workers sleep during the update, so the learner may use their cores (the rollout's
-        # batch-of-n_envs forwards do not gain from threads and would contend with the renderers).
-        set_threads(self.update_threads)
-        try:
-            stats = algo.update(rollout, alpha=alpha, step=step)
-        except NonFiniteLossError as e:
-            ckpt = self.run.dir / "checkpoint.pt"
-            where = f"last good checkpoint: {ckpt}" if ckpt.exists() else "no checkpoint was written"
-            raise NonFiniteLossError(f"{self.run.method} seed {self.run.seed}: {e}; {where}") from None
-        finally:
-            set_threads(self.rollout_threads)
-        self.step_ = step = step + self.per_update
-        self.update += 1
-        dt = time.perf_counter() - t0
-        eps = runner.episodes[n_done:]
-        self.recent.extend(eps)
-        row = {
-            **stats,
-            "alpha": alpha,
-            "lr": lr,
-            "steps_per_s": self.per_update / max(dt, 1e-9),
-            "rollout_s": t_rollout,
-            "update_s": dt - t_rollout,
-        }
-        if eps:
-            row["episodic_return"] = float(np.mean([e["return"] for e in eps]))
-            row["episode_length"] = float(np.mean([e["length"] for e in eps]))
-            succ = [float(e["success"]) for e in eps if "success" in e]
-            if succ:
-                row["success_rate"] = float(np.mean(succ))
-        recent = self.recent
-        rs = [float(e["success"]) for e in recent if "success" in e]
-        postfix = {
-            "sr": f"{np.mean(rs):.2f}" if rs else "-",  # over the last 50 episodes
-            "ret": f"{np.mean([e['return'] for e in recent]):.2f}" if recent else "-",
-            "steps_per_s": f"{row['steps_per_s']:.0f}",
-        }
-        return step, row, postfix
-
-    def state(self, step: int) -> dict:
-        return {
-            "model": self.agent.state_dict(),
-            "optimizer": self.algo.state_dict()["optimizer"],
-            "step": step,
-            "update": self.update,
-            "rng": rng_state(),
-            "resumes": self.resumes,
-            "schedule": {"alpha": self.alpha, "lr": self.lr},
-            "key": self.run.key,
-        }
-
-
 def train(
     cfg: Config,
     *,
@@ -267,7 +179,13 @@ def train(
     meta: dict | None = None,
     callbacks: Sequence[Callback] = (),
 ) -> Result:
-    """Train (or resume, or skip) one PPO run; the single implementation behind every trainer.
+    """Train (or resume, or skip) one PPO run: the one training loop behind every RL method, read top to bottom.
+
+    Each iteration sets the schedules (guide weight α, learning rate), collects ``rl.buffer_size`` env steps with
+    the current policy (and the guide's action distributions while α > 0), computes GAE, runs PPO's minibatch
+    epochs (:func:`omcrl.rl.ppo.ppo_update`; the guide KL is a term of :func:`omcrl.rl.ppo.ppo_loss`), logs, and
+    checkpoints every ``rl.checkpoint_every`` env steps (``run.save``). The finished policy is ``run.finish``'s
+    ``final.pt``.
 
     Parameters
     ----------
@@ -281,38 +199,25 @@ def train(
     overwrite : delete a run folder of a different identity instead of raising RunConfigMismatch.
     layer_norm : LayerNorm on the actor/critic inputs (paper V-D); see :class:`ActorCritic`.
     meta : plain values stored in the policy file's ``meta``.
-    callbacks : :class:`omcrl.runs.Callback` s of the training lifecycle (:class:`omcrl.runs.TrainingLoop`); one
-        that stops the run early leaves its last checkpoint, and the result's ``final_path`` is that checkpoint.
+    callbacks : :class:`omcrl.runs.Callback` s, called at the start, after every update, after every checkpoint
+        and at the end; one whose ``on_step`` returns False stops the run early: its last checkpoint stays, and the
+        result's ``final_path`` is that checkpoint.
     """
     rl = cfg.rl
     rollout_threads = set_threads(rl.num_threads)
     update_threads = rl.update_threads or cpu_count()
     device = resolve_device(rl.device)
-    run_dir = run.dir
-    ckpt_path, final_path = run_dir / "checkpoint.pt", run_dir / "final.pt"
     if not overwrite:
         run.check()
-    if final_path.exists() and not overwrite:
-        if run.verified(final_path) is not False:
-            step = int(load_torch(final_path, "policy file", CheckpointError)["step"])
-            return Result(run, final_path, step, True)
-        # A finished artifact that changed since it was written is not trusted: keep it aside, train again.
-        aside = final_path.with_name("final.pt.corrupt")
-        final_path.replace(aside)
-        warnings.warn(
-            f"{final_path} does not match the digest recorded when it was written (moved to {aside.name}); "
-            "training this run again",
-            stacklevel=2,
-        )
-
-    if ckpt_path.exists():
-        verify_artifact(ckpt_path, "checkpoint", f"delete it to train {run.method} seed {cfg.seed} from the start")
-    ckpt = load_torch(ckpt_path, "checkpoint", CheckpointError) if ckpt_path.exists() else None
+        if (final := run.finished()) is not None:
+            return Result(run, final, int(load_torch(final, "policy file", CheckpointError)["step"]), True)
+    ckpt = run.load("checkpoint", CheckpointError)
     if ckpt is None:
         seed_everything(cfg.seed)
 
-    length, per_update, n_updates, final_step = rollout_geometry(rl)
+    length, per_update, _, final_step = rollout_geometry(rl)
     resumes = 0 if ckpt is None else ckpt["resumes"] + 1
+    # An episode in flight cannot be checkpointed: a resumed run restarts its envs with a seed of its own.
     env = make_env(cfg.seed * 1000 + 100 * resumes)
     try:
         obs_space = env.single_observation_space
@@ -320,50 +225,125 @@ def train(
         act_dim = int(np.prod(env.single_action_space.shape))
         agent = ActorCritic(features, act_dim, rl.hidden, rl.init_log_std, layer_norm=layer_norm).to(device)
         agent.precision = section_precision(rl)
-        algo = PPO.from_config(agent, rl)
+        optimizer = torch.optim.Adam([p for p in agent.parameters() if p.requires_grad], lr=float(rl.lr), eps=1e-5)
         guide = make_guide(env) if (make_guide is not None and rl.alpha_schedule != "none") else None
         if guide is not None and hasattr(guide, "to"):
             guide.to(device)
         # Only now, with encoder / oracle / env known to fit, does the run folder appear: a failed start
         # (missing or mismatched checkpoint) leaves nothing behind that looks like a run.
         run.claim(overwrite=overwrite)
-        save_config(cfg, run_dir)
+        save_config(cfg, run.dir)
         step, update = 0, 0
         if ckpt is not None:
             agent.load_state_dict(ckpt["model"])
-            algo.load_state_dict({"optimizer": ckpt["optimizer"]})
+            optimizer.load_state_dict(ckpt["optimizer"])
             step, update = int(ckpt["step"]), int(ckpt["update"])
             set_rng_state(ckpt["rng"])
-        shapes = space_shapes(obs_space)
         runner = Runner(env, agent, guide, seed=cfg.seed * 1000 + 100 * resumes)
-        trainer = _Updates(rl, run, agent, algo, runner, guide, step, update, resumes, update_threads, rollout_threads)
-        loop = TrainingLoop(
-            run,
-            final_step,
-            f"{run.stage}/{run.method} seed{cfg.seed}",
-            "step",
-            ckpt_path,
-            rl.checkpoint_every,
-            progress=progress,
-            callbacks=tuple(callbacks),
+        log = MetricsLog(run.dir, step if ckpt is not None else None)
+        bar = Progress(
+            final_step, f"{run.stage}/{run.method} seed{cfg.seed}", unit="step", initial=step, enabled=progress
         )
-        step, finished = loop.run_from(trainer, step, resumed=ckpt is not None)
+        recent: deque = deque(maxlen=50)  # the last 50 episodes, for the progress bar
+        for cb in callbacks:
+            cb.on_start(run, step)
+        try:
+            while step < final_step:
+                # Schedules: α decays from the run's start (paper Eq. 8); the learning rate linearly to 0.
+                alpha = alpha_from_config(step, rl) if guide is not None else 0.0
+                lr = rl.lr * max(0.0, 1.0 - step / max(final_step, 1))
+                for g in optimizer.param_groups:
+                    g["lr"] = lr
+
+                # Collect: rl.buffer_size env steps; the guide is queried only while its term has weight.
+                t0 = time.perf_counter()
+                n_done = len(runner.episodes)
+                agent.eval()
+                batch = runner.collect(length, rl.horizon, use_guide=alpha > 0.0)
+                t_rollout = time.perf_counter() - t0
+
+                # Advantages (GAE), then the PPO epochs. The env workers sleep during the update, so the learner
+                # may use their cores (the rollout's batch-of-n_envs forwards do not gain from threads).
+                set_threads(update_threads)
+                try:
+                    batch.advantages, batch.returns = compute_gae(
+                        batch.rewards,
+                        batch.values,
+                        batch.next_values,
+                        batch.terminated,
+                        batch.ends,
+                        float(rl.gamma),
+                        float(rl.gae_lambda),
+                    )
+                    agent.train()
+                    stats = ppo_update(agent, optimizer, batch, rl, alpha=alpha, step=step)
+                except NonFiniteLossError as e:
+                    ckpt_path = run.checkpoint_path
+                    where = f"last good checkpoint: {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written"
+                    raise NonFiniteLossError(f"{run.method} seed {run.seed}: {e}; {where}") from None
+                finally:
+                    set_threads(rollout_threads)
+                before, step, update = step, step + per_update, update + 1
+
+                # Log: the update's losses, the schedules, speed and the episodes that ended in this rollout.
+                dt = time.perf_counter() - t0
+                eps = runner.episodes[n_done:]
+                recent.extend(eps)
+                row = {
+                    **stats,
+                    "alpha": alpha,
+                    "lr": lr,
+                    "steps_per_s": per_update / max(dt, 1e-9),
+                    "rollout_s": t_rollout,
+                    "update_s": dt - t_rollout,
+                }
+                if eps:
+                    row["episodic_return"] = float(np.mean([e["return"] for e in eps]))
+                    row["episode_length"] = float(np.mean([e["length"] for e in eps]))
+                    succ = [float(e["success"]) for e in eps if "success" in e]
+                    if succ:
+                        row["success_rate"] = float(np.mean(succ))
+                log.log(step, row)
+                rs = [float(e["success"]) for e in recent if "success" in e]
+                bar.update(
+                    per_update,
+                    sr=f"{np.mean(rs):.2f}" if rs else "-",
+                    ret=f"{np.mean([e['return'] for e in recent]):.2f}" if recent else "-",
+                    steps_per_s=f"{row['steps_per_s']:.0f}",
+                )
+
+                # Checkpoint: everything a resume needs (the env's episodes in flight excepted, see above).
+                if step < final_step and checkpoint_due(before, step, rl.checkpoint_every):
+                    state = {
+                        "model": agent.state_dict(),
+                        "optimizer": optimizer.state_dict(),
+                        "step": step,
+                        "update": update,
+                        "rng": rng_state(),
+                        "resumes": resumes,
+                        "schedule": {"alpha": alpha, "lr": lr},
+                        "key": run.key,
+                    }
+                    path = run.save(state)
+                    for cb in callbacks:
+                        cb.on_checkpoint(run, step, path)
+                if not keep_going(callbacks, run, step, row) and step < final_step:
+                    break
+        finally:
+            bar.close()
+            log.close()
+        finished = step >= final_step
+        for cb in callbacks:
+            cb.on_end(run, step, finished)
         if not finished:
-            return Result(run, ckpt_path, step, False)
-        payload = policy_payload(
-            agent,
-            shapes,
-            step,
-            meta={"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})},
-        )
-        payload["key"] = run.key
-        atomic_save_torch(payload, final_path)
-        run.record(artifact_digest=file_digest(final_path))
-        ckpt_path.unlink(missing_ok=True)  # finished: final.pt is the artifact, the resumable state is obsolete
+            return Result(run, run.checkpoint_path, step, False)
+        meta = {"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})}
+        payload = {**policy_payload(agent, space_shapes(obs_space), step, meta=meta), "key": run.key}
+        final = run.finish(payload)
     finally:
         env.close()
         run.release()
-    return Result(run, final_path, step, False)
+    return Result(run, final, step, False)
 
 
 # ---------------------------------------------------------------- trainers

@@ -5,9 +5,11 @@ from __future__ import annotations
 import os
 import platform
 import random
+import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -118,3 +120,27 @@ def machine_info() -> dict[str, Any]:
         info["torch_threads"] = torch.get_num_threads()
         info["cuda"] = bool(torch.cuda.is_available())
     return info
+
+
+def code_commit(short: bool = True) -> str:
+    """``<sha>`` (``short``: abbreviated) of the checkout the running ``omcrl`` code comes from (not of the results
+    folder, which ``OMCRL_ROOT`` may put elsewhere), ``+ local changes`` when dirty; ``unknown`` outside git."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", *(["--short"] if short else []), "HEAD"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return (sha + (" + local changes" if dirty else "")) if sha else "unknown"

@@ -15,9 +15,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from omcrl.eval.verdicts import verdict_counts
 from omcrl.rl.methods import METHODS
 from omcrl.runs import metric_series
-from omcrl.scenes import PAPER_SUITE, scene_label
+from omcrl.scenes import PAPER_SUITE
 from omcrl.viz import method_color, steps_axis
 from omcrl.viz.pretrain import smooth
 from omcrl.viz.rl import TRAJECTORY_KEY, plot_trajectories
@@ -181,42 +182,43 @@ def plot_trajectory_grid(
     return fig
 
 
-VERDICT_COLORS = {"holds": "#4daf4a", "undecided": "#f0f0f0", "reversed": "#e41a1c"}
+VERDICT_COLORS = {
+    "holds": "#4daf4a",
+    "reversed": "#e41a1c",
+    "undecided": "#bdbdbd",
+    "one seed": "#c6dbef",
+    "not run": "#ffffff",
+}
 
 
-def plot_claim_verdicts(claims: pd.DataFrame) -> plt.Figure:
-    """The paper's orderings per scene: one row per claim (``a > b`` on SR), one column per scene, coloured by the
-    verdict (holds: the 95 % CI of the difference lies above 0; reversed: below; undecided: it spans 0), with the
-    difference in points and its CI printed in each cell.
+def plot_ledger_verdicts(verdicts: pd.DataFrame) -> plt.Figure:
+    """The claim ledger's verdicts (:func:`omcrl.eval.verdicts.ledger_verdicts`): one bar per claim, its hypotheses
+    stacked by verdict (holds, reversed, undecided after Holm; one seed: shown, not judged; not run), the claim's
+    verdict written beside it.
 
     Parameters
     ----------
-    claims : rows ``claim, scene, diff, lo, hi, verdict`` (:func:`omcrl.eval.table1.paper_claims`), SR points.
+    verdicts : one row per hypothesis with columns ``claim``, ``family`` and ``verdict``.
     """
     from matplotlib.patches import Patch
 
-    rows = list(dict.fromkeys(claims["claim"]))
-    cols = list(dict.fromkeys(claims["scene"]))
-    fig, ax = plt.subplots(figsize=(1.9 * len(cols) + 2.2, 0.62 * len(rows) + 1.6))
-    cell = {(r.claim, r.scene): r for r in claims.itertuples()}
-    for i, claim in enumerate(rows):
-        for j, scene in enumerate(cols):
-            r = cell.get((claim, scene))
-            if r is None:
-                continue
-            ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, color=VERDICT_COLORS[r.verdict], ec="white", lw=2))
-            ax.text(j, i, f"{r.diff:+.0f}\n[{r.lo:+.0f}, {r.hi:+.0f}]", ha="center", va="center", fontsize=8,
-                    color="white" if r.verdict == "reversed" else "black")  # fmt: skip
-    ax.set_xlim(-0.5, len(cols) - 0.5)
-    ax.set_ylim(len(rows) - 0.5, -0.5)
-    ax.set_xticks(range(len(cols)), [scene_label(s).replace(" (", "\n(") for s in cols], fontsize=8)
-    ax.set_yticks(range(len(rows)), rows, fontsize=8)
-    ax.tick_params(length=0)
-    for side in ax.spines.values():
-        side.set_visible(False)
-    ax.legend(handles=[Patch(color=c, label=v) for v, c in VERDICT_COLORS.items()], loc="upper center",
-              bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=8, frameon=False,
-              title="verdict on the 95 % CI of the SR difference", title_fontsize=8)  # fmt: skip
-    ax.set_title("The paper's orderings per scene: SR difference a − b in points [95 % CI]", fontsize=9)
+    c = verdict_counts(verdicts)
+    fig, ax = plt.subplots(figsize=(8.0, 0.3 * len(c) + 1.4))
+    rows = c.to_dict("records")
+    for i, r in enumerate(rows):
+        left = 0
+        for v, color in VERDICT_COLORS.items():
+            if r[v]:
+                ax.barh(i, r[v], left=left, color=color, edgecolor="#636363", lw=0.5)
+                left += r[v]
+        ax.text(left + 0.2, i, r["verdict"], va="center", fontsize=7)
+    ax.set_yticks(range(len(rows)), [f"{r['claim']} ({r['family'][0]})" for r in rows], fontsize=7)
+    ax.set_ylim(len(c) - 0.5, -0.5)
+    ax.set_xlabel("hypotheses", fontsize=8)
+    ax.set_xlim(0, float(c["hypotheses"].max()) * 1.25 + 1)
+    ax.legend(handles=[Patch(facecolor=col, edgecolor="#636363", label=v) for v, col in VERDICT_COLORS.items()],
+              loc="lower right", fontsize=7, frameon=False)  # fmt: skip
+    ax.set_title("The claim ledger: each claim's hypotheses by verdict (p: primary, s: secondary; Holm within)",
+                 fontsize=9)  # fmt: skip
     fig.tight_layout()
     return fig
