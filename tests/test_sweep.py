@@ -589,3 +589,25 @@ def test_a_sweep_of_some_variants_keeps_what_they_need_and_names_a_wrong_one():
     assert only_variants(jobs, None, "table1") == jobs
     with pytest.raises(ConfigError, match=r"variants \['ourz'\] are not in the grid; its variants are \['oracle'"):
         only_variants(jobs, ["ourz"], "table1")
+
+
+def test_the_budget_ladder_scales_pretraining_data_and_warmup_together_and_rl_with_its_decay():
+    from omcrl.config import load_config
+    from omcrl.pipeline.grids import FULL_BUDGET_GRIDS
+    from omcrl.pipeline.plan import expand, job_config
+
+    base = load_config("smoke")
+    jobs = expand(base, "ladder-pretrain", [0])
+    x16 = next(j for j in jobs if j.kind == "pretrain" and "curl" in j.id and any("x16" in o for o in j.overrides))
+    cfg = job_config(base, x16.overrides, 0)
+    assert cfg.pretrain.iterations == 16 * base.pretrain.iterations
+    assert cfg.data.episodes == 16 * base.data.episodes and cfg.data.file.endswith("box-x16.h5")
+    assert cfg.pretrain.warmup_steps == 16 * base.pretrain.warmup_steps
+    # Every ladder student trains at the preset's RL budget, and its oracle is Table I's (one oracle per seed).
+    assert {j.id for j in jobs if j.method == "oracle"} == {j.id for j in expand(base, "table1", [0]) if
+                                                           j.method == "oracle" and j.kind == "train"}  # fmt: skip
+    rl = [j for j in expand(base, "ladder-rl", [0]) if j.kind == "train"]
+    ours = next(j for j in rl if j.method == "ours")
+    cfg = job_config(base, ours.overrides, 0)
+    assert cfg.rl.total_steps == 3 * base.rl.total_steps and cfg.rl.alpha_decay_steps == 3 * base.rl.alpha_decay_steps
+    assert {"ladder-pretrain", "ladder-rl"} <= set(FULL_BUDGET_GRIDS)

@@ -88,12 +88,14 @@ def test_changes_from_v1_pairs_each_ordering_with_the_same_hypothesis_on_v2():
 
     from omcrl.eval.verdicts import changes_from_v1
 
+    cols = ["claim", "scene", "diff", "lo", "hi", "verdict"]
     v1 = pd.DataFrame(
         [
-            {"claim": "ours > npe", "scene": "tree-v0", "diff": -27.0, "lo": -45.0, "hi": -10.0, "verdict": "reversed"},
-            {"claim": "ours > npe", "scene": "box-v0", "diff": -1.0, "lo": -6.0, "hi": 5.0, "verdict": "undecided"},
-            {"claim": "curl > ppo", "scene": "barrier-v0", "diff": 0.0, "lo": -12.0, "hi": 11.0, "verdict": "undecided"},
-        ]
+            ("ours > npe", "tree-v0", -27.0, -45.0, -10.0, "reversed"),
+            ("ours > npe", "box-v0", -1.0, -6.0, 5.0, "undecided"),
+            ("curl > ppo", "barrier-v0", 0.0, -12.0, 11.0, "undecided"),
+        ],
+        columns=cols,
     )
     nan = float("nan")
     v2 = pd.DataFrame(

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from omcrl.eval.ledger import FAMILIES, TRAINING_METRICS, hypotheses
+from omcrl.eval.ledger import TRAINING_METRICS, hypotheses
 from omcrl.eval.metrics import episode_values
 from omcrl.eval.stats import DEFAULT_REPS, Term, contrast, term
 from omcrl.rl.methods import METHODS
@@ -104,24 +104,36 @@ def ledger_verdicts(
             tv = train_cache.setdefault(h["metric"], training_values(training or {}, h["metric"]))
             terms = [_run_term(tv, m, c) for m, _, c in specs]
         else:
-            terms = [_cell(episodes, values, h["metric"], m, s, c) for m, s, c in specs]
+            terms = [cell(episodes, values, h["metric"], m, s, c) for m, s, c in specs]
         row = {k: h[k] for k in ("claim", "family", "hypothesis", "metric", "scene", "versus_scene", "a", "b")}
-        if any(t is None for t in terms):
-            rows.append({**row, "estimate": math.nan, "lo": math.nan, "hi": math.nan, "p": math.nan, "seeds": 0,
-                         "var_seed": math.nan, "var_layout": math.nan})  # fmt: skip
-            continue
-        e = contrast(terms, reps, rng=rng)
-        n_seeds = len({s for t in terms if t.seeds is not None for s in t.seeds}) or 1
-        # A learned method of one training seed shows no seed spread: its interval is over layouts alone and
-        # says nothing about another training run, so the row is reported but not judged (nor counted by Holm).
-        few = any(t.seeds is None and m in METHODS and METHODS[m].learned for t, (m, _, _) in zip(terms, specs))
-        rows.append({**row, "estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": math.nan if few else e.p,
-                     "seeds": n_seeds, "var_seed": e.var_seed, "var_layout": e.var_layout,
-                     "_few": few})  # fmt: skip
-    df = pd.DataFrame(rows)
+        learned = [m in METHODS and METHODS[m].learned for m, _, _ in specs]
+        rows.append({**row, **judge(terms, learned, reps, rng)})
+    return holm_verdicts(pd.DataFrame(rows), "family")[COLUMNS]
+
+
+def judge(terms: list[Term | None], learned: list[bool], reps: int, rng: np.random.Generator) -> dict:
+    """One contrast (:func:`omcrl.eval.stats.contrast`) as a row's fields: ``estimate, lo, hi, p, seeds, var_seed,
+    var_layout`` and ``_few``. A missing term (a method not evaluated) gives NaN throughout, 0 seeds. ``learned``
+    says which terms are of a learned method: one of a single training seed shows no seed spread, so its interval
+    is over layouts alone and says nothing about another training run; the row is then reported but not judged
+    (``p`` NaN, ``_few`` True: :func:`holm_verdicts` calls it ``one seed``)."""
+    if any(t is None for t in terms):
+        return {"estimate": math.nan, "lo": math.nan, "hi": math.nan, "p": math.nan, "seeds": 0,
+                "var_seed": math.nan, "var_layout": math.nan, "_few": False}  # fmt: skip
+    e = contrast([t for t in terms if t is not None], reps, rng=rng)
+    n_seeds = len({s for t in terms if t is not None and t.seeds is not None for s in t.seeds}) or 1
+    few = any(t is not None and t.seeds is None and is_learned for t, is_learned in zip(terms, learned))
+    return {"estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": math.nan if few else e.p, "seeds": n_seeds,
+            "var_seed": e.var_seed, "var_layout": e.var_layout, "_few": few}  # fmt: skip
+
+
+def holm_verdicts(df: pd.DataFrame, family: str) -> pd.DataFrame:
+    """``df`` (rows of :func:`judge`) with ``p_holm`` (Holm–Bonferroni within each value of the column ``family``),
+    ``verdict`` (holds / reversed / undecided at 5 %, one seed, not run) and ``seeds_to_decide`` (undecided rows)."""
+    df = df.copy()
     df["p_holm"] = math.nan
-    for fam in FAMILIES:
-        sel = (df["family"] == fam).to_numpy()
+    for fam in dict.fromkeys(df[family]) if len(df) else ():
+        sel = (df[family] == fam).to_numpy()
         df.loc[sel, "p_holm"] = _holm(df.loc[sel, "p"].to_numpy(float))
     few = df["_few"].fillna(False).astype(bool) if "_few" in df else pd.Series(False, index=df.index)
     df["verdict"] = [
@@ -131,7 +143,7 @@ def ledger_verdicts(
         seeds_to_decide(r.estimate, r.var_seed, r.var_layout, r.seeds) if r.verdict == "undecided" else math.nan
         for r in df.itertuples()
     ]
-    return df[COLUMNS]
+    return df.drop(columns=["_few"], errors="ignore")
 
 
 def _term_specs(h: dict) -> list[tuple[str, str, float]]:
@@ -154,9 +166,11 @@ def _verdict(estimate: float, p_holm: float) -> str:
     return "undecided"
 
 
-def _cell(
+def cell(
     episodes: pd.DataFrame, values: pd.DataFrame, metric: str, method: str, scene: str, coef: float
 ) -> Term | None:
+    """The :class:`omcrl.eval.stats.Term` of ``method``'s ``metric`` in ``scene`` (``values``: the episodes'
+    :func:`omcrl.eval.metrics.episode_values`, same index), weighted ``coef``; None when it was not evaluated."""
     if episodes.empty:
         return None
     g = episodes[(episodes["method"] == method) & (episodes["scene"] == scene)]
@@ -213,6 +227,8 @@ def verdicts_markdown(verdicts: pd.DataFrame) -> str:
     for r in verdicts.itertuples():
         if r.verdict == "not run":
             cell, p = "–", "–"
+        elif not math.isfinite(r.estimate):  # e.g. TTS where a method never succeeds: nothing to compare
+            cell, p = "– (no value on one side)", "–"
         elif r.verdict == "one seed":
             cell, p = f"{r.estimate:+.3g} [{r.lo:+.3g}, {r.hi:+.3g}] (layouts only)", "–"
         else:

@@ -134,8 +134,26 @@ GRIDS["table1"] = tuple(
 )
 
 
+# The budget ladder (does a verdict move with scale?). Pretraining: the OMC and CURL encoders at x4 and x16 of the
+# preset's pretraining, dataset episodes, iterations and the Transformer's warm-up scaled together (each scale its
+# own dataset file), with the frozen-encoder students at the preset's RL budget; the x1 points are Table I's runs.
+def _pretrain_scale(k: int) -> tuple[str, ...]:
+    return (f"data.episodes*={k}", f"data.file=data/{{preset}}/box-x{k}.h5", f"pretrain.iterations*={k}",
+            f"pretrain.warmup_steps*={k}")  # fmt: skip
+
+
+GRIDS["ladder-pretrain"] = tuple(
+    Variant(f"{m} pretrain x{k}", m, _pretrain_scale(k)) for k in (4, 16) for m in ("ours", "curl")
+)
+# RL: the methods at x3 the preset's RL budget (the guidance's decay scaled with it); the oracle they learn from is
+# trained at the same budget.
+GRIDS["ladder-rl"] = tuple(
+    Variant(f"{m} RL x3", m, ("rl.total_steps*=3", "rl.alpha_decay_steps*=3")) for m in ("ours", "npe", "curl", "ppo")
+)
+
+
 # Grids that keep the preset's budgets instead of the shortened ablation budgets of cfg.sweep.
-FULL_BUDGET_GRIDS = (*REMEDY_GRIDS, "precision", "table1")
+FULL_BUDGET_GRIDS = (*REMEDY_GRIDS, "precision", "table1", "ladder-pretrain", "ladder-rl")
 
 
 def grid_variants(name: str) -> tuple[Variant, ...]:
