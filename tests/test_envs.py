@@ -469,3 +469,43 @@ def test_a_subclass_changes_the_task_through_the_hooks():
     finally:
         plain.close()
         sparse.close()
+
+
+def test_the_flight_model_is_a_pure_step_of_one_drone_state():
+    """omcrl.envs.dynamics: the env's drone is one DroneState and a control step is fly(state, command, model,
+    geometry) -> next state; the state it was given is left as it was, and the env steps through it."""
+    import numpy as np
+
+    from omcrl.config import EnvConfig
+    from omcrl.envs.dynamics import DroneState, FlightModel, fly
+    from omcrl.scenes.geometry import Geometry
+
+    cfg = EnvConfig()
+    model = FlightModel.from_config(cfg)
+    assert model.substeps >= 1 and model.max_speed * model.dt / model.substeps <= cfg.drone_radius + 1e-9
+    start = DroneState(np.array([0.0, 0.0, cfg.altitude]), 0.0)
+    state = start
+    for _ in range(20):
+        state, _, collided, out = fly(state, (1.0, 0.0, 0.0), model, Geometry())
+        assert not (collided or out)
+    assert start.pos.tolist() == [0.0, 0.0, cfg.altitude] and start.path_len == 0.0  # untouched
+    assert state.pos[0] > 0.5 and abs(state.pos[1]) < 1e-12 and state.yaw == 0.0  # straight ahead along +x
+    assert 0 < state.vel[0] <= cfg.max_speed and state.path_len == pytest.approx(state.pos[0])
+    turned, *_ = fly(start, (0.0, 0.0, 1.0), model, Geometry())
+    assert turned.yaw > 0 and turned.wz > 0 and turned.pos.tolist() == start.pos.tolist()
+
+
+def test_the_env_keeps_its_drone_in_one_record():
+    from omcrl.envs.dynamics import DroneState
+
+    env = make_env("box", seed=0)
+    try:
+        env.reset(seed=3)
+        before = env.unwrapped.drone
+        assert isinstance(before, DroneState) and before.path_len == 0.0
+        env.step(np.array([1.0, 0.0, 0.0], np.float32))
+        after = env.unwrapped.drone
+        assert after is not before and after.path_len > 0 and before.path_len == 0.0
+        assert env.unwrapped.pose.tolist() == [after.pos[0], after.pos[1], after.yaw]
+    finally:
+        env.close()

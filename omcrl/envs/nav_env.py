@@ -22,7 +22,10 @@ d_t)``, plus ``goal_reward`` on success or ``collision_penalty`` on a collision 
 
 Structure: :class:`NavEnv` is the Gymnasium API over three parts, each in its own module — episode planning
 (:mod:`omcrl.envs.episodes`: layout, maps, start/goal), the scene's bodies and looks (:mod:`omcrl.envs.appearance`,
-with :class:`Disturbance`) and the flight dynamics (:mod:`omcrl.envs.dynamics`). The task is in four methods a
+with :class:`Disturbance`) and the flight dynamics (:mod:`omcrl.envs.dynamics`: the drone's state is one record,
+``env.drone``, a :class:`~omcrl.envs.dynamics.DroneState`, and a control step the pure function
+:func:`~omcrl.envs.dynamics.fly` of it under ``env.flight``, the :class:`~omcrl.envs.dynamics.FlightModel`). The task
+is in four methods a
 subclass may override, as gym-pybullet-drones' envs do: ``_reward``, ``_terminated``, ``_truncated``, ``_metrics``.
 """
 
@@ -46,7 +49,7 @@ from omcrl.envs.appearance import (
     _adjust,
     appearance_materials,
 )
-from omcrl.envs.dynamics import GRAVITY, Dynamics
+from omcrl.envs.dynamics import GRAVITY, DroneState, FlightModel, fly
 from omcrl.envs.episodes import EpisodePlanner, _Plan
 from omcrl.envs.grid import OccupancyGrid
 from omcrl.envs.observation import PRIVILEGED_DIM, STATE_DIM, pack_privileged, pack_state
@@ -70,7 +73,7 @@ __all__ = [
 ]
 
 
-class NavEnv(EpisodePlanner, SceneLook, Dynamics, gym.Env):
+class NavEnv(EpisodePlanner, SceneLook, gym.Env):
     """Goal-reaching drone navigation from a monocular camera; see the module docstring for the contract."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -125,10 +128,8 @@ class NavEnv(EpisodePlanner, SceneLook, Dynamics, gym.Env):
         )
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self._scale = np.array([cfg.max_speed, cfg.max_speed, cfg.max_yaw_rate])
-        # Substeps keep each move shorter than the drone radius, so thin walls cannot be tunnelled through.
-        self._substeps = max(1, math.ceil(cfg.max_speed * self.dt / cfg.drone_radius - 1e-9))
-        sub_dt = self.dt / self._substeps
-        self._k_resp = 1.0 - math.exp(-sub_dt / cfg.velocity_tau) if cfg.velocity_tau > 0 else 1.0
+        self.flight = FlightModel.from_config(cfg)
+        self.drone = DroneState(np.array([0.0, 0.0, cfg.altitude]), 0.0)
         self._client = pb.connect(pb.DIRECT)
         self.renderer = resolve_renderer(cfg.renderer)  # "tiny" or "egl"
         if self.renderer == "egl":
@@ -181,23 +182,18 @@ class NavEnv(EpisodePlanner, SceneLook, Dynamics, gym.Env):
         c = self.cfg
         start, goal, self.path, self._opt_len = placed
         self._episode_seed = layout_seed if self.layout is None else -1
-        self._pos = np.array([start[0], start[1], c.altitude])
-        self._yaw = float(start[2])
-        self._vel = (0.0, 0.0)  # body frame, m/s
-        self._wz = 0.0
-        self._acc = (0.0, 0.0)  # body frame, m/s^2
+        self.drone = DroneState(np.array([start[0], start[1], c.altitude]), float(start[2]))
         self._goal = np.array([goal[0], goal[1], c.altitude])
         self._steps = 0
         self.light_switch_step = self._draw_switch(layout_seed)
-        self._d_init = self._d_prev = float(np.linalg.norm(self._goal[:2] - self._pos[:2]))
+        self._d_init = self._d_prev = float(np.linalg.norm(self._goal[:2] - self.drone.pos[:2]))
         self._min_d = self._d_init
-        self._path_len = 0.0
         self._has_episode = True
         self._episodes += 1
         frame_rgb, frame_depth = self._render_frame()
         self._rgb[:] = frame_rgb
         self._depth[:] = frame_depth
-        obs = self._obs(self._geometry.nearest(self._pos)[0])
+        obs = self._obs(self._geometry.nearest(self.drone.pos)[0])
         # The path is a list, not an array: its length varies, and vector envs can only stack fixed shapes.
         info = {
             "pose": self.pose,
@@ -221,9 +217,10 @@ class NavEnv(EpisodePlanner, SceneLook, Dynamics, gym.Env):
         ax, ay, az = a.tolist()
         if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
             raise ValueError(f"action contains NaN or inf: {[ax, ay, az]}")
-        closest, collided, out = self._fly(ax, ay, az)
+        self.drone, closest, collided, out = fly(self.drone, (ax, ay, az), self.flight, self._geometry)
         self._steps += 1
-        d = math.hypot(self._goal[0] - self._pos[0], self._goal[1] - self._pos[1])
+        pos = self.drone.pos
+        d = math.hypot(self._goal[0] - pos[0], self._goal[1] - pos[1])
         self._min_d = min(self._min_d, d)
         success = not (collided or out) and d <= self.cfg.goal_radius
         reward = self._reward(d, success, collided or out)
@@ -274,7 +271,7 @@ class NavEnv(EpisodePlanner, SceneLook, Dynamics, gym.Env):
             "success": bool(success),
             "collision": bool(collided),
             "out_of_arena": bool(out),
-            "path_length": self._path_len,
+            "path_length": self.drone.path_len,
             "optimal_path_length": self._opt_len,
             "steps": self._steps,
             "scene": self.scene,
@@ -285,21 +282,22 @@ class NavEnv(EpisodePlanner, SceneLook, Dynamics, gym.Env):
     @property
     def pose(self) -> np.ndarray:
         """(x, y, yaw) in the world frame, m and rad."""
-        return np.array([self._pos[0], self._pos[1], self._yaw])
+        return np.array([self.drone.pos[0], self.drone.pos[1], self.drone.yaw])
 
     def _obs(self, closest: np.ndarray) -> dict:
-        c, s = math.cos(self._yaw), math.sin(self._yaw)
-        gx, gy = self._goal[0] - self._pos[0], self._goal[1] - self._pos[1]
+        drone = self.drone
+        c, s = math.cos(drone.yaw), math.sin(drone.yaw)
+        gx, gy = self._goal[0] - drone.pos[0], self._goal[1] - drone.pos[1]
         goal_b = (c * gx + s * gy, -s * gx + c * gy, 0.0)  # goal and drone share the flight altitude
         if self._geometry.n:
-            ox, oy, oz = (closest - self._pos).tolist()
+            ox, oy, oz = (closest - drone.pos).tolist()
             obst_b = (c * ox + s * oy, -s * ox + c * oy, oz)
         else:  # nothing in range: report an obstacle at the far plane straight ahead
             obst_b = (self.cfg.far, 0.0, 0.0)
-        pitch = math.atan2(self._acc[0], GRAVITY)
-        roll = -math.atan2(self._acc[1], GRAVITY)
-        vx, vy = self._vel
-        state = pack_state((vx, vy, 0.0), (0.0, 0.0, self._wz), (roll, pitch, self._yaw), goal_b)
+        pitch = math.atan2(drone.acc[0], GRAVITY)
+        roll = -math.atan2(drone.acc[1], GRAVITY)
+        vx, vy = drone.vel
+        state = pack_state((vx, vy, 0.0), (0.0, 0.0, drone.wz), (roll, pitch, drone.yaw), goal_b)
         priv = pack_privileged(obst_b, goal_b)
         return {"rgb": self._rgb.copy(), "depth": self._depth.copy(), "state": state, "privileged": priv}
 
@@ -326,8 +324,8 @@ class NavEnv(EpisodePlanner, SceneLook, Dynamics, gym.Env):
 
     def view_matrix(self) -> list[float]:
         """PyBullet view matrix (16 floats) of the forward camera at the current pose (what renders use)."""
-        eye = self._pos
-        cy, sy = math.cos(self._yaw), math.sin(self._yaw)
+        eye, yaw = self.drone.pos, self.drone.yaw
+        cy, sy = math.cos(yaw), math.sin(yaw)
         return pb.computeViewMatrix(eye.tolist(), [eye[0] + cy, eye[1] + sy, eye[2]], [0.0, 0.0, 1.0])
 
     def _render_frame(self) -> tuple[np.ndarray, np.ndarray]:
