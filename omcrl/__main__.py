@@ -300,7 +300,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             kw = {"backend": args.backend, "address": args.address, "num_cpus": args.num_cpus,
                   "to_reference": args.to_reference, "variants": _csv(args.variants)}  # fmt: skip
             if args.plan:
-                kw = {"plan": True, "rates": args.rates, "to_reference": args.to_reference}
+                kw = {"plan": True, "rates": args.rates, "to_reference": args.to_reference,
+                      "variants": _csv(args.variants)}  # fmt: skip
             result = func(cfg, args.grid, seeds=seeds, **kw)
         else:
             result = func(cfg)

@@ -589,6 +589,10 @@ def test_a_sweep_of_some_variants_keeps_what_they_need_and_names_a_wrong_one():
     assert only_variants(jobs, None, "table1") == jobs
     with pytest.raises(ConfigError, match=r"variants \['ourz'\] are not in the grid; its variants are \['oracle'"):
         only_variants(jobs, ["ourz"], "table1")
+    from omcrl.pipeline.sweep import sweep_stage
+
+    plan = sweep_stage(load_config("smoke"), "table1", seeds=[0], plan=True, variants=["ours-lapf"])
+    assert "grids ['table1']: 4 jobs" in plan and "train:oracle" not in plan
 
 
 def test_the_budget_ladder_scales_pretraining_data_and_warmup_together_and_rl_with_its_decay():

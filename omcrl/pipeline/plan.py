@@ -324,11 +324,15 @@ def describe_plan(
     rates: dict[str, float] | None = None,
     nodes: Sequence[int] = (1, 4, 16),
     recorded: Collection[str] = (),
+    only: Collection[str] | None = None,
 ) -> str:
     """A plain-text account of :func:`sweep_plan`: jobs and work per kind, what the main comparison already ran,
     and, with ``rates`` (units/s per rate_key on one machine), :func:`sweep_cost` on each number of ``nodes``.
-    ``recorded``: ids of jobs whose results the checkout already keeps (``--to-reference``); they are left out."""
+    ``recorded``: ids of jobs whose results the checkout already keeps (``--to-reference``); they are left out.
+    ``only``: the ids of the jobs to count (``--variants``); None: every job of the grids."""
     plan = sweep_plan(cfg, grids, seeds)
+    if only is not None:
+        plan = plan[plan["id"].isin(list(only))]
     seeds = list(seeds if seeds is not None else cfg.seeds)
     kept = plan["id"].isin(list(recorded))
     plan = plan[~kept]

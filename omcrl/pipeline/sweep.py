@@ -680,13 +680,16 @@ def sweep_stage(
             m = measured_rates(cfg)
             r = dict(zip(m["rate_key"], m["rate"], strict=True)) or None
         recorded: set[str] = set()
+        variants = kw.get("variants")
+        only = None if variants is None else {j.id for g in grids for j in only_variants(expand(cfg, g, seeds),
+                                                                                          variants, g)}  # fmt: skip
         if kw.get("to_reference"):
             for g in grids:
                 jobs, record = expand(cfg, g, seeds), GridData(grid_data_dir(cfg, g))
                 teachers = _teachers(jobs, _record_targets(jobs))
                 kept = {j for j, (label,) in teachers.items() if record.has_weights(label, _seed(jobs, j), "rl")}
                 recorded |= _recorded(jobs, record) | kept
-        return describe_plan(cfg, grids, seeds, r, recorded=recorded)
+        return describe_plan(cfg, grids, seeds, r, recorded=recorded, only=only)
     out = run_ablations(cfg, grids, seeds, progress=progress, **kw)
     text = "\n".join(repr(v["result"]) for v in out.values())
     bad = {g: v["result"].counts() for g, v in out.items() if set(v["result"].status.values()) & {"failed", "blocked"}}
