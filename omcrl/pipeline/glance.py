@@ -16,6 +16,7 @@ import shutil
 import tempfile
 import textwrap
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -24,7 +25,7 @@ from omcrl.config import load_config, project_root
 from omcrl.eval.ledger import LEDGER
 from omcrl.eval.table1 import Table1Result, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, verdict_counts
-from omcrl.pipeline.griddata import tables_from_reference
+from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
 from omcrl.pipeline.records import Table1Record
 from omcrl.pipeline.reference import reference_table_dir
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
@@ -236,6 +237,8 @@ def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tup
         res = tables_from_reference(cfg)
         full = "\n".join(
             [
+                *_progress_md(cfg),
+                "",
                 Path(res.paths["md"]).read_text(encoding="utf-8").strip(),
                 "",
                 "**Claim ledger, every hypothesis** (estimates signed so that the paper's direction is positive)",
@@ -249,6 +252,22 @@ def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tup
             Path(figure_to).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(res.paths["fig5"], figure_to)
         return render_v2(res), full
+
+
+def _progress_md(cfg: Any, seeds: int = 5) -> list[str]:
+    """Markdown lines: which learned methods' training seeds the grid has recorded (✓) and which are to come."""
+    record = GridData(grid_data_dir(cfg, "table1"))
+    learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
+    p = record.progress(learned, range(seeds))
+    lines = [
+        f"**Grid progress**: {int(p.to_numpy().sum())} of {p.size} training runs recorded (✓; the planners fly "
+        "once and are all recorded).",
+        "",
+        "| method | " + " | ".join(p.columns) + " |",
+        "|---|" + "---|" * len(p.columns),
+    ]
+    lines += [f"| {METHODS[m].label} | " + " | ".join("✓" if x else "" for x in p.loc[m]) + " |" for m in p.index]
+    return lines
 
 
 def _changes_md(verdicts: pd.DataFrame, preset: str) -> list[str]:

@@ -190,6 +190,15 @@ class GridData:
             out.setdefault(label, {})[seed] = p
         return out
 
+    def progress(self, labels: Iterable[str], seeds: Iterable[int]) -> pd.DataFrame:
+        """``(label × seed)`` booleans: which evaluations are recorded (the grid's progress)."""
+        seeds = list(seeds)
+        return pd.DataFrame(
+            [[self.has_episodes(lab, s) for s in seeds] for lab in labels],
+            index=list(labels),
+            columns=[f"seed {s}" for s in seeds],
+        )
+
     def remove(self, label: str, seed: int) -> None:
         """Forget what is recorded for ``label`` at ``seed`` (it is then trained and evaluated again)."""
         shutil.rmtree(self.folder(label, seed), ignore_errors=True)
