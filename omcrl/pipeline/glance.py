@@ -22,7 +22,6 @@ import pandas as pd
 
 from omcrl import planners
 from omcrl.config import load_config, project_root
-from omcrl.eval.ledger import LEDGER
 from omcrl.eval.table1 import Table1Result, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, verdict_counts
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
@@ -39,6 +38,8 @@ V2_END = "<!-- results-v2: end -->"
 FULL_START = "<!-- results-v2-full: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 FULL_END = "<!-- results-v2-full: end -->"
 V2_FIGURE = "docs/figures/quick/v2/fig5_training_curves.png"
+# A claim's verdict over its hypotheses (omcrl.eval.verdicts.verdict_counts), in the README's order.
+CLAIM_VERDICTS = ("holds", "reversed", "mixed", "undecided", "one seed", "not run")
 # The commit that fixed the claim ledger before any v2 Table I evaluation (omcrl.eval.ledger; docs/results.md).
 LEDGER_COMMIT = "2cdf7b5"
 # What the v1 suite's table measures (docs/generalization.md, "The scene suite, versioned").
@@ -183,18 +184,15 @@ def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
             f"family: {tally}. A row of one training seed is shown, not judged.",
             "",
         ]
-        quotes = {cl.id: cl for cl in LEDGER}
-        for r in c.itertuples():
-            cl = quotes[r.claim]
-            parts = {
-                "holds": r.holds,
-                "reversed": r.reversed,
-                "undecided": r.undecided,
-                "one seed": r[8],
-                "not run": r[7],
-            }
-            of = ", ".join(f"{k} {x}" for k, x in parts.items() if x)
-            lines.append(f"- **{r.claim}** ({cl.source}; {cl.metric}) “{cl.quote}”: **{r.verdict}** ({of})")
+        by = {v: list(g["claim"]) for v, g in c.groupby("verdict", sort=False)}
+        lines += [
+            "| claims' verdict | claims |",
+            "|---|---|",
+            *(f"| {v} | {', '.join(by[v])} |" for v in CLAIM_VERDICTS if v in by),
+            "",
+            "Each claim's words, its hypotheses and their estimates: [docs/results.md](docs/results.md#claim-ledger-"
+            "declared-before-the-v2-grid).",
+        ]
     if "fig5" in result.paths:
         lines += ["", f"![Fig. 5 on v2: training curves in box-v2, every recorded seed]({V2_FIGURE})"]
     return "\n".join(_wrap(x) for x in lines)
