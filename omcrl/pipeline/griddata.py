@@ -37,7 +37,7 @@ from omcrl.eval.table1 import Table1Result, write_table1
 from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
 from omcrl.pipeline.reference import config_suite
-from omcrl.runs import CorruptFile, read_identity, verify_artifact
+from omcrl.runs import CorruptFile, Run, read_identity, verify_artifact
 from omcrl.utils.io import atomic_write_bytes
 from omcrl.viz import save_figure
 from omcrl.viz.compare import curve_window, plot_learning_curves
@@ -139,23 +139,23 @@ class GridData:
         """True when ``final.pt`` of ``label``'s ``stage`` run at ``seed`` is kept."""
         return (self.folder(label, seed) / stage / WEIGHTS).is_file()
 
-    def restore_run(self, label: str, seed: int, stage: str, run_dir: str | Path) -> bool:
-        """Lay a kept run (record and weights) out as the finished run folder ``run_dir``, so that training it is a
-        skip. Nothing is written when ``run_dir`` already holds a ``final.pt`` or no weights are kept (False).
+    def restore_run(self, label: str, stage: str, run: Run) -> bool:
+        """Lay ``label``'s kept ``stage`` run (record and weights) out as the finished folder of ``run``, so that
+        training it is a skip. Nothing is written when ``run`` already holds a ``final.pt`` or no weights are kept
+        (False).
 
         Raises :class:`omcrl.runs.CorruptFile` when the kept weights do not match the kept ``run.json``'s digest, or
-        when that record is of another run than ``run_dir`` names (its key), before anything is written.
+        when that record is of another run (its key and seed), before anything is written.
         """
-        src, dest = self.folder(label, seed) / stage, Path(run_dir)
+        src, dest = self.folder(label, run.seed) / stage, run.dir
         if not (src / WEIGHTS).is_file() or (dest / WEIGHTS).exists():
             return False
         verify_artifact(src / WEIGHTS, "kept teacher weights", f"delete {src} to train that run again")
         rec = read_identity(src) or {}
-        want = dest.parent.name.rpartition("-")[2]
-        if rec.get("key") != want or f"seed{rec.get('seed')}" != dest.name:
+        if rec.get("key") != run.key or rec.get("seed") != run.seed:
             raise CorruptFile(
-                f"{src / 'run.json'}: records run key {rec.get('key')!r} seed {rec.get('seed')!r}, expected {want!r} "
-                f"seed {dest.name.removeprefix('seed')!r} ({dest}); delete {src} to train that run again"
+                f"{src / 'run.json'}: records run key {rec.get('key')!r} seed {rec.get('seed')!r}, expected "
+                f"{run.key!r} seed {run.seed!r} ({dest}); delete {src} to train that run again"
             )
         dest.mkdir(parents=True, exist_ok=True)
         for p in sorted(src.iterdir()):

@@ -146,11 +146,16 @@ def run_job(preset_cfg: dict, job: Job, log_path: str, share: dict | None = None
     return {"status": status, "seconds": time.perf_counter() - t0, "rows": rows, "outputs": [str(p) for p in outputs]}
 
 
-def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path]]:
-    """The stage of one job in this process: ``(status, evaluation rows, output paths)``."""
+def _job_configs(preset_cfg: dict, job: Job) -> tuple[Config, Config | None]:
+    """The config a job runs with, and its oracle's (None: the job's own)."""
     base = load_config(preset_cfg["preset"], overrides=preset_cfg["overrides"])
     cfg = job_config(base, job.overrides, job.seed)
-    oracle_cfg = None if job.oracle_overrides is None else job_config(base, job.oracle_overrides, job.seed)
+    return cfg, None if job.oracle_overrides is None else job_config(base, job.oracle_overrides, job.seed)
+
+
+def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path]]:
+    """The stage of one job in this process: ``(status, evaluation rows, output paths)``."""
+    cfg, oracle_cfg = _job_configs(preset_cfg, job)
     if cfg.eval.workers == 0 and job.kind == "evaluate":
         cfg.eval.workers = job_cpus(cfg, job)
     rows: list[dict] = []
@@ -266,7 +271,7 @@ def run_sweep(
                 for label, stage in targets.get(job.id, ()):
                     record.save_run(label, job.seed, stage, out["outputs"][0])
                 if job.id in teachers:
-                    record.save_weights(*teachers[job.id], job.seed, "rl", out["outputs"][0])
+                    record.save_weights(teachers[job.id], job.seed, "rl", out["outputs"][0])
                 if job.kind == "evaluate":
                     record.save_episodes(job.label, job.seed, pd.DataFrame(out["rows"]))
             # After every job, not at the end: a killed driver loses no measured time.
@@ -286,7 +291,7 @@ def run_sweep(
     if record is not None:
         for job in todo:
             if job.id in teachers and (run := _train_run(base, job)) is not None:
-                if record.restore_run(*teachers[job.id], job.seed, "rl", run.dir):
+                if record.restore_run(teachers[job.id], "rl", run):
                     print(f"[sweep] {job.method} seed {job.seed}: kept weights restored into {run.dir}", flush=True)
     if backend == "local":
         for job in todo:
@@ -342,23 +347,17 @@ def only_variants(jobs: list[Job], variants: Sequence[str] | None, grid: str) ->
     return [j for j in jobs if j.id in keep]
 
 
-def _teachers(jobs: Sequence[Job], targets: dict[str, list[tuple[str, str]]]) -> dict[str, tuple[str]]:
-    """``{job id: (variant label,)}`` of the training jobs another training job needs (teachers: the oracle), with
+def _teachers(jobs: Sequence[Job], targets: dict[str, list[tuple[str, str]]]) -> dict[str, str]:
+    """``{job id: variant label}`` of the training jobs another training job needs (teachers: the oracle), with
     the variant whose folder keeps their weights (the first that records the run)."""
     by_id = {j.id: j for j in jobs}
     need = {d for j in jobs if j.kind == "train" for d in j.deps if by_id[d].kind == "train"}
-    return {jid: (targets[jid][0][0],) for jid in sorted(need) if targets.get(jid)}
-
-
-def _seed(jobs: Sequence[Job], job_id: str) -> int:
-    return next(j.seed for j in jobs if j.id == job_id)
+    return {jid: targets[jid][0][0] for jid in sorted(need) if targets.get(jid)}
 
 
 def _train_run(preset_cfg: dict, job: Job) -> Any:
     """The :class:`omcrl.runs.Run` a training job trains into, or None while its own prerequisites are missing."""
-    base = load_config(preset_cfg["preset"], overrides=preset_cfg["overrides"])
-    cfg = job_config(base, job.overrides, job.seed)
-    oracle_cfg = None if job.oracle_overrides is None else job_config(base, job.oracle_overrides, job.seed)
+    cfg, oracle_cfg = _job_configs(preset_cfg, job)
     spec = get_method(job.method)
     return spec.recipe.run(cfg, spec, oracle_cfg)
 
@@ -687,7 +686,8 @@ def sweep_stage(
             for g in grids:
                 jobs, record = expand(cfg, g, seeds), GridData(grid_data_dir(cfg, g))
                 teachers = _teachers(jobs, _record_targets(jobs))
-                kept = {j for j, (label,) in teachers.items() if record.has_weights(label, _seed(jobs, j), "rl")}
+                seed = {j.id: j.seed for j in jobs}
+                kept = {j for j, label in teachers.items() if record.has_weights(label, seed[j], "rl")}
                 recorded |= _recorded(jobs, record) | kept
         return describe_plan(cfg, grids, seeds, r, recorded=recorded, only=only)
     out = run_ablations(cfg, grids, seeds, progress=progress, **kw)
