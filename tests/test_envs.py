@@ -275,7 +275,7 @@ def test_single_point_nearest_equals_batched_closest(scene):
     """The env's per-step ``nearest`` gives the same surface point and distance as ``closest``."""
     env = make_env(scene, seed=2, image_size=16)
     env.reset(seed=2)
-    geo = env._geometry
+    geo = env.geometry
     rng = np.random.default_rng(0)
     pts = np.concatenate([rng.uniform(-9, 9, (300, 3)) * [1, 1, 0.3] + [0, 0, 1], [[0, 0, env.cfg.altitude]]])
     cp, cd = geo.closest(pts)
@@ -325,8 +325,8 @@ def test_prefetched_reset_equals_plain_reset(layout_every):
     a.reset(seed=4)
     b.reset(seed=4)
     plans = []
-    plan = a._plan
-    a._plan = lambda **kw: plans.append(1) or plan(**kw)
+    plan = a.episodes.plan
+    a.episodes.plan = lambda *args, **kw: plans.append(1) or plan(*args, **kw)
     for ep in range(6):
         assert a.prefetch() and not a.prefetch()  # one plan at a time
         _run(a, [0.3, 0, 0], 5)

@@ -1,7 +1,9 @@
-"""Episode planning in ``NavEnv``: the layout, its collision and occupancy maps, a reachable start and goal.
+"""Episode planning for ``NavEnv``: the layout, its collision and occupancy maps, a reachable start and goal.
 
-Pure computation drawn from the env's random generator (PyBullet is untouched), so the vector env can plan an
-env's next reset ahead while it waits for another (:meth:`EpisodePlanner.prefetch`).
+An :class:`EpisodePlanner` is an object the env holds (``env.episodes``). It owns what a reset decides before
+touching PyBullet: the current layout's plan, the episode count and a plan made ahead of time. It is pure
+computation drawn from the random generator the env hands it (PyBullet is untouched), so the vector env can plan
+an env's next reset ahead while it waits for another (:meth:`EpisodePlanner.prefetch`).
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from omcrl.config import EnvConfig
 from omcrl.envs.dynamics import _wrap
 from omcrl.envs.grid import OccupancyGrid, build_grid, components, shortest_path
 from omcrl.scenes import generate_scene, scene_spec
@@ -19,46 +22,90 @@ from omcrl.scenes.geometry import Geometry, Primitive
 
 
 @dataclass
-class _Plan:
-    """Everything a reset decides before touching PyBullet (see ``NavEnv._plan``)."""
+class Plan:
+    """Everything a reset decides before touching PyBullet (:meth:`EpisodePlanner.plan`).
 
-    episodes: int  # the env's episode count the plan was made at
-    rng_before: dict | None  # generator state before/after planning (set by prefetch)
+    Attributes
+    ----------
+    episodes : the planner's episode count the plan was made at.
+    rng_before, rng_after : the generator's state before and after planning (set by :meth:`EpisodePlanner.prefetch`).
+    layout_seed : the seed the layout was generated from.
+    key : identifies the layout (scene, seed) or the user's layout.
+    prims : the layout's obstacles.
+    geometry : their collision geometry.
+    grid : the occupancy grid at flight altitude.
+    placed : start (3,) (x, y m, yaw rad), goal (2,) m, shortest path (K, 2) m, its length m.
+    """
+
+    episodes: int
+    rng_before: dict | None
     rng_after: dict | None
     layout_seed: int
-    key: Any  # identifies the layout (scene, seed) or the user layout
+    key: Any
     prims: list[Primitive]
     geometry: Geometry
     grid: OccupancyGrid
-    placed: tuple  # start (3,), goal (2,), path (K, 2), optimal length
+    placed: tuple
 
     def valid(self, episodes: int, rng: np.random.Generator) -> bool:
         return episodes == self.episodes and rng.bit_generator.state == self.rng_before
 
 
 class EpisodePlanner:
-    """Layout, maps, start/goal and path of each episode of a :class:`omcrl.envs.nav_env.NavEnv` (a mixin)."""
+    """Layout, maps, start/goal and path of each episode of a :class:`omcrl.envs.nav_env.NavEnv`.
 
-    def _maps(self, prims: list[Primitive]) -> tuple[Geometry, OccupancyGrid]:
+    Parameters
+    ----------
+    cfg : the env's configuration (arena, altitude, grid resolution, goal distance, ``layout_every``, ...).
+    scene : the scene id whose layouts are generated.
+    layout : a user's fixed layout (obstacle primitives) instead of generated ones, or None.
+
+    Attributes
+    ----------
+    current : the plan of the running episode (its layout is the one built in PyBullet); None before the first.
+    episodes : how many episodes have begun.
+    """
+
+    def __init__(self, cfg: EnvConfig, scene: str, layout: list[Primitive] | None = None) -> None:
+        self.cfg, self.scene, self.layout = cfg, scene, layout
+        self.current: Plan | None = None
+        self.episodes = 0
+        self._ahead: Plan | None = None
+
+    def begin(self, rng: np.random.Generator, reseed: bool, options: dict) -> tuple[Plan, bool]:
+        """The next episode's plan, now the current one; and whether its layout differs from the last one's (the
+        env then builds its bodies). A plan made ahead (:meth:`prefetch`) is adopted when this is the automatic
+        reset it was made for, with ``rng`` moved on as if it had been planned just now."""
+        plan, self._ahead = self._ahead, None
+        if plan is not None and not reseed and not options and plan.valid(self.episodes, rng):
+            rng.bit_generator.state = plan.rng_after
+        else:
+            plan = self.plan(rng, reseed=reseed, options=options)
+        new_layout = self.current is None or plan.key != self.current.key
+        self.current = plan
+        self.episodes += 1
+        return plan, new_layout
+
+    def maps(self, prims: list[Primitive]) -> tuple[Geometry, OccupancyGrid]:
         """Collision geometry and occupancy grid of a layout (pure computation: no PyBullet)."""
         c = self.cfg
         geo = Geometry.from_primitives(prims)
         return geo, build_grid(geo, c.arena_half, c.altitude, c.grid_resolution, c.drone_radius)
 
-    def _plan(self, reseed: bool, options: dict) -> _Plan:
-        """Layout, maps, start/goal and path of the next episode, drawn from ``self.np_random``.
+    def plan(self, rng: np.random.Generator, reseed: bool, options: dict) -> Plan:
+        """Layout, maps, start/goal and path of the next episode, drawn from ``rng``.
 
         Pure computation (PyBullet is untouched), so it can run ahead of the reset (:meth:`prefetch`).
         ``reseed``: reset() got a seed, so the layout always follows from it.
         """
         c = self.cfg
-        rng = self.np_random
-        layout_seed, key = self._layout_seed, self._built_key
-        prims, geometry, grid = self._prims, self._geometry, self.grid
+        cur = self.current
+        layout_seed, key = (-1, None) if cur is None else (cur.layout_seed, cur.key)
+        prims, geometry, grid = (None, None, None) if cur is None else (cur.prims, cur.geometry, cur.grid)
         for attempt in range(50):
             # A new layout every `layout_every` episodes (and after a layout with no valid start/goal pair);
             # with a seed given to reset() the layout always follows from that seed.
-            if reseed or attempt > 0 or self._episodes % c.layout_every == 0 or layout_seed < 0:
+            if reseed or attempt > 0 or self.episodes % c.layout_every == 0 or layout_seed < 0:
                 layout_seed = int(rng.integers(2**31 - 1))
             new_key = ("layout", id(self.layout)) if self.layout is not None else (self.scene, layout_seed)
             if new_key != key:
@@ -67,11 +114,11 @@ class EpisodePlanner:
                     if self.layout is not None
                     else generate_scene(self.scene, layout_seed, c.arena_half, c.n_obstacles)
                 )
-                geometry, grid = self._maps(prims)
+                geometry, grid = self.maps(prims)
                 key = new_key
-            placed = self._place(options, grid, geometry)
+            placed = self._place(rng, options, grid, geometry)
             if placed is not None:
-                return _Plan(self._episodes, None, None, layout_seed, key, prims, geometry, grid, placed)
+                return Plan(self.episodes, None, None, layout_seed, key, prims, geometry, grid, placed)
             if self.layout is not None:
                 raise ValueError(
                     "could not find a reachable start/goal pair in the given layout within the "
@@ -82,38 +129,34 @@ class EpisodePlanner:
     @property
     def prefetched(self) -> bool:
         """True when the next automatic reset has been planned ahead by :meth:`prefetch`."""
-        return self._prefetched is not None
+        return self._ahead is not None
 
-    def prefetch(self) -> bool:
+    def prefetch(self, rng: np.random.Generator) -> bool:
         """Plan the next automatic reset (``reset()`` without seed or options) now, while there is time.
 
-        The plan is exactly what that reset would compute: it is drawn from a snapshot of the env's random
-        generator, which is then put back, and the reset only adopts it when the generator and the episode
-        count are still where the plan started (anything else, e.g. a reset with a seed, discards it). The
-        vector env calls this while a process waits for another env's reset, which hides the planning
-        (~70% of a box-scene reset) behind that wait.
+        The plan is exactly what that reset would compute: it is drawn from a snapshot of ``rng`` (the env's
+        generator), which is then put back, and :meth:`begin` only adopts it when the generator and the episode
+        count are still where the plan started (anything else, e.g. a reset with a seed, discards it).
 
         Returns
         -------
-        bool : True when a plan was made (False before the first reset or when one is pending).
+        bool : True when a plan was made (False before the first episode or when one is pending).
         """
-        if not self._has_episode or self._prefetched is not None:
+        if self.current is None or self._ahead is not None:
             return False
-        rng = self.np_random
         before = rng.bit_generator.state
-        plan = self._plan(reseed=False, options={})
+        plan = self.plan(rng, reseed=False, options={})
         plan.rng_before, plan.rng_after = before, rng.bit_generator.state
         rng.bit_generator.state = before
-        self._prefetched = plan
+        self._ahead = plan
         return True
 
-    def _place(self, options: dict, grid: OccupancyGrid, geometry: Geometry) -> tuple | None:
+    def _place(self, rng: np.random.Generator, options: dict, grid: OccupancyGrid, geometry: Geometry) -> tuple | None:
         """Start (x, y, yaw) and goal (x, y) from ``options`` or sampled free, reachable, at a distance in
         ``goal_distance`` on the layout of ``grid``/``geometry``; also the any-angle shortest path. None when
         this layout has no valid pair."""
         c = self.cfg
         clearance = c.drone_radius + 0.25
-        rng = self.np_random
         if "start" in options:
             start = self._check_point("start", options["start"], True, geometry)
         else:

@@ -21,12 +21,13 @@ Reward (see docs/ARCHITECTURE.md and docs/DEVIATIONS.md): ``-1/H_max`` per step,
 d_t)``, plus ``goal_reward`` on success or ``collision_penalty`` on a collision or leaving the arena.
 
 Structure: :class:`NavEnv` is the Gymnasium API over three parts, each in its own module — episode planning
-(:mod:`omcrl.envs.episodes`: layout, maps, start/goal), the scene's bodies and looks (:mod:`omcrl.envs.appearance`,
-with :class:`Disturbance`) and the flight dynamics (:mod:`omcrl.envs.dynamics`: the drone's state is one record,
-``env.drone``, a :class:`~omcrl.envs.dynamics.DroneState`, and a control step the pure function
-:func:`~omcrl.envs.dynamics.fly` of it under ``env.flight``, the :class:`~omcrl.envs.dynamics.FlightModel`). The task
-is in four methods a
-subclass may override, as gym-pybullet-drones' envs do: ``_reward``, ``_terminated``, ``_truncated``, ``_metrics``.
+(:mod:`omcrl.envs.episodes`: layout, maps, start/goal; an :class:`~omcrl.envs.episodes.EpisodePlanner` the env
+holds as ``env.episodes``, whose current plan is the layout the env has built), the scene's bodies and looks
+(:mod:`omcrl.envs.appearance`, with :class:`Disturbance`) and the flight dynamics (:mod:`omcrl.envs.dynamics`: the
+drone's state is one record, ``env.drone``, a :class:`~omcrl.envs.dynamics.DroneState`, and a control step the pure
+function :func:`~omcrl.envs.dynamics.fly` of it under ``env.flight``, the :class:`~omcrl.envs.dynamics.FlightModel`).
+The task is in four methods a subclass may override, as gym-pybullet-drones' envs do: ``_reward``, ``_terminated``,
+``_truncated``, ``_metrics``.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ from omcrl.envs.appearance import (
     appearance_materials,
 )
 from omcrl.envs.dynamics import GRAVITY, DroneState, FlightModel, fly
-from omcrl.envs.episodes import EpisodePlanner, _Plan
+from omcrl.envs.episodes import EpisodePlanner
 from omcrl.envs.grid import OccupancyGrid
 from omcrl.envs.observation import PRIVILEGED_DIM, STATE_DIM, pack_privileged, pack_state
 from omcrl.envs.render import load_egl, pybullet_renderer, resolve_renderer
@@ -59,6 +60,8 @@ from omcrl.scenes.geometry import Geometry, Primitive
 from omcrl.utils.quiet import import_quietly
 
 pb = import_quietly("pybullet")  # without the build-time line PyBullet prints on stderr
+
+_NO_GEOMETRY = Geometry()  # before the first reset: no obstacles
 
 # Re-exported: the env's public names live here as before the split into appearance, episodes and dynamics.
 __all__ = [
@@ -73,7 +76,7 @@ __all__ = [
 ]
 
 
-class NavEnv(EpisodePlanner, SceneLook, gym.Env):
+class NavEnv(SceneLook, gym.Env):
     """Goal-reaching drone navigation from a monocular camera; see the module docstring for the contract."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -136,22 +139,15 @@ class NavEnv(EpisodePlanner, SceneLook, gym.Env):
             load_egl(self._client)
         self._pb_renderer = pybullet_renderer(self.renderer)
         self._proj = pb.computeProjectionMatrixFOV(cfg.fov_deg, 1.0, cfg.near, cfg.far)
-        self._built_key: Any = None
+        # What each reset decides before touching PyBullet (layout, maps, start/goal): an object the env holds.
+        self.episodes = EpisodePlanner(cfg, self.scene, self.layout)
         self._decor_built = False
         self._tex_ids: dict[str, int] = {}
         self._pool: dict[tuple, list[int]] = {}
-        self._geometry = Geometry()
-        self._prims: list[Primitive] = []
-        self.grid: OccupancyGrid | None = None
-        self.path = np.zeros((0, 2))
         self.light_switch_step: int | None = None
         self._rgb = np.zeros((L, 3, S, S), np.uint8)
         self._depth = np.zeros((L, S, S), np.float32)
         self._episode_seed = -1
-        self._layout_seed = -1
-        self._episodes = 0
-        self._has_episode = False
-        self._prefetched: _Plan | None = None
 
     # ------------------------------------------------------------------ world
 
@@ -159,28 +155,19 @@ class NavEnv(EpisodePlanner, SceneLook, gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         if self._client < 0:
             raise RuntimeError("NavEnv.reset called on a closed env")
-        if seed is None and not self._has_episode and self._init_seed is not None:
+        if seed is None and self.episodes.current is None and self._init_seed is not None:
             seed = self._init_seed
         super().reset(seed=seed)
         options = dict(options or {})
         unknown = set(options) - {"start", "goal"}
         if unknown:
             raise ValueError(f"reset options: unknown keys {sorted(unknown)}; expected 'start' and/or 'goal'")
-        rng = self.np_random
-        plan = self._prefetched
-        self._prefetched = None
-        if plan is not None and seed is None and not options and plan.valid(self._episodes, rng):
-            rng.bit_generator.state = plan.rng_after  # as if planned just now
-        else:
-            plan = self._plan(reseed=seed is not None, options=options)
-        if plan.key != self._built_key:
+        plan, new_layout = self.episodes.begin(self.np_random, reseed=seed is not None, options=options)
+        if new_layout:
             self._build_bodies(plan.prims)
-            self._geometry, self.grid, self._prims = plan.geometry, plan.grid, plan.prims
-            self._built_key = plan.key
-        self._layout_seed = layout_seed = plan.layout_seed
-        placed = plan.placed
+        layout_seed = plan.layout_seed
         c = self.cfg
-        start, goal, self.path, self._opt_len = placed
+        start, goal, _, _ = plan.placed
         self._episode_seed = layout_seed if self.layout is None else -1
         self.drone = DroneState(np.array([start[0], start[1], c.altitude]), float(start[2]))
         self._goal = np.array([goal[0], goal[1], c.altitude])
@@ -188,18 +175,16 @@ class NavEnv(EpisodePlanner, SceneLook, gym.Env):
         self.light_switch_step = self._draw_switch(layout_seed)
         self._d_init = self._d_prev = float(np.linalg.norm(self._goal[:2] - self.drone.pos[:2]))
         self._min_d = self._d_init
-        self._has_episode = True
-        self._episodes += 1
         frame_rgb, frame_depth = self._render_frame()
         self._rgb[:] = frame_rgb
         self._depth[:] = frame_depth
-        obs = self._obs(self._geometry.nearest(self.drone.pos)[0])
+        obs = self._obs(plan.geometry.nearest(self.drone.pos)[0])
         # The path is a list, not an array: its length varies, and vector envs can only stack fixed shapes.
         info = {
             "pose": self.pose,
             "goal": self._goal[:2].copy(),
-            "path": self.path.tolist(),
-            "optimal_path_length": self._opt_len,
+            "path": plan.placed[2].tolist(),
+            "optimal_path_length": plan.placed[3],
             "layout_seed": self._episode_seed,
         }
         return obs, info
@@ -207,7 +192,8 @@ class NavEnv(EpisodePlanner, SceneLook, gym.Env):
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
         if self._client < 0:
             raise RuntimeError("NavEnv.step called on a closed env")
-        if not self._has_episode:
+        plan = self.episodes.current
+        if plan is None:
             raise RuntimeError("NavEnv.step called before reset()")
         if np.shape(action) != (3,):  # (1, 3) or (3, 1) would hide a batching mistake
             raise ValueError(f"action: expected shape (3,), got {np.shape(action)}")
@@ -217,7 +203,7 @@ class NavEnv(EpisodePlanner, SceneLook, gym.Env):
         ax, ay, az = a.tolist()
         if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
             raise ValueError(f"action contains NaN or inf: {[ax, ay, az]}")
-        self.drone, closest, collided, out = fly(self.drone, (ax, ay, az), self.flight, self._geometry)
+        self.drone, closest, collided, out = fly(self.drone, (ax, ay, az), self.flight, plan.geometry)
         self._steps += 1
         pos = self.drone.pos
         d = math.hypot(self._goal[0] - pos[0], self._goal[1] - pos[1])
@@ -272,7 +258,7 @@ class NavEnv(EpisodePlanner, SceneLook, gym.Env):
             "collision": bool(collided),
             "out_of_arena": bool(out),
             "path_length": self.drone.path_len,
-            "optimal_path_length": self._opt_len,
+            "optimal_path_length": self.episodes.current.placed[3],
             "steps": self._steps,
             "scene": self.scene,
             "seed": self._episode_seed,
@@ -289,7 +275,7 @@ class NavEnv(EpisodePlanner, SceneLook, gym.Env):
         c, s = math.cos(drone.yaw), math.sin(drone.yaw)
         gx, gy = self._goal[0] - drone.pos[0], self._goal[1] - drone.pos[1]
         goal_b = (c * gx + s * gy, -s * gx + c * gy, 0.0)  # goal and drone share the flight altitude
-        if self._geometry.n:
+        if self.geometry.n:
             ox, oy, oz = (closest - drone.pos).tolist()
             obst_b = (c * ox + s * oy, -s * ox + c * oy, oz)
         else:  # nothing in range: report an obstacle at the far plane straight ahead
@@ -380,10 +366,41 @@ class NavEnv(EpisodePlanner, SceneLook, gym.Env):
             return None
         return self._rgb[-1].transpose(1, 2, 0).copy()
 
+    # The current layout, as the episode planner decided it (empty before the first reset).
     @property
     def primitives(self) -> list[Primitive]:
         """Obstacles of the current layout (collision geometry), for maps and plots."""
-        return list(self._prims)
+        plan = self.episodes.current
+        return [] if plan is None else list(plan.prims)
+
+    @property
+    def geometry(self) -> Geometry:
+        """Collision geometry of the current layout (collisions and the nearest obstacle come from it)."""
+        plan = self.episodes.current
+        return _NO_GEOMETRY if plan is None else plan.geometry
+
+    @property
+    def grid(self) -> OccupancyGrid | None:
+        """Occupancy grid of the current layout at flight altitude; None before the first reset."""
+        plan = self.episodes.current
+        return None if plan is None else plan.grid
+
+    @property
+    def path(self) -> np.ndarray:
+        """(K, 2) m: the any-angle shortest path from this episode's start to its goal (for SPL)."""
+        plan = self.episodes.current
+        return np.zeros((0, 2)) if plan is None else plan.placed[2]
+
+    def prefetch(self) -> bool:
+        """Plan the next automatic reset now, while there is time (:meth:`EpisodePlanner.prefetch`). The vector env
+        calls this while a process waits for another env's reset, which hides the planning (~70% of a box-scene
+        reset) behind that wait; results are unchanged. True when a plan was made."""
+        return self.episodes.prefetch(self.np_random)
+
+    @property
+    def prefetched(self) -> bool:
+        """True when the next automatic reset has been planned ahead (:meth:`prefetch`)."""
+        return self.episodes.prefetched
 
     def close(self) -> None:
         if getattr(self, "_client", None) is not None and self._client >= 0:
