@@ -51,7 +51,7 @@ def test_every_planner_method_is_flown_by_its_recipe_and_cached_by_its_name():
         agent = spec.recipe.make_agent(cfg, spec)
         assert type(agent) is kinds[name] and spec.recipe.run(cfg, spec) is None
         with pytest.raises(Exception, match="is a planner: it is not trained"):
-            spec.recipe.train(cfg, spec)
+            spec.recipe.train(cfg, spec, [])
     assert type(make_planner("local-apf")) is LocalAPF and type(make_planner("HybridAPF")) is HybridAPF
     # One table of planners: every planner method and every planner guide of a student is in it.
     assert set(PLANNERS) >= set(planners) and {p for p, _ in GUIDES.values()} <= set(PLANNERS)

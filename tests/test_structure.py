@@ -165,7 +165,7 @@ def test_a_new_method_kind_is_one_recipe_class_and_one_registry_row(tmp_path, mo
         def run(self, cfg, spec, oracle_cfg=None):
             return policy_run(cfg, spec.name, self.encoder(cfg))
 
-        def fit(self, cfg, spec, needs, common):
+        def train(self, cfg, spec, needs, **common):
             return train_student(cfg, self.encoder(cfg), None, **common)
 
     monkeypatch.setattr(M, "RECIPES", dict(M.RECIPES))  # the registries as they were after the test

@@ -46,7 +46,8 @@ def train_method(
     if not spec.learned:
         raise ConfigError(f"method {method!r} is a planner: it is not trained (evaluate it directly)")
     # Every missing prerequisite at once, with its command (not one now and the next after 30 minutes).
-    missing = [n for n in spec.recipe.needs(cfg, spec, oracle_cfg) if not n.path.exists()]
+    needs = spec.recipe.needs(cfg, spec, oracle_cfg)
+    missing = [n for n in needs if not n.path.exists()]
     if missing:
         raise CheckpointError(
             "; ".join(f"{n.what} {n.path} does not exist" for n in missing)
@@ -54,5 +55,12 @@ def train_method(
             + " && ".join(n.command for n in missing)
         )
     return spec.recipe.train(
-        cfg, spec, oracle_cfg=oracle_cfg, make_env=make_env, overwrite=overwrite, progress=progress, callbacks=callbacks
+        cfg,
+        spec,
+        needs,
+        name=spec.name,
+        make_env=make_env,
+        overwrite=overwrite,
+        progress=progress,
+        callbacks=tuple(callbacks),
     )

@@ -25,7 +25,7 @@ with the same env-step budget, PPO settings and seed for every method.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -33,7 +33,7 @@ from typing import Any, ClassVar
 from omcrl import planners, pretrain
 from omcrl.config import Config, ConfigError
 from omcrl.rl.policy import load_policy
-from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, train_pixel, train_student
+from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, train_visuomotor
 from omcrl.runs import Run
 
 
@@ -242,26 +242,10 @@ class Recipe:
         oracle = self._path(needs, "oracle")
         return policy_run(cfg, spec.name, enc, oracle, planner_factory(cfg, spec.guide))
 
-    def train(
-        self,
-        cfg: Config,
-        spec: MethodSpec,
-        *,
-        oracle_cfg: Config | None = None,
-        make_env: Callable[[int], Any] | None = None,
-        overwrite: bool = False,
-        progress: bool = True,
-        callbacks: Sequence[Any] = (),
-    ) -> Result:
-        """Train (skip if finished, resume if interrupted); the prerequisites exist (checked by the caller).
-        ``callbacks``: :class:`omcrl.runs.Callback` s of the training lifecycle."""
-        common = {"name": spec.name, "make_env": make_env, "overwrite": overwrite, "progress": progress,
-                  "callbacks": tuple(callbacks)}  # fmt: skip
-        return self.fit(cfg, spec, self.needs(cfg, spec, oracle_cfg), common)
-
-    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
-        """The kind's trainer on its prerequisites; ``common``: ``name``, ``make_env``, ``overwrite``, ``progress``,
-        ``callbacks``."""
+    def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:
+        """Train this kind on its prerequisites ``needs`` (:meth:`needs`, present: the caller,
+        :func:`omcrl.pipeline.train_method`, checked them); skip if finished, resume if interrupted. ``common``: the
+        trainer's keywords ``name``, ``make_env``, ``overwrite``, ``progress``, ``callbacks``."""
         raise NotImplementedError(f"{type(self).__name__} trains nothing")
 
     def make_agent(self, cfg: Config, spec: MethodSpec, path: Path | None = None) -> Any:
@@ -286,7 +270,7 @@ class OracleRecipe(Recipe):
     def run(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> Run | None:
         return oracle_run(cfg)
 
-    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
+    def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:
         return train_oracle(cfg, **common)
 
     def make_agent(self, cfg: Config, spec: MethodSpec, path: Path | None = None) -> Any:
@@ -300,9 +284,9 @@ class FrozenRecipe(Recipe):
     pretrained = True
     camera = True
 
-    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
+    def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:
         enc, oracle = self._path(needs, "encoder"), self._path(needs, "oracle")
-        return train_student(cfg, enc, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
+        return train_visuomotor(cfg, enc, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
 
 
 class PixelRecipe(Recipe):
@@ -311,9 +295,9 @@ class PixelRecipe(Recipe):
     kind = "pixel"
     camera = True
 
-    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
+    def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:
         oracle = self._path(needs, "oracle")
-        return train_pixel(cfg, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
+        return train_visuomotor(cfg, None, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
 
     def job_identity(self, cfg: Config) -> dict:
         return {"pixel": {"crop": cfg.pretrain.crop_to, "feature_dim": cfg.pretrain.feature_dim}}
@@ -331,7 +315,7 @@ class PlannerRecipe(Recipe):
     def run(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> Run | None:
         return None
 
-    def fit(self, cfg: Config, spec: MethodSpec, needs: list[Need], common: dict) -> Result:
+    def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:
         raise ConfigError(f"method {spec.name!r} is a planner: it is not trained (evaluate it directly)")
 
     def make_agent(self, cfg: Config, spec: MethodSpec, path: Path | None = None) -> Any:

@@ -81,6 +81,7 @@ __all__ = [
     "train_pixel",
     "train_ppo",
     "train_student",
+    "train_visuomotor",
 ]
 
 METRIC_NAMES = (
@@ -502,8 +503,16 @@ def train_student(
     """
     if not Path(encoder_path).exists():
         raise CheckpointError(f"encoder checkpoint {encoder_path} does not exist (run the pretraining stage first)")
-    return _train_visuomotor(
-        cfg, encoder_path, oracle_path, name, planner_factory, make_env, overwrite, progress, callbacks
+    return train_visuomotor(
+        cfg,
+        encoder_path,
+        oracle_path,
+        name=name,
+        planner_factory=planner_factory,
+        make_env=make_env,
+        overwrite=overwrite,
+        progress=progress,
+        callbacks=callbacks,
     )
 
 
@@ -524,22 +533,35 @@ def train_pixel(
     f sees the centre ``pretrain.crop_to`` px of the env's frames (what the frozen encoders see) and has
     ``pretrain.feature_dim`` outputs, so both fields are part of the run's identity.
     """
-    return _train_visuomotor(cfg, None, oracle_path, name, planner_factory, make_env, overwrite, progress, callbacks)
+    return train_visuomotor(
+        cfg,
+        None,
+        oracle_path,
+        name=name,
+        planner_factory=planner_factory,
+        make_env=make_env,
+        overwrite=overwrite,
+        progress=progress,
+        callbacks=callbacks,
+    )
 
 
-def _train_visuomotor(
+def train_visuomotor(
     cfg: Config,
     encoder_path: str | Path | None,
-    oracle_path: str | Path | None,
+    oracle_path: str | Path | None = None,
+    *,
     name: str,
-    planner_factory: Callable[[], Any] | None,
-    make_env: Callable[[int], Any] | None,
-    overwrite: bool,
-    progress: bool,
+    planner_factory: Callable[[], Any] | None = None,
+    make_env: Callable[[int], Any] | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
     callbacks: Sequence[Callback] = (),
 ) -> Result:
-    """The one trainer behind :func:`train_student` (frozen encoder) and :func:`train_pixel` (``encoder_path``
-    None: end to end)."""
+    """The one trainer of every visuomotor policy: on the frozen encoder at ``encoder_path`` (``ours``, ``curl``,
+    ...: :func:`train_student`), or on a pixel encoder trained end to end when it is None (``ppo``, ``npe``, ...:
+    :func:`train_pixel`); guided by the oracle at ``oracle_path``, else by ``planner_factory``'s planner, else by
+    nothing. The method recipes call it directly (:mod:`omcrl.rl.methods`)."""
     if encoder_path is not None:
         build = lambda space: make_student_features(encoder_path, space)  # noqa: E731
     else:

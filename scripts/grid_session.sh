@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# Run what is left of a grid over seeds, one variant at a time, and commit each finished variant's grid data.
+#
+#   scripts/grid_session.sh [--grid table1] [--seeds 0,1,2,3,4] [--variants oracle,ours,...] [--dir ../omcrl-grid]
+#
+# A session is shorter than the grid (about 6 machine-hours a seed at the quick preset), so this is what a session
+# starts first, in the background, with its log on disk:
+#
+#   nohup scripts/grid_session.sh --seeds 1 > ../grid.log 2>&1 &
+#
+# It trains from a detached worktree of HEAD (--dir), so code edits in this checkout cannot touch a running job.
+# After each variant of each seed, the worktree's reference/<preset>/<grid>-<suite>/ is copied into this checkout
+# and committed alone (`git commit -- <that folder>`: nothing else staged here is committed with it). A variant whose
+# episodes are already recorded there is not trained again, so a session that ends midway loses only the variant in
+# flight. Rebuild the README's and docs/results.md's blocks after it by hand (they are rendered by this checkout's
+# code): python -m omcrl summary --preset quick --readme
+set -euo pipefail
+
+grid=table1
+seeds=0,1,2,3,4
+# Teacher first (its students need it), then the frozen-encoder students (about 31 min each), then the pixel
+# runs (about 70 min each), so that what a session finishes is as many whole rows as it can be.
+variants=oracle,ours,ours-noOT,ours-lapf,curl,curl-phi,npe,npe-ot,ppo
+preset=quick
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+dir="$(dirname "$root")/omcrl-grid"
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --grid) grid="$2"; shift 2 ;;
+    --seeds) seeds="$2"; shift 2 ;;
+    --variants) variants="$2"; shift 2 ;;
+    --preset) preset="$2"; shift 2 ;;
+    --dir) dir="$2"; shift 2 ;;
+    *) echo "grid_session: unknown argument $1" >&2; exit 2 ;;
+  esac
+done
+py="$root/.venv/bin/python"
+[[ -x "$py" ]] || { echo "grid_session: $py not found; run ./reproduce.sh --test once to make .venv" >&2; exit 2; }
+
+if [[ ! -d "$dir" ]]; then
+  git -C "$root" worktree add --detach "$dir" HEAD >/dev/null
+fi
+echo "grid_session: worktree $dir at $(git -C "$dir" rev-parse --short HEAD), grid $grid, seeds $seeds"
+
+ship() {  # $1: what finished
+  local src sub
+  for src in "$dir"/reference/"$preset"/"$grid"-*/; do
+    sub="${src#"$dir"/}"
+    mkdir -p "$root/$sub"
+    cp -a "$src". "$root/$sub"
+    git -C "$root" add -- "$sub"
+    if ! git -C "$root" diff --cached --quiet -- "$sub"; then
+      git -C "$root" commit -q -m "$grid grid: $1 recorded ($sub)" -- "$sub"
+      echo "grid_session: committed $1 ($sub)"
+    fi
+  done
+}
+
+IFS=, read -r -a seed_list <<<"$seeds"
+IFS=, read -r -a variant_list <<<"$variants"
+for seed in "${seed_list[@]}"; do
+  for v in "${variant_list[@]}"; do
+    echo "grid_session: seed $seed $v start $(date -u +%FT%TZ)"
+    rc=0
+    (cd "$dir" && "$py" -m omcrl sweep "$grid" --preset "$preset" --seeds "$seed" --backend local --to-reference \
+      --variants "$v") || rc=$?
+    echo "grid_session: seed $seed $v exit $rc $(date -u +%FT%TZ)"
+    ship "seed $seed, $v"
+  done
+done
