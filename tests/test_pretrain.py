@@ -335,3 +335,25 @@ def test_fields_added_later_keep_run_keys_at_their_default(tmp_path, field, valu
     on = load_config("smoke", overrides=[f"results_dir={tmp_path}", f"pretrain.{field}={value}"])
     assert field not in pretrain_run(base).identity["pretrain"]
     assert pretrain_run(on).identity["pretrain"][field] == value and pretrain_run(on).key != pretrain_run(base).key
+
+
+def test_every_pretraining_method_is_one_objective_chosen_once():
+    """The OMC/CURL decision lives in one table: each ``pretrain.method`` the config allows is an Objective, OMC
+    alone samples masked sequences (and owns ξ), CURL-cons alone pairs consecutive stacks; an unknown method is
+    refused by name."""
+    from dataclasses import fields
+    from types import SimpleNamespace
+
+    from omcrl.config import PretrainConfig
+    from omcrl.pretrain import OBJECTIVES, ContrastiveLearner, objective
+
+    choices = next(f for f in fields(PretrainConfig) if f.name == "method").metadata["choices"]
+    assert set(choices) == set(OBJECTIVES)
+    assert [m for m, o in OBJECTIVES.items() if o.sequences] == ["omc"]
+    assert [m for m, o in OBJECTIVES.items() if o.consecutive] == ["curl_cons"]
+    for m in choices:
+        p = PretrainConfig(method=m, feature_dim=8, crop_to=16, proj_hidden=8)
+        learner = ContrastiveLearner(p, 2)
+        assert (learner.xi is not None) == objective(p).sequences and (learner.W is None) == objective(p).sequences
+    with pytest.raises(ValueError, match="'byol'"):
+        objective(SimpleNamespace(method="byol"))

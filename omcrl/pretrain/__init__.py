@@ -4,7 +4,7 @@
 (load it with :func:`omcrl.models.load_encoder`).
 """
 
-from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
+from omcrl.pretrain.learner import OBJECTIVES, ContrastiveLearner, Objective, objective, transformer_lr_factor
 from omcrl.pretrain.losses import bilinear_info_nce, masked_info_nce
 from omcrl.pretrain.masking import (
     OP_KEEP,
@@ -27,11 +27,13 @@ from omcrl.pretrain.train import (
 )
 
 __all__ = [
+    "OBJECTIVES",
     "OP_KEEP",
     "OP_NONE",
     "OP_REPLACE",
     "OP_ZERO",
     "ContrastiveLearner",
+    "Objective",
     "PretrainResult",
     "apply_mask_ops",
     "bilinear_info_nce",
@@ -40,6 +42,7 @@ __all__ = [
     "mask_sequence",
     "masked_info_nce",
     "method_name",
+    "objective",
     "pretrain_encoder",
     "pretrain_run",
     "probe",

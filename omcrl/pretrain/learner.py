@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import copy
 import math
+from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import nn
@@ -49,6 +51,80 @@ def color_jitter(seq: torch.Tensor, strength: float, generator: torch.Generator 
     return (seq.float() * g).clamp_(0, 255)
 
 
+@dataclass(frozen=True)
+class Objective:
+    """A pretraining objective (``pretrain.method``), chosen once by :func:`objective`: what the learner samples and
+    how it scores it each iteration, and the run name of its variants.
+
+    Attributes
+    ----------
+    name : ``omc`` | ``curl`` | ``curl_cons``.
+    sequences : True: masked sequences of T stacks, the masked latents reconstructed through the Transformer ξ
+        (OMC); False: pairs of stacks matched through the bilinear W (the CURL family).
+    consecutive : a pair is h_t and h_{t+cons_stride} of one episode (CURL-cons), not two crops of h_t (CURL).
+    """
+
+    name: str
+    sequences: bool
+    consecutive: bool = False
+
+    def sequence_stride(self, p: Any) -> int:
+        """Steps between the stacks of a sampled sequence (``seq_stride``; 1 for the pair objectives)."""
+        return p.seq_stride if self.sequences else 1
+
+    def candidates(self, p: Any) -> int:
+        """Keys each query is scored against (its positive included): all B·T keys of the batch; the T keys of
+        its own sequence for OMC without ``batch_negatives``. The CURL family sees B·T pairs per iteration (as
+        many stacks as OMC)."""
+        return p.seq_len if self.sequences and not p.batch_negatives else p.batch_size * p.seq_len
+
+    def run_name(self, p: Any) -> str:
+        """The run folder's name: the objective plus every ablation flag that differs from the paper's setting."""
+        name = self.name
+        if self.sequences:
+            if p.mask_prob != 0.5:
+                name += f"-rho{p.mask_prob:g}"
+            if not p.use_projection:
+                name += "-nophi"
+            if p.dual_transformer:
+                name += "-dualT"
+            if not p.batch_negatives:
+                name += "-seqneg"
+            if p.seq_stride != 1:
+                name += f"-stride{p.seq_stride}"
+        else:
+            if p.use_projection:
+                name += "-phi"
+            if self.consecutive and p.cons_stride != 1:
+                name += f"-stride{p.cons_stride}"
+        return name
+
+    def loss(
+        self, learner: ContrastiveLearner, sampler: Any, generator: torch.Generator
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """One iteration's batch from ``sampler`` (:class:`omcrl.data.sampler.SequenceSampler`) and its loss."""
+        p = learner.cfg
+        if self.sequences:
+            seq = sampler.sample_sequences()
+            pool = sampler.sample_stacks(p.batch_size)
+            return learner.omc_loss(seq, generator, pool)
+        stride = p.cons_stride if self.consecutive else 0
+        anchor, positive = sampler.sample_pairs(p.batch_size * p.seq_len, stride=stride)
+        return learner.curl_loss(anchor, positive)
+
+
+OBJECTIVES: dict[str, Objective] = {
+    o.name: o for o in (Objective("omc", True), Objective("curl", False), Objective("curl_cons", False, True))
+}
+
+
+def objective(p: Any) -> Objective:
+    """The :class:`Objective` of a :class:`omcrl.config.PretrainConfig` (its ``method``)."""
+    if p.method not in OBJECTIVES:
+        raise ValueError(f"pretrain.method: got {p.method!r}, expected one of {list(OBJECTIVES)}")
+    return OBJECTIVES[p.method]
+
+
 class ContrastiveLearner(nn.Module):
     """Online networks f, φ (+ ξ for OMC, W for CURL) and their momentum copies.
 
@@ -66,7 +142,7 @@ class ContrastiveLearner(nn.Module):
         self.phi = Projection(d, cfg.proj_hidden, d) if cfg.use_projection else nn.Identity()
         self.f_k, self.phi_k = copy.deepcopy(self.f), copy.deepcopy(self.phi)
         self.xi = self.xi_k = self.W = None
-        if cfg.method == "omc":
+        if objective(cfg).sequences:
             self.xi = TemporalTransformer(d, cfg.transformer_blocks, cfg.transformer_ffn, max_len=max(cfg.seq_len, 64))
             if cfg.dual_transformer:
                 self.xi_k = copy.deepcopy(self.xi)

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from omcrl.config import PretrainConfig
+from omcrl.pretrain.learner import objective
 from omcrl.pretrain.probe import TARGETS, probe
 
 
@@ -18,9 +19,7 @@ def n_candidates(p: PretrainConfig) -> int:
     OMC with ``batch_negatives``: all B·T keys of the batch; OMC without: the T keys of its own sequence;
     CURL / CURL-cons: B·T pairs per iteration (the trainer feeds CURL as many stacks as OMC).
     """
-    if p.method == "omc" and not p.batch_negatives:
-        return p.seq_len
-    return p.batch_size * p.seq_len
+    return objective(p).candidates(p)
 
 
 def chance_accuracy(p: PretrainConfig) -> float:

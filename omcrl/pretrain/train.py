@@ -30,7 +30,7 @@ from omcrl.data.dataset import DatasetError, open_dataset
 from omcrl.data.sampler import SequenceSampler
 from omcrl.envs.render import env_identity
 from omcrl.models.artifact import save_encoder
-from omcrl.pretrain.learner import ContrastiveLearner, transformer_lr_factor
+from omcrl.pretrain.learner import ContrastiveLearner, objective, transformer_lr_factor
 from omcrl.runs import ArtifactMismatch, MetricsLog, Run, StopAfter, checkpoint_due, keep_going, make_run
 from omcrl.utils.io import atomic_write_text, file_digest
 from omcrl.utils.precision import section_precision
@@ -57,29 +57,13 @@ class PretrainResult:
 
 
 def method_name(p: PretrainConfig) -> str:
-    """Run folder name: the method plus every ablation flag that differs from the paper's OMC setting.
+    """Run folder name: the objective plus every ablation flag that differs from the paper's OMC setting
+    (:meth:`~omcrl.pretrain.learner.Objective.run_name`).
 
     ``omc``, ``omc-rho0.3``, ``omc-nophi``, ``omc-dualT``, ``omc-seqneg``, ``omc-stride3``, ``curl`` (no φ, as in CURL),
     ``curl-phi``, ``curl_cons``, ``curl_cons-stride3``.
     """
-    name = p.method
-    if p.method == "omc":
-        if p.mask_prob != 0.5:
-            name += f"-rho{p.mask_prob:g}"
-        if not p.use_projection:
-            name += "-nophi"
-        if p.dual_transformer:
-            name += "-dualT"
-        if not p.batch_negatives:
-            name += "-seqneg"
-        if p.seq_stride != 1:
-            name += f"-stride{p.seq_stride}"
-    else:
-        if p.use_projection:
-            name += "-phi"
-        if p.method == "curl_cons" and p.cons_stride != 1:
-            name += f"-stride{p.cons_stride}"
-    return name
+    return objective(p).run_name(p)
 
 
 def pretrain_run(cfg: Config) -> Run:
@@ -213,6 +197,9 @@ def pretrain_encoder(
         save_config(cfg, out)
 
         torch.manual_seed(cfg.seed)
+        # The objective, chosen once: OMC reconstructs masked latents of a sequence; CURL matches two views of a
+        # stack, and sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
+        obj = objective(p)
         L = cfg.env.frame_stack
         learner = ContrastiveLearner(p, L).to(resolve_device(p.device))
         learner.precision = section_precision(p)
@@ -228,7 +215,7 @@ def pretrain_encoder(
             crop=(p.crop_from, p.crop_to),
             seed=cfg.seed,
             cache_episodes=cache,
-            seq_stride=p.seq_stride if p.method == "omc" else 1,
+            seq_stride=obj.sequence_stride(p),
         )
         gen = torch.Generator().manual_seed(cfg.seed + 1)
         start, rows = 0, []
@@ -252,10 +239,6 @@ def pretrain_encoder(
                 log.info("pretrain %s: resuming from iteration %d", name, start)
             else:
                 log.warning("pretrain %s: checkpoint in %s is from other data or code; starting over", name, out)
-        # The objective, chosen once: OMC reconstructs masked latents of a sequence; CURL matches two views of a
-        # stack, and sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
-        omc = p.method == "omc"
-        n_pairs, stride = p.batch_size * p.seq_len, (p.cons_stride if p.method == "curl_cons" else 0)
         callbacks = () if stop_after is None else (StopAfter(stop_after),)
         metrics_log = MetricsLog(out, start if start > 0 else None, digits=None)
         bar = Progress(p.iterations, f"pretrain/{name} seed{cfg.seed}", unit="it", initial=start, enabled=progress)
@@ -270,13 +253,7 @@ def pretrain_encoder(
                 for g in opt.param_groups:  # the Transformer warms up (paper V-D); the encoder's rate is fixed
                     if g["name"] == "transformer":
                         g["lr"] = lrs["lr_transformer"] = p.lr_transformer * transformer_lr_factor(it, p.warmup_steps)
-                if omc:
-                    seq = sampler.sample_sequences()
-                    pool = sampler.sample_stacks(p.batch_size)
-                    loss, metrics = learner.omc_loss(seq, gen, pool)
-                else:
-                    anchor, positive = sampler.sample_pairs(n_pairs, stride=stride)
-                    loss, metrics = learner.curl_loss(anchor, positive)
+                loss, metrics = obj.loss(learner, sampler, gen)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
