@@ -115,3 +115,17 @@ def test_changes_from_v1_pairs_each_ordering_with_the_same_hypothesis_on_v2():
     assert (tree.v1_verdict, tree.v2_verdict, tree.changed) == ("reversed", "holds", True)
     assert tree.v1 == "-27 [-45, -10]" and tree.v2 == "+8 [+1, +15]"
     assert ch.iloc[1].changed is None and ch.iloc[1].v2 == "–"  # not judged on v2: no verdict change claimed
+
+
+def test_an_interval_keeps_to_the_values_a_contrast_can_take():
+    """A difference of two SRs lies in [-100, 100] pp: its interval is cut there (near the bound the t interval
+    spills over, as the oracle against a one-seed student did at -98 [-102, -94]); its estimate and p stay."""
+    from omcrl.eval.stats import Term, contrast
+
+    layouts = tuple(range(50))
+    a = Term(np.where(np.arange(50) < 49, 100.0, 0.0)[None, :], None, layouts, "tree-v2", 1.0)
+    b = Term(np.where(np.arange(50) < 1, 100.0, 0.0)[None, :], None, layouts, "tree-v2", -1.0)
+    free = contrast([a, b], 400, rng=np.random.default_rng(0))
+    cut = contrast([a, b], 400, rng=np.random.default_rng(0), bounded=100.0)
+    assert free.hi > 100.0  # what the cut is for
+    assert cut.hi == 100.0 and cut.lo == free.lo and (cut.estimate, cut.p) == (free.estimate, free.p)

@@ -14,7 +14,7 @@ import pandas as pd
 
 from omcrl.eval.metrics import episode_values
 from omcrl.eval.stage import to_markdown
-from omcrl.eval.stats import aggregate, compare_sr
+from omcrl.eval.stats import BOUNDED, aggregate, compare_sr
 from omcrl.eval.table1 import _latex, _markdown, table1_frames
 from omcrl.eval.verdicts import cell, holm_verdicts, judge
 from omcrl.scenes import is_stress, is_unseen
@@ -106,7 +106,7 @@ def ablation_findings(
             terms = [cell(sub, values, "SR", a, sc, 1.0), cell(sub, values, "SR", b, sc, -1.0)]
             rows.append({"finding": finding, "grid": grid, "claim": f"{a} > {b}", "scene": sc,
                          "family": "stress" if is_stress(sc) else "unseen",
-                         **judge(terms, [True, True], reps, rng)})  # fmt: skip
+                         **judge(terms, [True, True], reps, rng, BOUNDED["SR"])})  # fmt: skip
     cols = ["finding", "grid", "claim", "scene", "diff", "lo", "hi", "p", "p_holm", "seeds", "verdict"]
     if not rows:
         return pd.DataFrame(columns=cols)

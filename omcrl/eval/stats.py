@@ -134,9 +134,10 @@ def contrast(
 ) -> Estimate:
     """``Σ coef · mean`` of ``terms`` with its crossed-design interval (module docstring).
 
-    ``bounded``: the upper bound of a single term's values (100 for SR in %, 1 for SPL) to build its interval on
-    the logit scale; ignored for a contrast of several terms. An estimate NaN (no finite value) gives NaN
-    throughout.
+    ``bounded``: the upper bound of every term's values (100 for SR in %, 1 for SPL). A single term's interval is
+    then built on the logit scale; a contrast of several terms has its interval cut to the values the contrast
+    can take (``[-100, 100]`` for a difference of two SRs), which only drops impossible values. An estimate NaN
+    (no finite value) gives NaN throughout.
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     est = _point(terms)
@@ -161,6 +162,9 @@ def contrast(
         g = q * (1 - q) * bounded  # d estimate / d logit
         z = math.log(q / (1 - q))
         lo, hi = (bounded / (1 + math.exp(-(z + k * t * se / g))) for k in (-1, 1))
+    elif bounded is not None and len(terms) > 1:
+        lo = max(lo, sum(min(0.0, t.coef * bounded) for t in terms))
+        hi = min(hi, sum(max(0.0, t.coef * bounded) for t in terms))
     return Estimate(est, lo, hi, p, se, df, vs, vl)
 
 

@@ -29,7 +29,7 @@ import pandas as pd
 
 from omcrl.eval.ledger import TRAINING_METRICS, hypotheses
 from omcrl.eval.metrics import episode_values
-from omcrl.eval.stats import DEFAULT_REPS, Term, contrast, term
+from omcrl.eval.stats import BOUNDED, DEFAULT_REPS, Term, contrast, term
 from omcrl.rl.methods import METHODS
 from omcrl.runs import metric_series
 from omcrl.scenes import scene_spec
@@ -107,20 +107,27 @@ def ledger_verdicts(
             terms = [cell(episodes, values, h["metric"], m, s, c) for m, s, c in specs]
         row = {k: h[k] for k in ("claim", "family", "hypothesis", "metric", "scene", "versus_scene", "a", "b")}
         learned = [m in METHODS and METHODS[m].learned for m, _, _ in specs]
-        rows.append({**row, **judge(terms, learned, reps, rng)})
+        rows.append({**row, **judge(terms, learned, reps, rng, BOUNDED.get(h["metric"]))})
     return holm_verdicts(pd.DataFrame(rows), "family")[COLUMNS]
 
 
-def judge(terms: list[Term | None], learned: list[bool], reps: int, rng: np.random.Generator) -> dict:
+def judge(
+    terms: list[Term | None],
+    learned: list[bool],
+    reps: int,
+    rng: np.random.Generator,
+    bounded: float | None = None,
+) -> dict:
     """One contrast (:func:`omcrl.eval.stats.contrast`) as a row's fields: ``estimate, lo, hi, p, seeds, var_seed,
     var_layout`` and ``_few``. A missing term (a method not evaluated) gives NaN throughout, 0 seeds. ``learned``
     says which terms are of a learned method: one of a single training seed shows no seed spread, so its interval
     is over layouts alone and says nothing about another training run; the row is then reported but not judged
-    (``p`` NaN, ``_few`` True: :func:`holm_verdicts` calls it ``one seed``)."""
+    (``p`` NaN, ``_few`` True: :func:`holm_verdicts` calls it ``one seed``). ``bounded``: the metric's upper bound
+    (:data:`omcrl.eval.stats.BOUNDED`), so the interval keeps to the values the contrast can take."""
     if any(t is None for t in terms):
         return {"estimate": math.nan, "lo": math.nan, "hi": math.nan, "p": math.nan, "seeds": 0,
                 "var_seed": math.nan, "var_layout": math.nan, "_few": False}  # fmt: skip
-    e = contrast([t for t in terms if t is not None], reps, rng=rng)
+    e = contrast([t for t in terms if t is not None], reps, rng=rng, bounded=bounded)
     n_seeds = len({s for t in terms if t is not None and t.seeds is not None for s in t.seeds}) or 1
     few = any(t is not None and t.seeds is None and is_learned for t, is_learned in zip(terms, learned))
     return {"estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": math.nan if few else e.p, "seeds": n_seeds,
