@@ -291,6 +291,7 @@ def compare_sr(
                 reps,
                 1 - alpha,
                 rng,
+                bounded=BOUNDED["SR"],
             )
             sig = e.lo > 0 or e.hi < 0
             rel = (">" if e.estimate > 0 else "<") if sig else "≈"
