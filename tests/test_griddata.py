@@ -103,6 +103,16 @@ def test_a_teachers_weights_travel_so_a_new_machine_trains_its_students_without_
     (restored,) = (tmp_path / "machine-b" / "results").glob("smoke/runs/rl/oracle-*/seed0")
     assert restored.name == oracle_run.name and restored.parent.name == oracle_run.parent.name
     assert (restored / "final.pt").read_bytes() == kept.read_bytes() and (restored / "metrics.csv").is_file()
+    # The same with only the student asked for (--variants ours): the teacher's own variant is left out, and its
+    # kept weights are still laid out (they were not: the oracle trained again).
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-b2"))
+    record.remove("ours", 0)
+    only = run_sweep(
+        load_config("smoke"), "teach", [0], backend="local", progress=False, record=record, variants=["ours"]
+    )
+    by_kind = {(j.kind, j.method): only.status[j.id] for j in only.jobs}
+    assert by_kind[("train", "oracle")] == "skipped" and by_kind[("evaluate", "ours")] == "done"
+    assert ("evaluate", "oracle") not in by_kind
     # Damaged kept weights are refused before any job runs, naming the file; nothing is written.
     monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-c"))
     record.remove("ours", 0)

@@ -245,10 +245,14 @@ def run_sweep(
     """
     if backend not in ("ray", "local"):
         raise ConfigError(f"sweep backend: got {backend!r}, expected 'ray' or 'local'")
-    jobs = only_variants(expand(cfg, grid, seeds), variants, grid)
+    every = expand(cfg, grid, seeds)
+    jobs = only_variants(every, variants, grid)
     targets = _record_targets(jobs) if record is not None else {}
     recorded = _recorded(jobs, record) if record is not None else set()
-    teachers = _teachers(jobs, targets)
+    # Teachers as the whole grid has them: a teacher's weights are kept under its own variant (the oracle's), which
+    # --variants may leave out while a student it guides is run.
+    ids = {j.id for j in jobs}
+    teachers = {jid: label for jid, label in _teachers(every, _record_targets(every)).items() if jid in ids}
     logs_dir = cfg.run_root / "sweeps" / grid / "logs"
     base = {"preset": cfg.preset, "overrides": base_overrides(cfg)}
     res = SweepResult(grid, jobs, {}, logs={j.id: logs_dir / j.log_name for j in jobs})
@@ -271,6 +275,8 @@ def run_sweep(
                 for label, stage in targets.get(job.id, ()):
                     record.save_run(label, job.seed, stage, out["outputs"][0])
                 if job.id in teachers:
+                    if (teachers[job.id], "rl") not in targets.get(job.id, ()):
+                        record.save_run(teachers[job.id], job.seed, "rl", out["outputs"][0])
                     record.save_weights(teachers[job.id], job.seed, "rl", out["outputs"][0])
                 if job.kind == "evaluate":
                     record.save_episodes(job.label, job.seed, pd.DataFrame(out["rows"]))
