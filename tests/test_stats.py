@@ -69,3 +69,24 @@ def test_a_planner_flown_once_is_compared_with_every_seed_of_a_learned_method():
                              "success": (j * 7919 + s * 31) % 100 < 100 * p})  # fmt: skip
     sig = compare_sr(pd.DataFrame(rows), "ours", reps=300).set_index("method")
     assert sig.loc["hybrid-apf", "significant"] and np.isfinite(sig.loc["hybrid-apf", "lo"])
+
+
+def test_a_cells_interval_depends_on_its_own_episodes_not_on_the_other_rows():
+    """Adding a method to a table leaves every other cell's interval as it was (each cell bootstraps with its own
+    generator); before, the shared stream moved bounds by a point when a row was added."""
+    from omcrl.eval.stats import aggregate
+
+    rng = np.random.default_rng(3)
+    rows = [
+        {"method": m, "scene": "tree-v2", "train_seed": s, "seed": j, "success": bool(rng.random() < p),
+         "collision": False, "final_distance": 1.0, "min_distance": 0.5, "path_length": 8.0,
+         "optimal_path_length": 7.0, "steps": 80}
+        for m, p in (("curl", 0.5), ("ours", 0.6), ("npe", 0.3)) for s in range(3) for j in range(30)
+    ]  # fmt: skip
+    ep = pd.DataFrame(rows)
+    two = aggregate(ep[ep.method != "curl"], by=("method", "scene"), reps=300)
+    three = aggregate(ep, by=("method", "scene"), reps=300)
+    pd.testing.assert_frame_equal(two, three.loc[two.index])
+    pair = compare_sr(ep[ep.method != "curl"], "ours", reps=300).set_index("method")
+    more = compare_sr(ep, "ours", reps=300).set_index("method")
+    pd.testing.assert_frame_equal(pair, more.loc[pair.index])

@@ -9,12 +9,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from omcrl.eval.metrics import episode_values
 from omcrl.eval.stage import to_markdown
-from omcrl.eval.stats import BOUNDED, aggregate, compare_sr
+from omcrl.eval.stats import BOUNDED, aggregate, cell_rng, compare_sr
 from omcrl.eval.table1 import _latex, _markdown, table1_frames
 from omcrl.eval.verdicts import cell, holm_verdicts, judge
 from omcrl.scenes import is_stress, is_unseen
@@ -94,7 +93,6 @@ def ablation_findings(
     percentage points with its 95 % CI, and ``holds`` / ``reversed`` (Holm-adjusted p < 0.05, by its sign),
     ``undecided``, or ``one seed`` (a variant of one training seed: shown, not judged).
     """
-    rng = np.random.default_rng(seed)
     rows = []
     for finding, grid, a, b in ABLATION_CLAIMS:
         ep = episodes.get(grid)
@@ -106,7 +104,8 @@ def ablation_findings(
             terms = [cell(sub, values, "SR", a, sc, 1.0), cell(sub, values, "SR", b, sc, -1.0)]
             rows.append({"finding": finding, "grid": grid, "claim": f"{a} > {b}", "scene": sc,
                          "family": "stress" if is_stress(sc) else "unseen",
-                         **judge(terms, [True, True], reps, rng, BOUNDED["SR"])})  # fmt: skip
+                         **judge(terms, [True, True], reps, cell_rng(seed, finding, grid, sc),
+                                 BOUNDED["SR"])})  # fmt: skip
     cols = ["finding", "grid", "claim", "scene", "diff", "lo", "hi", "p", "p_holm", "seeds", "verdict"]
     if not rows:
         return pd.DataFrame(columns=cols)

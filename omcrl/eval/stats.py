@@ -33,6 +33,7 @@ judged per scene.
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -45,6 +46,12 @@ from omcrl.eval.metrics import METRICS, episode_values
 DEFAULT_REPS = 2000
 # Metrics whose per-episode value lies in [0, scale]: a single cell's interval is built on the logit scale.
 BOUNDED = {"OS": 100.0, "SR": 100.0, "CR": 100.0, "SPL": 1.0}
+
+
+def cell_rng(seed: int, *labels: object) -> np.random.Generator:
+    """The bootstrap generator of one interval, named by ``labels`` (metric, method, scene, ...): a cell's interval
+    then depends on its own episodes and ``seed`` alone, not on which other cells a table draws before it."""
+    return np.random.default_rng([int(seed), *(zlib.crc32(str(x).encode()) for x in labels)])
 
 
 @dataclass(frozen=True)
@@ -236,18 +243,18 @@ def aggregate(
     DataFrame indexed by ``by`` with columns ``<metric>``, ``<metric>_lo``, ``<metric>_hi`` for NE OS SR SPL
     CR TTS, plus ``seeds`` (count) and ``episodes`` (count).
     """
-    rng = np.random.default_rng(seed)
     vals = episode_values(episodes, os_threshold)
     rows = {}
     for key, g in episodes.groupby(list(by), sort=False):
+        k = key if isinstance(key, tuple) else (key,)
         v = vals.loc[g.index]
         row: dict[str, float] = {}
         for m in METRICS:
-            e = contrast([term(g, v[m].to_numpy(), "")], reps, rng=rng, bounded=BOUNDED.get(m))
+            e = contrast([term(g, v[m].to_numpy(), "")], reps, rng=cell_rng(seed, m, *k), bounded=BOUNDED.get(m))
             row[m], row[f"{m}_lo"], row[f"{m}_hi"] = e.estimate, e.lo, e.hi
         row["seeds"] = g["train_seed"].nunique() if "train_seed" in g else 1
         row["episodes"] = len(g)
-        rows[key if isinstance(key, tuple) else (key,)] = row
+        rows[k] = row
     out = pd.DataFrame.from_dict(rows, orient="index")
     out.index = pd.MultiIndex.from_tuples(list(rows), names=list(by))
     return out
@@ -268,7 +275,6 @@ def compare_sr(
     -------
     DataFrame with columns scene, method, diff (percentage points), lo, hi, p, significant (bool), statement.
     """
-    rng = np.random.default_rng(seed)
     if reference not in set(episodes["method"]):
         raise KeyError(f"compare_sr: reference method {reference!r} has no episodes")
     scenes = list(scenes or dict.fromkeys(episodes["scene"]))
@@ -290,7 +296,7 @@ def compare_sr(
                 ],
                 reps,
                 1 - alpha,
-                rng,
+                cell_rng(seed, "SR", scene, reference, method),
                 bounded=BOUNDED["SR"],
             )
             sig = e.lo > 0 or e.hi < 0

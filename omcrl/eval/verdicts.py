@@ -29,7 +29,7 @@ import pandas as pd
 
 from omcrl.eval.ledger import TRAINING_METRICS, hypotheses
 from omcrl.eval.metrics import episode_values
-from omcrl.eval.stats import BOUNDED, DEFAULT_REPS, Term, contrast, term
+from omcrl.eval.stats import BOUNDED, DEFAULT_REPS, Term, cell_rng, contrast, term
 from omcrl.rl.methods import METHODS
 from omcrl.runs import metric_series
 from omcrl.scenes import scene_spec
@@ -94,7 +94,6 @@ def ledger_verdicts(
     """Every hypothesis of the ledger in ``suite`` judged on ``episodes`` (one row per episode with ``method``,
     ``scene``, ``train_seed`` and the layout ``seed``) and the training runs ``training`` (``{method: {seed:
     metrics}}``, for Fig. 5's rows). Returns one row per hypothesis (:data:`COLUMNS`)."""
-    rng = np.random.default_rng(seed)
     values = episode_values(episodes, os_threshold) if len(episodes) else pd.DataFrame()
     train_cache: dict[str, dict] = {}
     rows = []
@@ -107,6 +106,7 @@ def ledger_verdicts(
             terms = [cell(episodes, values, h["metric"], m, s, c) for m, s, c in specs]
         row = {k: h[k] for k in ("claim", "family", "hypothesis", "metric", "scene", "versus_scene", "a", "b")}
         learned = [m in METHODS and METHODS[m].learned for m, _, _ in specs]
+        rng = cell_rng(seed, h["claim"], h["hypothesis"])
         rows.append({**row, **judge(terms, learned, reps, rng, BOUNDED.get(h["metric"]))})
     return holm_verdicts(pd.DataFrame(rows), "family")[COLUMNS]
 
