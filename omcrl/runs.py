@@ -88,7 +88,7 @@ class ArtifactMismatch(CorruptFile):
 DIGEST_FIELDS = {
     "final.pt": ("run.json", "artifact_digest"),
     "checkpoint.pt": ("run.json", "checkpoint_digests"),
-    "encoder.pt": ("done.json", "encoder_digest"),
+    "encoder.pt": ("run.json", "artifact_digest"),
 }
 
 
@@ -276,13 +276,19 @@ class Run:
         atomic_save_torch(state, self.checkpoint_path, self.checkpoint_recorder())
         return self.checkpoint_path
 
-    def finish(self, payload: dict, artifact: str = "final.pt") -> Path:
-        """Write the finished ``artifact`` atomically, record its digest in ``run.json`` and drop the checkpoint (the
-        artifact is the result; the resumable state is obsolete). Returns the artifact's path."""
+    def finish(
+        self, payload: dict, artifact: str = "final.pt", *, keep_checkpoint: bool = False, **record: Any
+    ) -> Path:
+        """Write the finished ``artifact`` atomically, then record its digest and ``record`` (what the run ended
+        with: iterations, final loss, the data it was made of) in ``run.json``: a run is finished when ``run.json``
+        holds the digest of an artifact that matches it (:meth:`finished`). The checkpoint is dropped (the artifact is
+        the result; the resumable state is obsolete) unless ``keep_checkpoint`` (pretraining keeps its last one, from
+        which a damaged encoder is rebuilt without training). Returns the artifact's path."""
         path = self.dir / artifact
-        atomic_save_torch(payload, path)
-        self.record(artifact_digest=file_digest(path))
-        self.checkpoint_path.unlink(missing_ok=True)
+        digest = atomic_save_torch(payload, path)
+        self.record(**record, artifact_digest=digest)
+        if not keep_checkpoint:
+            self.checkpoint_path.unlink(missing_ok=True)
         return path
 
     def release(self) -> None:

@@ -344,7 +344,7 @@ def _smoke_artifacts(root):
         "run config.yaml": ppo.run_dir / "config.yaml",
         "metrics.csv": ppo.run_dir / "metrics.csv",
         "encoder.pt": enc.run_dir / "encoder.pt",
-        "done.json": enc.run_dir / "done.json",
+        "pretraining run.json": enc.run_dir / "run.json",
         "pretraining checkpoint.pt": part.run_dir / "checkpoint.pt",
         "dataset .h5": root / "box.h5",
         "evaluation cache .csv": cache,
@@ -372,8 +372,8 @@ def _consume(kind, cfg, files):
         return read_metrics(files[kind])
     if kind == "encoder.pt":
         return load_encoder(files[kind])
-    if kind in ("done.json", "pretraining checkpoint.pt"):
-        return pretrain(cfg if kind == "done.json" else cfg.with_seed(1), progress=False)
+    if kind in ("pretraining run.json", "pretraining checkpoint.pt"):
+        return pretrain(cfg if kind == "pretraining run.json" else cfg.with_seed(1), progress=False)
     if kind == "dataset .h5":  # as pretraining reads it: every episode's frames
         with open_dataset(files[kind]) as ds:
             return [ds.read(i, f) for i in range(len(ds)) for f in ("rgb", "depth", "state")]
@@ -415,7 +415,7 @@ def test_every_damaged_file_is_one_line_or_rebuilt_and_leaves_the_others_alone(t
                     assert files[kind].name in msg or str(files[kind].parent) in msg, (kind, how, msg)
                     outcome = "refused"
             # Nothing but the damaged file (and what a rebuild legitimately rewrites) changed.
-            rewritable = {"evaluation cache .csv", "evaluation cache .json", "done.json", "encoder.pt"}
+            rewritable = {"evaluation cache .csv", "evaluation cache .json", "pretraining run.json", "encoder.pt"}
             changed = [p for p, d in before.items() if p.exists() and file_digest(p) != d and p.suffix != ".lock"]
             if kind not in rewritable:
                 assert not changed, (kind, how, changed)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -29,6 +30,7 @@ from omcrl.pretrain import (
     transformer_lr_factor,
 )
 from omcrl.pretrain.probe import TARGETS
+from omcrl.utils.io import file_digest
 
 torch.set_num_threads(1)
 
@@ -192,8 +194,12 @@ def test_run_outputs_cache_and_artifact(data, tmp_path):
         "metrics.csv",
         "checkpoint.pt",
         "encoder.pt",
-        "done.json",
+        "run.json",
     }
+    assert not (r.run_dir / "done.json").exists()  # finished as every run is: run.json holds the artifact's digest
+    record = json.loads((r.run_dir / "run.json").read_text())
+    assert record["artifact_digest"] == file_digest(r.encoder_path) and record["iterations"] == 6
+    assert record["dataset_fingerprint"] == open_dataset(data).fingerprint
     df = pd.read_csv(r.metrics_path)
     assert list(df.columns) == ["step", "metric", "value"]
     assert set(df.metric) >= {"loss", "accuracy", "lr_encoder", "lr_transformer"}
@@ -284,7 +290,7 @@ def test_probe_pipeline_and_random_encoder(data, tmp_path):
 
 def test_finished_run_skips_without_its_dataset_and_lost_metrics_are_reported(data, tmp_path):
     # Before: skipping a finished run opened the dataset (missing file -> error), and a metrics.csv deleted
-    # before a resume silently lost the history and wrote NaN into done.json.
+    # before a resume silently lost the history and wrote NaN into the run's record.
     import json
     import shutil
 
@@ -295,15 +301,48 @@ def test_finished_run_skips_without_its_dataset_and_lost_metrics_are_reported(da
     moved.unlink()
     again = pretrain_encoder(cfg, moved, progress=False)
     assert again.skipped and again.encoder_path == first.encoder_path
-    # Resume with metrics.csv gone: a warning says what is lost; done.json stays valid JSON.
+    # Resume with metrics.csv gone: a warning says what is lost; run.json stays valid JSON.
     cfg_b = _cfg(tmp_path / "b")
     part = pretrain_encoder(cfg_b, data, progress=False, stop_after=4)
     (part.run_dir / "metrics.csv").unlink()
     with pytest.warns(UserWarning, match="history is lost"):
         done = pretrain_encoder(cfg_b, data, progress=False)
     assert done.iterations == 6
-    record = json.loads((done.run_dir / "done.json").read_text())  # strict JSON: no NaN
+    record = json.loads((done.run_dir / "run.json").read_text())  # strict JSON: no NaN
     assert record["final_loss"] is None or np.isfinite(record["final_loss"])
+
+
+def test_a_run_finished_in_the_old_done_json_form_is_migrated_by_script_and_then_skipped(data, tmp_path):
+    """scripts/migrate_runs.py turns a pretraining run as the code before issue 43's change wrote it (its end in
+    done.json, run.json its identity only) into the record this code writes, so it is found finished again."""
+    import subprocess
+    import sys
+
+    from omcrl.config import project_root
+
+    cfg = _cfg(tmp_path)
+    r = pretrain_encoder(cfg, data, progress=False)
+    now = json.loads((r.run_dir / "run.json").read_text())
+    done = {"key": now["key"], "iterations": 6, "final_loss": now["final_loss"], "dataset": now["dataset"],
+            "dataset_fingerprint": now["dataset_fingerprint"], "encoder_digest": now["artifact_digest"]}  # fmt: skip
+    old = {k: now[k] for k in ("stage", "method", "seed", "key", "identity", "checkpoint_digests")}
+    (r.run_dir / "run.json").write_text(json.dumps(old, indent=1))
+    (r.run_dir / "done.json").write_text(json.dumps(done, indent=1))
+    (r.run_dir / "checkpoint.pt").unlink()  # not found finished, it would have to train again from the start
+    encoder = r.encoder_path.read_bytes()
+    script = [sys.executable, str(project_root() / "scripts" / "migrate_runs.py"), str(tmp_path / "res")]
+    out = subprocess.run(script, capture_output=True, text=True, check=True).stdout
+    assert "1 pretraining runs migrated" in out and not (r.run_dir / "done.json").exists()
+    assert json.loads((r.run_dir / "run.json").read_text()) == now
+    again = pretrain_encoder(cfg, data, progress=False)
+    assert again.skipped and r.encoder_path.read_bytes() == encoder and again.final_loss == r.final_loss
+    assert "0 pretraining runs migrated" in subprocess.run(script, capture_output=True, text=True, check=True).stdout
+    # A done.json of another run is refused, naming it, and nothing is written.
+    (r.run_dir / "run.json").write_text(json.dumps(old, indent=1))
+    (r.run_dir / "done.json").write_text(json.dumps({**done, "key": "0123456789"}))
+    bad = subprocess.run(script, capture_output=True, text=True)
+    assert bad.returncode != 0 and "done.json names key '0123456789'" in bad.stderr
+    assert json.loads((r.run_dir / "run.json").read_text()) == old
 
 
 def test_color_jitter_changes_colours_not_masks_and_is_seeded():

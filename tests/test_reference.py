@@ -158,10 +158,19 @@ def test_the_shipped_bundle_is_found_by_this_codes_registry(tmp_path):
     """Every run of reference/quick/bundle is where the run registry of this code looks for it: a change of run
     identity that would orphan the shipped runs fails here (re-key them once with scripts/rekey_reference.py)."""
     from omcrl.pipeline.reference import bundle_overrides, default_bundle
+    from omcrl.pretrain.train import pretrain_encoder
+    from omcrl.rl.methods import METHODS, encoder_config
 
     cfg = load_config("quick", overrides=[f"results_dir={tmp_path}", *bundle_overrides("quick")])
     res = unpack_reference(cfg, default_bundle("quick"))
     assert not res.not_found and len(res.found) == len(res.manifest["methods"]) * len(res.manifest["seeds"])
+    # Its encoders are finished runs to this code (their end recorded in run.json, scripts/migrate_runs.py): found
+    # and skipped without their dataset, which a fresh clone does not have.
+    no_data = cfg.with_overrides([f"data.file={tmp_path / 'absent.h5'}"])
+    frozen = [m for m in res.manifest["methods"] if METHODS[m].features == "frozen"]
+    for m in frozen:
+        enc = pretrain_encoder(encoder_config(no_data, METHODS[m]), progress=False)
+        assert enc.skipped and enc.iterations == 1500, m
 
 
 def test_a_bundle_records_the_overrides_its_runs_were_trained_under():
@@ -175,3 +184,45 @@ def test_a_bundle_records_the_overrides_its_runs_were_trained_under():
     assert config_overrides(load_config("quick")) == []
     with pytest.raises(ReferenceError, match="'overrides'"):
         manifest_overrides({"overrides": "rl.total_steps=1"})
+
+
+def test_the_checkouts_reference_folder_stays_under_the_60_mb_it_may_hold():
+    """reference/ travels with every clone: the bundle, the grids' records and the teachers' weights still needed
+    (released ones are read back from git history, omcrl.pipeline.griddata) must fit 60 MB together."""
+    from omcrl.config import project_root
+    from omcrl.pipeline.reference import LIMIT_MB
+
+    files = [p for p in (project_root() / "reference").rglob("*") if p.is_file()]
+    total = sum(p.stat().st_size for p in files)
+    biggest = sorted(files, key=lambda p: p.stat().st_size)[-3:]
+    assert total <= LIMIT_MB * 1e6, f"reference/ holds {total / 1e6:.1f} MB; the largest files: {biggest}"
+
+
+def test_a_bundle_with_done_json_records_is_migrated_once_in_place(tmp_path):
+    """scripts/migrate_runs.py on a bundle: members rewritten in their order, manifest updated and noted, verified."""
+    import subprocess
+    import sys
+
+    from omcrl.config import project_root
+
+    enc = b"encoder bytes"
+    run = {"stage": "pretrain", "method": "omc", "seed": 0, "key": "abc", "identity": {"stage": "pretrain"}}
+    done = {"hash": "old-rule", "iterations": 1500, "final_loss": 2.5, "dataset": "/x/box.h5",
+            "dataset_fingerprint": "fp", "encoder_digest": hashlib.sha1(enc).hexdigest()[:16]}  # fmt: skip
+    files = {
+        "runs/pretrain/omc-abc/seed0/run.json": json.dumps(run).encode(),
+        "runs/pretrain/omc-abc/seed0/done.json": json.dumps(done).encode(),
+        "runs/pretrain/omc-abc/seed0/encoder.pt": enc,
+        **FILES,
+    }
+    b = _bundle(tmp_path / "bundle", files)
+    script = [sys.executable, str(project_root() / "scripts" / "migrate_runs.py"), str(b)]
+    assert "1 pretraining runs migrated" in subprocess.run(script, capture_output=True, text=True, check=True).stdout
+    manifest, contents = verify_reference(b)
+    assert list(contents) == [f for f in files if not f.endswith("done.json")]
+    rec = json.loads(contents["runs/pretrain/omc-abc/seed0/run.json"])
+    assert rec["artifact_digest"] == done["encoder_digest"] and rec["iterations"] == 1500 and rec["key"] == "abc"
+    assert contents["runs/pretrain/omc-abc/seed0/encoder.pt"] == enc and manifest["migrated"][0]["runs"] == 1
+    digest = sha256(b / ARCHIVE)
+    assert "0 pretraining runs migrated" in subprocess.run(script, capture_output=True, text=True, check=True).stdout
+    assert sha256(b / ARCHIVE) == digest and not list(tmp_path.glob("bundle.*"))

@@ -105,20 +105,28 @@ def random_encoder(cfg: Any, seed: int = 0) -> FrozenEncoder:
     return build_encoder({**encoder_meta(cfg), "method": "random"}, seed=seed)
 
 
-def save_encoder(
-    path: str | Path, f: PixelEncoder, phi: nn.Module | None, cfg: Any, dataset_fingerprint: str = ""
-) -> Path:
-    """Write the frozen-encoder artifact atomically (f, φ as plain tensors + JSON meta). Returns the path."""
-    meta = encoder_meta(cfg, dataset_fingerprint)
+def _artifact(meta: dict, f: nn.Module, phi: nn.Module | None) -> dict:
     plain = lambda m: {k: v.detach().cpu().clone() for k, v in m.state_dict().items()}  # noqa: E731
-    obj = {
+    return {
         "kind": ARTIFACT_KIND,
         "format": ARTIFACT_FORMAT,
         "meta": json.dumps(meta, sort_keys=True),
         "f": plain(f),
-        "phi": plain(phi) if (phi is not None and meta["use_projection"]) else {},
+        "phi": plain(phi) if (phi is not None and meta.get("use_projection")) else {},
     }
-    atomic_save_torch(obj, path)
+
+
+def encoder_payload(f: PixelEncoder, phi: nn.Module | None, cfg: Any, dataset_fingerprint: str = "") -> dict:
+    """What ``encoder.pt`` holds for a freshly trained f (and φ when the configuration uses it): plain tensors and
+    JSON meta (:func:`encoder_meta`)."""
+    return _artifact(encoder_meta(cfg, dataset_fingerprint), f, phi)
+
+
+def save_encoder(
+    path: str | Path, f: PixelEncoder, phi: nn.Module | None, cfg: Any, dataset_fingerprint: str = ""
+) -> Path:
+    """Write the frozen-encoder artifact (:func:`encoder_payload`) atomically. Returns the path."""
+    atomic_save_torch(encoder_payload(f, phi, cfg, dataset_fingerprint), path)
     return Path(path)
 
 
@@ -168,11 +176,4 @@ def encoder_from_artifact(
 
 def encoder_artifact(enc: FrozenEncoder) -> dict:
     """The artifact dict of a frozen encoder (plain tensors + JSON meta), e.g. to embed it in a policy file."""
-    plain = lambda m: {k: v.detach().cpu().clone() for k, v in m.state_dict().items()}  # noqa: E731
-    return {
-        "kind": ARTIFACT_KIND,
-        "format": ARTIFACT_FORMAT,
-        "meta": json.dumps(enc.meta, sort_keys=True),
-        "f": plain(enc.f),
-        "phi": plain(enc.phi) if enc.meta.get("use_projection") else {},
-    }
+    return _artifact(enc.meta, enc.f, enc.phi)

@@ -7,7 +7,7 @@ verdict and learning curve without training anything::
         <label>/seed<k>/episodes.csv.gz     one row per evaluation episode (all scenes; trajectories left out)
         <label>/seed<k>/rl/                 the policy's run record: run.json, config.yaml, metrics.csv.gz
         <label>/seed<k>/rl/final.pt         a teacher's weights only (the oracle: other runs of the grid need it)
-        <label>/seed<k>/pretrain/           its encoder's run record (frozen-encoder methods): done.json, ...
+        <label>/seed<k>/pretrain/           its encoder's run record (frozen-encoder methods): run.json, ...
 
 A teacher's weights are the one exception to "records only": the oracle (~15 MB) takes longer to train than a
 session lasts together with its students, so without its weights every session would retrain it before a student
@@ -108,7 +108,7 @@ class GridData:
         return path
 
     def save_run(self, label: str, seed: int, stage: str, run_dir: str | Path) -> list[Path]:
-        """Copy the small files of a finished run folder (``run.json``, ``done.json``, ``config.yaml``, metrics as
+        """Copy the small files of a finished run folder (``run.json``, ``config.yaml``, metrics as
         ``.csv.gz``) under ``<label>/seed<k>/<stage>/``; returns the files written."""
         run_dir = Path(run_dir)
         out = self.folder(label, seed) / stage
@@ -122,7 +122,7 @@ class GridData:
             atomic_write_bytes(dest, _gz(data) if p.suffix == ".csv" else data)
             written.append(dest)
         if not written:
-            raise FileNotFoundError(f"{run_dir}: no run record (run.json, done.json, config.yaml, metrics.csv) to keep")
+            raise FileNotFoundError(f"{run_dir}: no run record (run.json, config.yaml, metrics.csv) to keep")
         return written
 
     def save_weights(self, label: str, seed: int, stage: str, run_dir: str | Path) -> Path:

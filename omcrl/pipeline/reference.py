@@ -9,7 +9,7 @@ Layout of a bundle (a plain folder; nothing in it is ever unpickled: checkpoints
                                          archive's SHA-256 and every file in it with its SHA-256 and size
     reference/<preset>/bundle/runs.tar.xz
                                          runs/...: run folders as the run registry writes them (run.json,
-                                         config.yaml, final.pt or encoder.pt + done.json, metrics.csv; no
+                                         config.yaml, final.pt or encoder.pt, metrics.csv; no
                                          checkpoints, no tb/); eval/...: the evaluation cache of those runs
     reference/<preset>/table1/           the reference Table I the README shows (:func:`promote_table`)
 
@@ -49,7 +49,7 @@ from omcrl.utils.runtime import code_commit
 FORMAT = 1
 MANIFEST = "MANIFEST.json"
 ARCHIVE = "runs.tar.xz"
-# Besides its artifact and the records of it (run.json, done.json), what later stages read of a run; checkpoints
+# Besides its artifact and its record (run.json), what later stages read of a run; checkpoints
 # (optimizer state, for resuming) and TensorBoard stay out.
 RUN_EXTRAS = ("config.yaml", "metrics.csv")
 ARTIFACTS = ("final.pt", "encoder.pt")
@@ -216,10 +216,7 @@ def _copy_runs(src_root: Path, dst_root: Path, run_dirs: list[Path], rounded: bo
             raise ReferenceError(f"runs that name each other's artifacts: {', '.join(map(str, pending))}")
         for d in ready:
             pending.remove(d)
-            # The records a run keeps of itself: run.json always, done.json for an encoder.
             records = {"run.json": dict(read_identity(d) or {})}
-            if (d / "done.json").is_file():
-                records["done.json"] = json.loads((d / "done.json").read_text(encoding="utf-8"))
             rec = records["run.json"]
             if (
                 run_key(rec.get("identity", {})) != rec.get("key")

@@ -69,7 +69,7 @@ STAGE_OUTPUTS: dict[str, str] = {
     "default: every notebook 00-09 in order (--only / --skip choose)",
     "collect": "the HDF5 dataset data.file (default data/<preset>/box.h5); default: the box scene, the preset's "
     "episode count, the scripted pilot (data.policy)",
-    "pretrain": "runs/pretrain/<variant>-<key>/seed<k>/ (encoder.pt, done.json, metrics.csv, tb/); default: "
+    "pretrain": "runs/pretrain/<variant>-<key>/seed<k>/ (encoder.pt, run.json, metrics.csv, tb/); default: "
     "pretrain.method of the config (omc) at seed 0; a finished run of the same config is skipped",
     "oracle": "runs/rl/oracle-<key>/seed<k>/ (final.pt, run.json, metrics.csv, tb/); default seed 0; a finished "
     "run is skipped, an interrupted one resumes",

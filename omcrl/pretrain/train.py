@@ -6,7 +6,9 @@ Writes under ``results/<preset>/runs/pretrain/<name>/seed<k>/``:
 * ``metrics.csv``   tidy rows ``step,metric,value`` (loss, accuracy, lr_encoder, lr_transformer, ...)
 * ``checkpoint.pt`` learner, optimiser and RNG states (atomic, every ``checkpoint_every`` iterations)
 * ``encoder.pt``    the frozen f + φ artifact (:func:`omcrl.models.load_encoder`)
-* ``done.json``     written last; a finished run with the same resolved config is skipped
+* ``run.json``      the run's identity; when it finishes, also the encoder's digest, the iterations, the final
+                    loss and the dataset it was made of (:meth:`omcrl.runs.Run.finish`, as every RL run). A finished
+                    run with the same resolved config and the same data is skipped
 
 An interrupted run resumes from ``checkpoint.pt`` and ends at the same iteration count with the same weights
 as an uninterrupted one (all random generators are checkpointed).
@@ -29,10 +31,9 @@ from omcrl.data.collect import collection_env
 from omcrl.data.dataset import DatasetError, open_dataset
 from omcrl.data.sampler import SequenceSampler
 from omcrl.envs.render import env_identity
-from omcrl.models.artifact import save_encoder
+from omcrl.models.artifact import encoder_payload
 from omcrl.pretrain.learner import ContrastiveLearner, objective, transformer_lr_factor
-from omcrl.runs import ArtifactMismatch, MetricsLog, Run, StopAfter, checkpoint_due, keep_going, make_run
-from omcrl.utils.io import atomic_write_text, file_digest
+from omcrl.runs import MetricsLog, Run, StopAfter, checkpoint_due, keep_going, make_run, read_identity
 from omcrl.utils.precision import section_precision
 from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import resolve_device, set_threads
@@ -72,7 +73,7 @@ def pretrain_run(cfg: Config) -> Run:
     Its identity is the sections it reads, by :func:`~omcrl.config.section_identity`: the pretraining section
     (precision resolved), the data collection section (its file is a location, execution-only) and the env the
     data is flown in (:func:`~omcrl.data.collect.collection_env`). The dataset's content fingerprint is the
-    upstream digest; it is checked when a run finishes or resumes (``done.json``, the checkpoint) rather than
+    upstream digest; it is checked when a run finishes or resumes (``run.json``, the checkpoint) rather than
     keyed, so the encoder's path is known before the data is collected, and re-collected data retrains the run.
     """
     ident = {
@@ -98,27 +99,13 @@ def default_dataset_path(cfg: Config) -> Path:
     return cfg.data_path
 
 
-def _read_done(path: Path) -> dict:
-    """A finished pretraining's ``done.json``; one line naming it when it cannot be read."""
-    try:
-        done = json.loads(path.read_text(encoding="utf-8"))
-        if not isinstance(done, dict):
-            raise ValueError(f"a JSON {type(done).__name__}, not an object")
-        return done
-    except (OSError, ValueError) as e:
-        msg = " ".join(str(e).split())[:120]
-        raise ArtifactMismatch(
-            f"{path} is not a readable record ({msg}); delete it to pretrain this run again"
-        ) from None
-
-
 def _made_of(run: Run, fingerprint: str) -> dict:
     """What a finished encoder or a checkpoint was made of: the run's key and the dataset's fingerprint."""
     return {"key": run.key, "dataset_fingerprint": fingerprint}
 
 
 def _made_by(record: dict, made_of: dict) -> bool:
-    """Does a ``done.json`` or checkpoint ``record`` say it was made of ``made_of`` (:func:`_made_of`)?"""
+    """Does a checkpoint ``record`` say it was made of ``made_of`` (:func:`_made_of`)?"""
     return all(record.get(k) == v for k, v in made_of.items())
 
 
@@ -153,8 +140,10 @@ def pretrain_encoder(
     run_rec = pretrain_run(cfg)
     run_rec.check()
     out = run_rec.dir
-    enc_path, metrics_path, done_path = (out / n for n in ("encoder.pt", "metrics.csv", "done.json"))
-    done = _read_done(done_path) if done_path.exists() and enc_path.exists() else None
+    enc_path, metrics_path = out / "encoder.pt", out / "metrics.csv"
+    # Finished: run.json holds the digest of the encoder it wrote (Run.finish) and what it was made of.
+    done = read_identity(out) or {}
+    done = done if done.get("artifact_digest") and enc_path.exists() else None
     if done is not None and not path.exists():
         # A finished run needs its dataset only to notice re-collected data; without the file, the fingerprint
         # recorded at the end of training stands in for it.
@@ -168,25 +157,16 @@ def pretrain_encoder(
             )
         ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
         fp = ds.fingerprint
-    if done is not None:
-        digest = done.get("encoder_digest")
-        same = _made_by(done, _made_of(run_rec, fp))
-        if same and digest is not None and file_digest(enc_path) != digest:
-            # A finished encoder that changed since it was written is not trusted: rebuild it (from the final
-            # checkpoint when there is one, else by training again).
-            log.warning("pretrain %s: %s does not match its recorded digest; rebuilding it", name, enc_path)
-            warnings.warn(
-                f"{enc_path} does not match the digest recorded when it was written; rebuilding it", stacklevel=2
-            )
-            done_path.unlink()
-        elif same:
-            log.info("pretrain %s: finished run with the same config found in %s, skipping", name, out)
-            if ds is not None:
-                ds.close()
-            loss = done["final_loss"]
-            return PretrainResult(
-                name, out, enc_path, metrics_path, done["iterations"], math.nan if loss is None else loss, fp, True
-            )
+    # A finished encoder that changed since it was written is not trusted: finished() moves it aside with a
+    # warning, and it is rebuilt below (from the final checkpoint when there is one, else by training again).
+    if done is not None and done.get("dataset_fingerprint") == fp and run_rec.finished("encoder.pt") is not None:
+        log.info("pretrain %s: finished run with the same config found in %s, skipping", name, out)
+        if ds is not None:
+            ds.close()
+        loss = done.get("final_loss")
+        return PretrainResult(
+            name, out, enc_path, metrics_path, done["iterations"], math.nan if loss is None else loss, fp, True
+        )
     if ds is None:  # the finished run cannot be reused and there is no dataset to train again from
         ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
         fp = ds.fingerprint
@@ -290,20 +270,14 @@ def pretrain_encoder(
             return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp)
         if start >= p.iterations:  # resumed from a final checkpoint whose artifact was not written
             loss_val = next((v for s, m, v in reversed(rows) if m == "loss"), float("nan"))
-        save_encoder(enc_path, learner.f, learner.phi, cfg, fp)
-        atomic_write_text(
-            done_path,
-            json.dumps(
-                {
-                    **made_of,
-                    "iterations": p.iterations,
-                    "final_loss": loss_val if math.isfinite(loss_val) else None,  # JSON has no NaN
-                    "dataset": str(path),
-                    "dataset_fingerprint": fp,
-                    "encoder_digest": file_digest(enc_path),
-                },
-                indent=1,
-            ),
+        run_rec.finish(
+            encoder_payload(learner.f, learner.phi, cfg, fp),
+            "encoder.pt",
+            keep_checkpoint=True,
+            iterations=p.iterations,
+            final_loss=loss_val if math.isfinite(loss_val) else None,  # JSON has no NaN
+            dataset=str(path),
+            dataset_fingerprint=fp,
         )
         ds.close()
         return PretrainResult(name, out, enc_path, metrics_path, p.iterations, loss_val, fp)

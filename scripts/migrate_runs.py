@@ -1,0 +1,141 @@
+"""Migrate pretraining runs written before they finished through ``run.json`` (issue 43: one way to finish a run).
+
+    python scripts/migrate_runs.py PATH [PATH ...]
+
+Until then a finished pretraining wrote ``done.json`` beside its ``run.json`` (the encoder's digest, the iterations,
+the final loss and the dataset it was made of); now :meth:`omcrl.runs.Run.finish` records the same fields in
+``run.json``, as every RL run does, and ``done.json`` is no longer read. The keys, the encoders and every other file
+stay as they are. A PATH is any of:
+
+* a results folder (``results/quick``) or any folder holding run folders: each ``done.json`` beside a pretraining
+  ``run.json`` is merged into it and removed (the encoder, when present, must match the recorded digest);
+* a grid's data in the checkout (``reference/quick/table1-v2``): the same, on the kept run records;
+* a reference bundle (a folder with ``MANIFEST.json`` and ``runs.tar.xz``): verified against its manifest, its
+  members rewritten in the same order, the manifest's file list and archive digest updated and the migration noted
+  under ``migrated``. The new bundle is built beside the old one and swapped in only when complete.
+
+What is already migrated is left alone, so running it twice changes nothing. A ``done.json`` whose key is not its
+``run.json``'s, or an encoder that does not match its recorded digest, stops the script, naming the file, before it
+writes anything for that folder. (The quick bundle's ``done.json`` files predate the one identity rule and name the
+old rule's ``hash`` instead of a key; the code before this migration therefore did not take its encoders for
+finished, and would have pretrained them again.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import hashlib
+import io
+import json
+import shutil
+import sys
+import tarfile
+from pathlib import Path
+
+from omcrl.pipeline.reference import ARCHIVE, MANIFEST, verify_reference
+from omcrl.pipeline.storage import sha256
+from omcrl.utils.io import atomic_write_text, file_digest
+
+MIGRATION = "pretraining records: done.json merged into run.json (scripts/migrate_runs.py, issue 43)"
+
+
+def merged(run: dict, done: dict, where: str) -> dict:
+    """``run.json`` with the completion ``done.json`` recorded, in the fields :meth:`omcrl.runs.Run.finish` writes."""
+    if run.get("stage") != "pretrain":
+        raise SystemExit(f"{where}: done.json beside a run of stage {run.get('stage')!r}; only pretraining wrote one")
+    # A bundle re-keyed by scripts/rekey_reference.py kept its done.json from before the one identity rule: it names
+    # the old rule's "hash", not the key (which that script checked when it moved the run).
+    if "key" in done and done["key"] != run.get("key"):
+        raise SystemExit(f"{where}: done.json names key {done['key']!r}, run.json {run.get('key')!r}")
+    if "key" not in done and "hash" not in done:
+        raise SystemExit(f"{where}: done.json names no key")
+    if not done.get("encoder_digest"):
+        raise SystemExit(f"{where}: done.json records no encoder_digest")
+    out = dict(run)
+    out.update(
+        iterations=done["iterations"],
+        final_loss=done.get("final_loss"),
+        dataset=done.get("dataset", ""),
+        dataset_fingerprint=done.get("dataset_fingerprint", ""),
+        artifact_digest=done["encoder_digest"],
+    )
+    return out
+
+
+def migrate_folders(root: Path) -> int:
+    """Merge every ``done.json`` under ``root`` into its ``run.json``; returns how many."""
+    n = 0
+    for done_path in sorted(root.rglob("done.json")):
+        d = done_path.parent
+        if not (d / "run.json").is_file():
+            raise SystemExit(f"{done_path}: no run.json beside it")
+        run = json.loads((d / "run.json").read_text(encoding="utf-8"))
+        done = json.loads(done_path.read_text(encoding="utf-8"))
+        rec = merged(run, done, str(done_path))
+        enc = d / "encoder.pt"
+        if enc.is_file() and file_digest(enc) != rec["artifact_digest"]:
+            raise SystemExit(f"{enc}: does not match the digest its done.json recorded; not migrating {d}")
+        atomic_write_text(d / "run.json", json.dumps(rec, indent=1))
+        done_path.unlink()
+        n += 1
+    return n
+
+
+def migrate_bundle(bundle: Path) -> int:
+    """Rewrite a bundle's pretraining records (see the module's text); returns how many runs changed."""
+    manifest, contents = verify_reference(bundle)
+    dones = [rel for rel in contents if rel.endswith("/done.json")]
+    if not dones:
+        return 0
+    new: dict[str, bytes] = {}
+    for rel, data in contents.items():  # the archive's order (encoders before the runs trained on them) is kept
+        if rel.endswith("/done.json"):
+            continue
+        done_rel = rel.removesuffix("run.json") + "done.json"
+        if rel.endswith("/run.json") and done_rel in contents:
+            rec = merged(json.loads(data), json.loads(contents[done_rel]), f"{bundle}: {rel}")
+            enc = contents.get(rel.removesuffix("run.json") + "encoder.pt")
+            if enc is not None and hashlib.sha1(enc).hexdigest()[:16] != rec["artifact_digest"]:
+                raise SystemExit(f"{bundle}: {rel}'s encoder does not match its recorded digest; not migrating")
+            data = json.dumps(rec, indent=1).encode()
+        new[rel] = data
+    tmp = bundle.with_name(bundle.name + ".migrating")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    with tarfile.open(tmp / ARCHIVE, "w:xz", preset=9) as tar:
+        for rel, data in new.items():
+            info = tarfile.TarInfo(rel)
+            info.size, info.mtime, info.mode = len(data), 0, 0o644  # as pack_reference writes members
+            tar.addfile(info, io.BytesIO(data))
+    out = dict(manifest)
+    out["files"] = {rel: {"sha256": hashlib.sha256(d).hexdigest(), "bytes": len(d)} for rel, d in new.items()}
+    out["archive"] = {"name": ARCHIVE, "sha256": sha256(tmp / ARCHIVE), "bytes": (tmp / ARCHIVE).stat().st_size}
+    when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    out["migrated"] = [*manifest.get("migrated", []), {"what": MIGRATION, "made": when, "runs": len(dones)}]
+    atomic_write_text(tmp / MANIFEST, json.dumps(out, indent=1, sort_keys=True) + "\n")
+    verify_reference(tmp)  # the new bundle reads back whole before it replaces the old one
+    old = bundle.with_name(bundle.name + ".old")
+    shutil.rmtree(old, ignore_errors=True)
+    bundle.rename(old)
+    tmp.rename(bundle)
+    shutil.rmtree(old)
+    return len(dones)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("paths", nargs="+", type=Path, help="results folders, grid data folders or bundle folders")
+    a = ap.parse_args(argv)
+    for p in a.paths:
+        if not p.is_dir():
+            raise SystemExit(f"{p}: not a folder")
+        if (p / MANIFEST).is_file():
+            print(f"{p}: bundle, {migrate_bundle(p)} pretraining runs migrated")
+        else:
+            print(f"{p}: {migrate_folders(p)} pretraining runs migrated")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
