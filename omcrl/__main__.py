@@ -152,6 +152,12 @@ def build_parser() -> argparse.ArgumentParser:
             )
             sp.add_argument("--rates", default=None, help="with --plan: JSON {rate_key: units/s} (default: measured)")
             sp.add_argument(
+                "--release-teachers",
+                action="store_true",
+                help="only take the committed weights of teachers whose students are all recorded out of "
+                "reference/ (they are then read from git history); run nothing",
+            )
+            sp.add_argument(
                 "--variants",
                 default=None,
                 metavar="LABEL,..",
@@ -299,7 +305,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else None
             kw = {"backend": args.backend, "address": args.address, "num_cpus": args.num_cpus,
                   "to_reference": args.to_reference, "variants": _csv(args.variants)}  # fmt: skip
-            if args.plan:
+            if args.release_teachers:
+                kw = {"release": True}
+            elif args.plan:
                 kw = {"plan": True, "rates": args.rates, "to_reference": args.to_reference,
                       "variants": _csv(args.variants)}  # fmt: skip
             result = func(cfg, args.grid, seeds=seeds, **kw)

@@ -14,6 +14,10 @@
 # episodes are already recorded there is not trained again, so a session that ends midway loses only the variant in
 # flight. Rebuild the README's and docs/results.md's blocks after it by hand (they are rendered by this checkout's
 # code): python -m omcrl summary --preset quick --readme
+#
+# A teacher's weights (the oracle's final.pt, ~15 MB a seed) are committed with its records; once every evaluation
+# that needs them is recorded, they are released (`sweep --release-teachers`: a pointer to their git blob replaces
+# them, so reference/ stays under its 60 MB) and that is committed too.
 set -euo pipefail
 
 grid=table1
@@ -39,6 +43,10 @@ py="$root/.venv/bin/python"
 
 if [[ ! -d "$dir" ]]; then
   git -C "$root" worktree add --detach "$dir" HEAD >/dev/null
+else
+  # A worktree left by an earlier session: bring it to this checkout's HEAD (what it recorded was committed here by
+  # ship; its results/ folder, ignored by git, keeps finished runs and checkpoints to resume).
+  git -C "$dir" checkout -q -f --detach "$(git -C "$root" rev-parse HEAD)"
 fi
 echo "grid_session: worktree $dir at $(git -C "$dir" rev-parse --short HEAD), grid $grid, seeds $seeds"
 
@@ -54,8 +62,21 @@ ship() {  # $1: what finished
       echo "grid_session: committed $1 ($sub)"
     fi
   done
+  release "$1"
 }
 
+release() {  # $1: after what; commits the teacher weights that nothing left to train needs any more
+  local sub="reference/$preset/$grid-*"  # a git pathspec: the grid's folders of every scene suite
+  (cd "$root" && "$py" -m omcrl sweep "$grid" --preset "$preset" --release-teachers) ||
+    { echo "grid_session: release of teacher weights failed (they stay; the grid goes on)"; return 0; }
+  git -C "$root" add -- "$sub"
+  if ! git -C "$root" diff --cached --quiet -- "$sub"; then
+    git -C "$root" commit -q -m "$grid grid: teacher weights released after $1 (read from git history)" -- "$sub"
+    echo "grid_session: committed the release of teacher weights"
+  fi
+}
+
+release "an earlier session"
 IFS=, read -r -a seed_list <<<"$seeds"
 IFS=, read -r -a variant_list <<<"$variants"
 for seed in "${seed_list[@]}"; do

@@ -120,3 +120,79 @@ def test_a_teachers_weights_travel_so_a_new_machine_trains_its_students_without_
     with pytest.raises(CorruptFile, match="kept teacher weights .*final.pt"):
         run_sweep(load_config("smoke"), "teach", [0], backend="local", progress=False, record=record)
     assert not list((tmp_path / "machine-c").rglob("final.pt"))
+
+
+def _git(repo, *args):
+    import subprocess
+
+    return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, check=True).stdout.strip()
+
+
+def test_a_teachers_weights_leave_the_checkout_once_its_students_are_recorded_and_come_back_from_git(
+    tmp_path, monkeypatch
+):
+    """Five seeds of oracles would not fit reference/'s 60 MB: a teacher's committed weights give way to a pointer
+    to their git blob when nothing left to train needs them, and a later run reads them back from history."""
+    import hashlib
+    import json
+
+    from omcrl.pipeline.griddata import WEIGHTS_POINTER
+    from omcrl.pipeline.grids import GRIDS, Variant
+    from omcrl.pipeline.sweep import release_teachers
+    from omcrl.runs import ArtifactMismatch, Run
+
+    monkeypatch.setitem(GRIDS, "teach", (Variant("oracle", "oracle"), Variant("ours", "ours")))
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    _git(repo, "init", "-q")
+    _git(repo, "config", "user.email", "t@example.org")
+    _git(repo, "config", "user.name", "t")
+    record = GridData(repo / "reference" / "smoke" / "teach-v2")
+    rl = record.folder("oracle", 0) / "rl"
+    rl.mkdir(parents=True)
+    weights = bytes(range(256)) * 4096  # 1 MiB standing in for an oracle's final.pt
+    (rl / "final.pt").write_bytes(weights)
+    (rl / "run.json").write_text(
+        json.dumps({"key": "abc", "seed": 0, "artifact_digest": hashlib.sha1(weights).hexdigest()[:16]})
+    )
+    cfg = load_config("smoke")
+    episodes = pd.DataFrame({"scene": ["box-v2"], "success": [True]})
+    # Every evaluation recorded, but the weights are in no commit yet: kept (a pointer must name a kept blob).
+    record.save_episodes("oracle", 0, episodes)
+    record.save_episodes("ours", 0, episodes)
+    assert release_teachers(cfg, "teach", None, record) == [] and (rl / "final.pt").is_file()
+    record.remove("ours", 0)
+    _git(repo, "add", "-A")
+    _git(repo, "commit", "-qm", "oracle recorded")
+    # Committed, but the student that needs it is not recorded yet: kept.
+    assert release_teachers(cfg, "teach", None, record) == [] and (rl / "final.pt").is_file()
+    record.save_episodes("ours", 0, episodes)
+    (pointer,) = release_teachers(cfg, "teach", None, record)
+    assert pointer == rl / WEIGHTS_POINTER and not (rl / "final.pt").exists()
+    assert (
+        json.loads(pointer.read_text())["git_blob"]
+        == _git(repo, "ls-files", "-s", "--", str(rl / "final.pt")).split()[1]
+    )
+    _git(repo, "add", "-A")
+    _git(repo, "commit", "-qm", "weights released")
+    assert _git(repo, "ls-files", "--", str(rl / "final.pt")) == ""
+    # A later grid needing the same teacher reads it back from history, bit for bit.
+    assert record.has_weights("oracle", 0, "rl") and record.kept_weights("oracle", 0, "rl") == weights
+    dest = tmp_path / "results" / "oracle-abc" / "seed0"
+    assert record.restore_run("oracle", "rl", Run("rl", "oracle", 0, "abc", {}, dest))
+    assert (dest / "final.pt").read_bytes() == weights and not (dest / WEIGHTS_POINTER).exists()
+    # A copy without the history (a shallow clone, a tarball): not kept; the teacher would be trained again.
+    bare = GridData(tmp_path / "no-git" / "teach-v2")
+    import shutil
+
+    shutil.copytree(record.root, bare.root)
+    assert not bare.has_weights("oracle", 0, "rl")
+    with pytest.warns(UserWarning, match="git blob .* is not in this repository"):
+        assert bare.kept_weights("oracle", 0, "rl") is None
+    # A pointer whose blob holds other bytes than the run recorded is refused, naming the pointer.
+    other = tmp_path / "other.bin"
+    other.write_bytes(b"not the oracle")
+    blob = _git(repo, "hash-object", "-w", str(other))
+    pointer.write_text(json.dumps({"git_blob": blob}))
+    with pytest.raises(ArtifactMismatch, match="kept teacher weights .*final.pt.git.json"):
+        record.kept_weights("oracle", 0, "rl")

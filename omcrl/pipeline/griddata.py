@@ -6,12 +6,18 @@ verdict and learning curve without training anything::
     reference/<preset>/<grid>-<suite>/
         <label>/seed<k>/episodes.csv.gz     one row per evaluation episode (all scenes; trajectories left out)
         <label>/seed<k>/rl/                 the policy's run record: run.json, config.yaml, metrics.csv.gz
-        <label>/seed<k>/rl/final.pt         a teacher's weights only (the oracle: other runs of the grid need it)
+        <label>/seed<k>/rl/final.pt         a teacher's weights only (the oracle: other runs of the grid need it),
+        <label>/seed<k>/rl/final.pt.git.json  or, once its students are recorded, where git history keeps them
         <label>/seed<k>/pretrain/           its encoder's run record (frozen-encoder methods): run.json, ...
 
 A teacher's weights are the one exception to "records only": the oracle (~15 MB) takes longer to train than a
 session lasts together with its students, so without its weights every session would retrain it before a student
-could start (and a retrained teacher is only the same file where training is bit-for-bit reproducible).
+could start (and a retrained teacher is only the same file where training is bit-for-bit reproducible). They stay in
+the checkout only while a student of theirs is left to train: once every evaluation that needs a teacher is
+recorded, :meth:`GridData.release_weights` replaces its ``final.pt`` by ``final.pt.git.json``, which names the file's
+git blob. ``reference/`` must stay under 60 MB, and five seeds of oracles alone would be 73 MB. A later grid that
+needs the same teacher (the budget ladder's students) still finds it: :meth:`GridData.restore_run` reads the blob
+back from the repository's history, checked against the digest the run recorded.
 
 ``label`` is the variant's label (for ``table1``: the method name); planners are recorded once, under ``seed0``.
 A sweep run with ``--to-reference`` (:func:`omcrl.pipeline.sweep.run_sweep`) writes these files after every
@@ -22,10 +28,14 @@ retrains the encoders those need, and lays a kept teacher out as its finished ru
 from __future__ import annotations
 
 import gzip
+import hashlib
 import io
+import json
 import re
 import shutil
+import subprocess
 import time
+import warnings
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -37,8 +47,8 @@ from omcrl.eval.table1 import Table1Result, write_table1
 from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
 from omcrl.pipeline.reference import config_suite
-from omcrl.runs import CorruptFile, Run, read_identity, verify_artifact
-from omcrl.utils.io import atomic_write_bytes
+from omcrl.runs import ArtifactMismatch, CorruptFile, Run, read_identity, verify_artifact
+from omcrl.utils.io import atomic_write_bytes, atomic_write_text, bytes_digest
 from omcrl.viz import save_figure
 from omcrl.viz.compare import curve_window, plot_learning_curves
 
@@ -46,6 +56,27 @@ EPISODES = "episodes.csv.gz"
 # Small files of a run folder that are copied (CSV ones compressed); weights, checkpoints and event files are not.
 RECORD_SUFFIXES = (".json", ".yaml", ".csv")
 WEIGHTS = "final.pt"
+# Released weights: a pointer to the git blob that holds them (GridData.release_weights).
+WEIGHTS_POINTER = WEIGHTS + ".git.json"
+
+
+def git_blob_id(data: bytes) -> str:
+    """The id git gives a file of content ``data`` (``git hash-object``): SHA-1 of ``blob <size>\\0`` + content."""
+    return hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
+
+
+def _git(where: Path, *args: str) -> subprocess.CompletedProcess | None:
+    """``git -C <where> <args>`` (output as bytes), or None when git or the folder is missing."""
+    try:
+        return subprocess.run(["git", "-C", str(where), *args], capture_output=True, check=False)
+    except OSError:
+        return None
+
+
+def _committed(where: Path, blob: str) -> bool:
+    """Is blob ``blob`` part of a commit of the repository holding ``where`` (any branch)?"""
+    r = _git(where, "log", "--all", "--format=%H", "-1", f"--find-object={blob}")
+    return r is not None and r.returncode == 0 and bool(r.stdout.strip())
 
 
 def grid_data_dir(cfg: Config, grid: str) -> Path:
@@ -136,8 +167,87 @@ class GridData:
         return dest
 
     def has_weights(self, label: str, seed: int, stage: str) -> bool:
-        """True when ``final.pt`` of ``label``'s ``stage`` run at ``seed`` is kept."""
-        return (self.folder(label, seed) / stage / WEIGHTS).is_file()
+        """True when ``final.pt`` of ``label``'s ``stage`` run at ``seed`` is kept: in the checkout, or released and
+        still in the repository's git objects."""
+        src = self.folder(label, seed) / stage
+        if (src / WEIGHTS).is_file():
+            return True
+        blob = self._pointer(src).get("git_blob")
+        r = _git(src, "cat-file", "-e", str(blob)) if blob else None
+        return r is not None and r.returncode == 0
+
+    @staticmethod
+    def _pointer(src: Path) -> dict:
+        """The released weights' pointer in ``src`` ({} when there is none)."""
+        p = src / WEIGHTS_POINTER
+        if not p.is_file():
+            return {}
+        try:
+            rec = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as e:
+            raise CorruptFile(
+                f"{p} is not a readable weights pointer ({e}); delete {src} to train that run again"
+            ) from None
+        if not isinstance(rec, dict) or not isinstance(rec.get("git_blob"), str):
+            raise CorruptFile(f"{p}: expected an object with a 'git_blob' field; delete {src} to train that run again")
+        return rec
+
+    def kept_weights(self, label: str, seed: int, stage: str) -> bytes | None:
+        """The bytes of ``label``'s kept ``stage`` weights at ``seed``: the file in the checkout, or the git blob its
+        pointer names. None (with a warning naming the blob) when neither can be read, e.g. in a shallow clone.
+
+        Raises :class:`omcrl.runs.CorruptFile` when the bytes do not match the digest the run recorded.
+        """
+        src = self.folder(label, seed) / stage
+        where = src / WEIGHTS
+        if where.is_file():
+            data = where.read_bytes()
+        else:
+            where = src / WEIGHTS_POINTER
+            blob = self._pointer(src).get("git_blob")
+            if blob is None:
+                return None
+            r = _git(src, "cat-file", "blob", blob)
+            if r is None or r.returncode != 0:
+                warnings.warn(
+                    f"{src / WEIGHTS_POINTER}: git blob {blob} is not in this repository (a shallow clone, or git "
+                    "missing); the teacher is trained again",
+                    stacklevel=2,
+                )
+                return None
+            data = r.stdout
+            if git_blob_id(data) != blob:
+                raise CorruptFile(f"{src / WEIGHTS_POINTER}: git returned other bytes than blob {blob}")
+        want = (read_identity(src) or {}).get("artifact_digest")
+        got = bytes_digest(data)
+        if want is not None and got != want:
+            raise ArtifactMismatch(
+                f"kept teacher weights {where} do not match the digest recorded when they were written "
+                f"({got[:12]} vs {want[:12]}); delete {src} to train that run again"
+            )
+        return data
+
+    def release_weights(self, label: str, seed: int, stage: str) -> Path | None:
+        """Take ``label``'s kept ``stage`` weights at ``seed`` out of the checkout, leaving ``final.pt.git.json``
+        (the git blob, its digest and size) in their place; returns the pointer written.
+
+        Nothing happens (None) when no weights are in the checkout, or when they are not yet in a commit: the
+        pointer must name a blob that git history keeps, so weights are released only after they were committed.
+        """
+        src = self.folder(label, seed) / stage
+        path = src / WEIGHTS
+        if not path.is_file():
+            return None
+        data = self.kept_weights(label, seed, stage)  # checked against the run's digest before anything changes
+        assert data is not None
+        blob = git_blob_id(data)
+        if not _committed(src, blob):
+            return None
+        pointer = src / WEIGHTS_POINTER
+        record = {"git_blob": blob, "digest": bytes_digest(data), "bytes": len(data)}
+        atomic_write_text(pointer, json.dumps(record, indent=1) + "\n")
+        path.unlink()
+        return pointer
 
     def restore_run(self, label: str, stage: str, run: Run) -> bool:
         """Lay ``label``'s kept ``stage`` run (record and weights) out as the finished folder of ``run``, so that
@@ -148,9 +258,11 @@ class GridData:
         when that record is of another run (its key and seed), before anything is written.
         """
         src, dest = self.folder(label, run.seed) / stage, run.dir
-        if not (src / WEIGHTS).is_file() or (dest / WEIGHTS).exists():
+        if (dest / WEIGHTS).exists():
             return False
-        verify_artifact(src / WEIGHTS, "kept teacher weights", f"delete {src} to train that run again")
+        weights = self.kept_weights(label, run.seed, stage)
+        if weights is None:
+            return False
         rec = read_identity(src) or {}
         if rec.get("key") != run.key or rec.get("seed") != run.seed:
             raise CorruptFile(
@@ -159,13 +271,13 @@ class GridData:
             )
         dest.mkdir(parents=True, exist_ok=True)
         for p in sorted(src.iterdir()):
-            if p.name == WEIGHTS or not p.is_file():
+            if p.name in (WEIGHTS, WEIGHTS_POINTER) or not p.is_file():
                 continue
             data = p.read_bytes()
             name = p.name.removesuffix(".gz") if p.name.endswith(".csv.gz") else p.name
             atomic_write_bytes(dest / name, gzip.decompress(data) if name != p.name else data)
         # The weights last: a folder with final.pt is a finished run, so it must not appear before its record.
-        atomic_write_bytes(dest / WEIGHTS, (src / WEIGHTS).read_bytes())
+        atomic_write_bytes(dest / WEIGHTS, weights)
         return True
 
     def read_episodes(self, label: str, seed: int) -> pd.DataFrame:
@@ -198,6 +310,10 @@ class GridData:
             index=list(labels),
             columns=[f"seed {s}" for s in seeds],
         )
+
+    def seeds(self) -> list[int]:
+        """The training seeds something is recorded for."""
+        return sorted({int(p.name.removeprefix("seed")) for p in self.root.glob("*/seed*") if p.name[4:].isdigit()})
 
     def remove(self, label: str, seed: int) -> None:
         """Forget what is recorded for ``label`` at ``seed`` (it is then trained and evaluated again)."""

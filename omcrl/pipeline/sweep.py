@@ -320,7 +320,36 @@ def run_sweep(
     res.wall_s = time.perf_counter() - t0
     res.episodes = _in_grid_order(pd.DataFrame(rows), jobs)
     _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
+    if record is not None:
+        for path in release_teachers(cfg, grid, sorted({j.seed for j in jobs}), record):
+            print(f"[sweep] teacher weights released (every student recorded): {path}", flush=True)
     return res
+
+
+def release_teachers(
+    cfg: Config, grid: str, seeds: Sequence[int] | None = None, record: GridData | None = None
+) -> list[Path]:
+    """Take out of the checkout the kept weights of every teacher of ``grid`` whose dependent evaluations (its own
+    and its students', over the whole grid at that seed) are all recorded; returns the pointers written
+    (:meth:`omcrl.pipeline.griddata.GridData.release_weights`: weights not yet committed stay).
+
+    ``seeds``: default every seed ``record`` holds; ``record``: default the grid's data in the checkout.
+    """
+    record = record if record is not None else GridData(grid_data_dir(cfg, grid))
+    seeds = list(seeds) if seeds is not None else record.seeds()
+    if not seeds:
+        return []
+    jobs = expand(cfg, grid, seeds)
+    up = upstream(jobs)
+    by_id = {j.id: j for j in jobs}
+    out = []
+    for jid, label in _teachers(jobs, _record_targets(jobs)).items():
+        needs_it = [j for j in jobs if j.kind == "evaluate" and jid in up[j.id]]
+        if all(record.has_episodes(j.label, j.seed) for j in needs_it):
+            pointer = record.release_weights(label, by_id[jid].seed, "rl")
+            if pointer is not None:
+                out.append(pointer)
+    return out
 
 
 def _record_targets(jobs: Sequence[Job]) -> dict[str, list[tuple[str, str]]]:
@@ -664,18 +693,25 @@ def sweep_stage(
     progress: bool = True,
     plan: bool = False,
     rates: str | None = None,
+    release: bool = False,
     **kw: Any,
 ) -> str:
     """CLI stage ``sweep``: ``python -m omcrl sweep <grid|all> --preset P [--seeds 0,1,2] [--address A]
     [--backend B]``; writes each grid's table (:func:`run_ablations`) and returns its account. ``--plan`` prints
     the jobs and their cost (rates from ``--rates FILE.json``, else from this preset's finished sweeps) and runs
-    nothing."""
+    nothing. ``--release-teachers`` only takes the kept weights of teachers whose students are all recorded out of
+    the checkout (:func:`release_teachers`) and runs nothing."""
     if grid is None:
         raise ConfigError(f"stage 'sweep' needs a grid name, one of {[*GRIDS, 'all']}")
     # ``a,b``: several grids in turn (``table1,all``: Table I's training and then every ablation).
     grids = list(dict.fromkeys(g for name in grid.split(",") for g in (ABLATION_GRIDS if name == "all" else [name])))
     for g in grids:
         grid_variants(g)
+    if release:
+        released = [p for g in grids for p in release_teachers(cfg, g, seeds)]
+        if not released:
+            return "no teacher weights to release (none kept, a student still to record, or not yet committed)"
+        return "\n".join(["released teacher weights (now read from git history):", *map(str, released)])
     if plan:
         if rates is not None:
             r = json.loads(Path(rates).read_text(encoding="utf-8"))
