@@ -104,6 +104,33 @@ def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is
     assert (cfg.run_root / "tables" / "ablation_test.md").exists()
 
 
+def test_a_training_no_sweep_timed_is_rated_from_its_own_clock(tmp_path, monkeypatch):
+    """An oracle laid out from kept weights was never timed by a sweep (its jobs.csv row is a 0.06 s skip): its
+    recorded run's rollout_s + update_s rate train:oracle, so --plan no longer leaves the oracles out. A kind that a
+    jobs.csv measured keeps that rate; a run recorded under two labels counts once."""
+    import gzip
+    import json
+
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    grid = tmp_path / "reference" / "smoke" / "g-v2"
+
+    def record(label: str, method: str, key: str, rows: str) -> None:
+        d = grid / label / "seed0" / "rl"
+        d.mkdir(parents=True)
+        (d / "run.json").write_text(json.dumps({"stage": "rl", "method": method, "seed": 0, "key": key}))
+        (d / "metrics.csv.gz").write_bytes(gzip.compress(("step,metric,value\n" + rows).encode()))
+
+    clock = "100,rollout_s,3\n100,update_s,1\n100,loss,9\n200,rollout_s,3\n200,update_s,1\n"
+    record("oracle", "oracle", "k1", clock)
+    record("oracle-again", "oracle", "k1", clock)
+    record("ours", "ours", "k2", clock)
+    pd.DataFrame([{"id": "train:ours", "kind": "train", "method": "ours", "seed": 0, "status": "done", "seconds": 2.0,
+                   "rate_key": "train:frozen", "work": 200}]).to_csv(grid / "jobs.csv", index=False)  # fmt: skip
+    rates = planning.measured_rates(load_config("smoke")).set_index("rate_key")
+    assert rates.loc["train:oracle", "rate"] == pytest.approx(200 / 8) and rates.loc["train:oracle", "jobs"] == 1
+    assert rates.loc["train:frozen", "rate"] == pytest.approx(100) and rates.loc["train:frozen", "jobs"] == 1
+
+
 def test_plan_counts_shared_jobs_once_and_knows_the_main_comparison(tmp_path):
     paper = load_config("paper", overrides=[f"results_dir={tmp_path}"])
     plan = planning.sweep_plan(paper, ["projection", "oracle-teacher"], [0])

@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import pandas as pd
@@ -300,21 +301,56 @@ def measured_rates(cfg: Config, grids: Sequence[str] | None = None) -> pd.DataFr
 
     Reads ``results/<preset>/sweeps/<grid>/jobs.csv`` for ``grids`` (default: every grid that has one) and the
     ``jobs.csv`` committed beside each grid's data (``reference/<preset>/<grid>-<suite>/``, so a fresh checkout has
-    the rates its grids measured); cached jobs are left out. Returns one row per ``rate_key``: ``jobs``,
+    the rates its grids measured); cached jobs are left out. A training kind that no ``jobs.csv`` measured is rated
+    from the recorded runs' own clocks (:func:`recorded_training_times`). Returns one row per ``rate_key``: ``jobs``,
     ``median_s`` (per job), ``rate`` (median of work / seconds).
     """
     root, shipped = cfg.run_root / "sweeps", project_root() / "reference" / cfg.preset
     files = [root / g / "jobs.csv" for g in grids] if grids else sorted(root.glob("*/jobs.csv"))
-    for pattern in [f"{g}-*/jobs.csv" for g in grids] if grids else ["*/jobs.csv"]:
-        files += sorted(shipped.glob(pattern))
+    patterns = [f"{g}-*" for g in grids] if grids else ["*"]
+    for pattern in patterns:
+        files += sorted(shipped.glob(f"{pattern}/jobs.csv"))
     frames = [pd.read_csv(f) for f in files if f.exists()]
-    if not frames:
-        return pd.DataFrame(columns=["rate_key", "jobs", "median_s", "rate"])
-    df = pd.concat(frames).drop_duplicates("id")
+    df = pd.concat(frames).drop_duplicates("id") if frames else pd.DataFrame(columns=JOB_COLUMNS)
     df = df[(df["status"] == "done") & (df["seconds"] > 0)]
+    own = pd.DataFrame(
+        [r for pattern in patterns for d in sorted(shipped.glob(pattern)) for r in recorded_training_times(d)],
+        columns=JOB_COLUMNS,
+    )
+    df = pd.concat([df, own[~own["rate_key"].isin(set(df["rate_key"]))].drop_duplicates("id")])
+    if df.empty:
+        return pd.DataFrame(columns=["rate_key", "jobs", "median_s", "rate"])
     df = df.assign(rate=df["work"] / df["seconds"])
     out = df.groupby("rate_key").agg(jobs=("id", "size"), median_s=("seconds", "median"), rate=("rate", "median"))
     return out.reset_index()
+
+
+JOB_COLUMNS = ["id", "status", "seconds", "rate_key", "work"]
+
+
+def recorded_training_times(grid_dir: Path) -> list[dict]:
+    """One ``jobs.csv``-like row per training run recorded under a grid's data folder (``<label>/seed<k>/rl/``):
+    its seconds are the sum of the ``rollout_s`` and ``update_s`` its PPO updates logged (start-up and the
+    evaluation left out), its work the last step logged.
+
+    For runs that no sweep timed: a teacher laid out from kept weights, or one trained before its grid recorded
+    job times. Runs recorded under several labels count once (``id``: the run's key and seed).
+    """
+    import gzip
+    import io
+    import json
+
+    rows = []
+    for path in sorted(grid_dir.glob("*/seed*/rl/metrics.csv.gz")):
+        rec = json.loads((path.parent / "run.json").read_text(encoding="utf-8"))
+        m = pd.read_csv(io.BytesIO(gzip.decompress(path.read_bytes())))
+        seconds = m.loc[m["metric"].isin(["rollout_s", "update_s"]), "value"].sum()
+        if seconds <= 0 or rec.get("method") is None:
+            continue
+        key = f"train:{get_method(rec['method']).features}"
+        rows.append({"id": f"run:{rec.get('key')}:seed{rec.get('seed')}", "status": "done", "seconds": float(seconds),
+                     "rate_key": key, "work": int(m["step"].max())})  # fmt: skip
+    return rows
 
 
 def describe_plan(
