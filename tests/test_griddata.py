@@ -113,6 +113,21 @@ def test_a_teachers_weights_travel_so_a_new_machine_trains_its_students_without_
     by_kind = {(j.kind, j.method): only.status[j.id] for j in only.jobs}
     assert by_kind[("train", "oracle")] == "skipped" and by_kind[("evaluate", "ours")] == "done"
     assert ("evaluate", "oracle") not in by_kind
+    # Another grid whose variants need that oracle but do not record it (the budget ladder's students): its own
+    # record keeps no teacher, and the oracle is laid out from the grid that keeps it, found by run key and seed.
+    import shutil
+
+    monkeypatch.setitem(GRIDS, "pupils", (Variant("ours", "ours"),))
+    shutil.copytree(tmp_path / "machine-b2", tmp_path / "machine-b3")
+    (copied,) = (tmp_path / "machine-b3" / "results").glob("smoke/runs/rl/oracle-*/seed0")
+    shutil.rmtree(copied)
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-b3"))
+    other = GridData(tmp_path / "pupils-record")
+    pupils = run_sweep(load_config("smoke"), "pupils", [0], backend="local", progress=False, record=other)
+    by_kind = {(j.kind, j.method): pupils.status[j.id] for j in pupils.jobs}
+    assert by_kind[("train", "oracle")] == "skipped" and by_kind[("train", "ours")] == "skipped"
+    assert (copied / "final.pt").read_bytes() == kept.read_bytes()
+    assert not list(other.root.rglob("*.pt"))
     # Damaged kept weights are refused before any job runs, naming the file; nothing is written.
     monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-c"))
     record.remove("ours", 0)

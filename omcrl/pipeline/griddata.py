@@ -320,6 +320,23 @@ class GridData:
         shutil.rmtree(self.folder(label, seed), ignore_errors=True)
 
 
+def find_kept_run(grids_dir: str | Path, run: Run, stage: str = "rl") -> tuple[GridData, str] | None:
+    """The grid record under ``grids_dir`` (``reference/<preset>/``, every grid and suite) that keeps ``run``'s
+    weights, and the label it keeps them under; None when none does.
+
+    A run is the same run wherever it is recorded: its key and seed decide (the Table I grid's oracle is also the
+    teacher of the budget ladder's students, which the ladder's own record does not keep).
+    """
+    for rec in sorted(Path(grids_dir).glob(f"*/*/seed{int(run.seed)}/{stage}/run.json")):
+        ident = read_identity(rec.parent) or {}
+        if ident.get("key") != run.key or ident.get("seed") != run.seed:
+            continue
+        grid, label = GridData(rec.parents[3]), rec.parents[2].name
+        if grid.has_weights(label, run.seed, stage):
+            return grid, label
+    return None
+
+
 def tables_from_reference(cfg: Config, grid: str = "table1", reps: int = 2000) -> Table1Result:
     """Table I, the claim ledger's verdicts and Fig. 5 from the grid's data in the checkout alone (nothing trained
     or flown): writes ``tables/table1.*`` and ``tables/ledger_verdicts.*`` under ``cfg.run_root`` and

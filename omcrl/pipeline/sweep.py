@@ -35,7 +35,7 @@ import pandas as pd
 from omcrl.config import ROOT_ENV, Config, ConfigError, load_config, project_root, resolve_path
 from omcrl.eval.ablation import ablation_table, write_ablation, write_precision, write_remedies
 from omcrl.eval.stage import eval_cache_dir, evaluate_methods
-from omcrl.pipeline.griddata import GridData, grid_data_dir
+from omcrl.pipeline.griddata import GridData, find_kept_run, grid_data_dir
 from omcrl.pipeline.grids import ABLATION_GRIDS, DEFAULT_VARIANT, GRIDS, REMEDY_GRIDS, grid_variants
 from omcrl.pipeline.plan import (
     Job,
@@ -241,7 +241,10 @@ def run_sweep(
     ``variants``: only these variants (labels) and what they need upstream (ConfigError naming the grid's labels
     for an unknown one, before any job runs).
     A teacher's weights (a training run other training jobs need: the oracle) are kept there too, and laid out as
-    its finished run folder before anything runs, so a new machine trains its students without training it again.
+    its finished run folder before anything runs, so a new machine trains its students without training it again;
+    a run that another grid's record keeps (the same key and seed: Table I's oracle for the budget ladder) is laid
+    out from there (:func:`omcrl.pipeline.griddata.find_kept_run`). Once every evaluation that needs a teacher is
+    recorded, its weights leave the checkout for git history (:func:`release_teachers`).
     """
     if backend not in ("ray", "local"):
         raise ConfigError(f"sweep backend: got {backend!r}, expected 'ray' or 'local'")
@@ -295,10 +298,17 @@ def run_sweep(
             bar.update(1, **_postfix(res, running))
     todo = [j for j in jobs if j.id not in recorded]
     if record is not None:
+        # A training run whose weights a grid record of this preset keeps (this grid's teacher, or the same run
+        # kept by another grid: Table I's oracle for the budget ladder) is laid out instead of trained.
         for job in todo:
-            if job.id in teachers and (run := _train_run(base, job)) is not None:
-                if record.restore_run(teachers[job.id], "rl", run):
-                    print(f"[sweep] {job.method} seed {job.seed}: kept weights restored into {run.dir}", flush=True)
+            if job.kind != "train" or (run := _train_run(base, job)) is None:
+                continue
+            kept = (record, teachers[job.id]) if job.id in teachers else None
+            if kept is None or not kept[0].has_weights(kept[1], job.seed, "rl"):
+                kept = find_kept_run(record.root.parent, run) or kept
+            if kept is not None and kept[0].restore_run(kept[1], "rl", run):
+                where = "" if kept[0] is record else f" (kept by {kept[0].root.name})"
+                print(f"[sweep] {job.method} seed {job.seed}: kept weights restored into {run.dir}{where}", flush=True)
     if backend == "local":
         for job in todo:
             if any(res.status.get(d) in ("failed", "blocked") for d in job.deps):
