@@ -25,17 +25,14 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import hashlib
-import io
 import json
 import shutil
 import sys
-import tarfile
 from pathlib import Path
 
-from omcrl.pipeline.reference import ARCHIVE, MANIFEST, verify_reference
+from omcrl.pipeline.reference import ARCHIVE, MANIFEST, verify_reference, write_archive
 from omcrl.pipeline.storage import sha256
-from omcrl.utils.io import atomic_write_text, file_digest
+from omcrl.utils.io import atomic_write_text, bytes_digest, file_digest
 
 MIGRATION = "pretraining records: done.json merged into run.json (scripts/migrate_runs.py, issue 43)"
 
@@ -96,20 +93,15 @@ def migrate_bundle(bundle: Path) -> int:
         if rel.endswith("/run.json") and done_rel in contents:
             rec = merged(json.loads(data), json.loads(contents[done_rel]), f"{bundle}: {rel}")
             enc = contents.get(rel.removesuffix("run.json") + "encoder.pt")
-            if enc is not None and hashlib.sha1(enc).hexdigest()[:16] != rec["artifact_digest"]:
+            if enc is not None and bytes_digest(enc) != rec["artifact_digest"]:
                 raise SystemExit(f"{bundle}: {rel}'s encoder does not match its recorded digest; not migrating")
             data = json.dumps(rec, indent=1).encode()
         new[rel] = data
     tmp = bundle.with_name(bundle.name + ".migrating")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    with tarfile.open(tmp / ARCHIVE, "w:xz", preset=9) as tar:
-        for rel, data in new.items():
-            info = tarfile.TarInfo(rel)
-            info.size, info.mtime, info.mode = len(data), 0, 0o644  # as pack_reference writes members
-            tar.addfile(info, io.BytesIO(data))
     out = dict(manifest)
-    out["files"] = {rel: {"sha256": hashlib.sha256(d).hexdigest(), "bytes": len(d)} for rel, d in new.items()}
+    out["files"] = write_archive(tmp / ARCHIVE, new.items())
     out["archive"] = {"name": ARCHIVE, "sha256": sha256(tmp / ARCHIVE), "bytes": (tmp / ARCHIVE).stat().st_size}
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     out["migrated"] = [*manifest.get("migrated", []), {"what": MIGRATION, "made": when, "runs": len(dones)}]

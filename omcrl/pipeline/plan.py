@@ -24,6 +24,7 @@ from omcrl.pipeline.notebooks import overrides_from_config
 from omcrl.pretrain.train import pretrain_run
 from omcrl.rl.methods import encoder_config, get_method
 from omcrl.rl.train import oracle_run
+from omcrl.runs import read_identity, read_metrics
 from omcrl.utils.runtime import cpu_count
 
 KINDS = ("collect", "pretrain", "train", "evaluate")
@@ -336,14 +337,10 @@ def recorded_training_times(grid_dir: Path) -> list[dict]:
     For runs that no sweep timed: a teacher laid out from kept weights, or one trained before its grid recorded
     job times. Runs recorded under several labels count once (``id``: the run's key and seed).
     """
-    import gzip
-    import io
-    import json
-
     rows = []
     for path in sorted(grid_dir.glob("*/seed*/rl/metrics.csv.gz")):
-        rec = json.loads((path.parent / "run.json").read_text(encoding="utf-8"))
-        m = pd.read_csv(io.BytesIO(gzip.decompress(path.read_bytes())))
+        rec = read_identity(path.parent) or {}
+        m = read_metrics(path)
         seconds = m.loc[m["metric"].isin(["rollout_s", "update_s"]), "value"].sum()
         if seconds <= 0 or rec.get("method") is None:
             continue

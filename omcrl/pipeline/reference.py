@@ -31,7 +31,7 @@ import json
 import lzma
 import shutil
 import tarfile
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -266,6 +266,20 @@ def _rounding_effect(before: Any, after: Any) -> dict[str, Any]:
     }
 
 
+def write_archive(path: Path, members: Iterable[tuple[str, bytes]]) -> dict[str, dict[str, Any]]:
+    """Write a bundle's ``runs.tar.xz`` from ``(name, content)`` pairs, in their order, and return the manifest's
+    ``files`` entries (SHA-256 and size of each). Members carry no dates or owners: the same runs give the same
+    bytes."""
+    entries: dict[str, dict[str, Any]] = {}
+    with tarfile.open(path, "w:xz", preset=9) as tar:
+        for rel, data in members:
+            entries[rel] = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}
+            info = tarfile.TarInfo(rel)
+            info.size, info.mtime, info.mode = len(data), 0, 0o644
+            tar.addfile(info, io.BytesIO(data))
+    return entries
+
+
 def pack_reference(
     cfg: Config,
     seeds: Sequence[int] | None = None,
@@ -336,15 +350,8 @@ def pack_reference(
         ups = sorted(_digests_in((read_identity(run) or {}).get("identity", {})) & encoders)
         return (own, 0, str(f)) if own in encoders else ((ups or ["~"])[0], 1, str(f))
 
-    entries: dict[str, dict[str, Any]] = {}
-    with tarfile.open(tmp / ARCHIVE, "w:xz", preset=9) as tar:
-        for f in sorted(files, key=order):
-            rel = f.relative_to(stage.run_root).as_posix()
-            data = f.read_bytes()
-            entries[rel] = {"sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)}
-            info = tarfile.TarInfo(rel)
-            info.size, info.mtime, info.mode = len(data), 0, 0o644  # no dates or owners: the same runs, same bytes
-            tar.addfile(info, io.BytesIO(data))
+    members = ((f.relative_to(stage.run_root).as_posix(), f.read_bytes()) for f in sorted(files, key=order))
+    entries = write_archive(tmp / ARCHIVE, members)
     manifest = {
         "format": FORMAT,
         "preset": cfg.preset,

@@ -303,11 +303,9 @@ def run_sweep(
         for job in todo:
             if job.kind != "train" or (run := _train_run(base, job)) is None:
                 continue
-            kept = (record, teachers[job.id]) if job.id in teachers else None
-            if kept is None or not kept[0].has_weights(kept[1], job.seed, "rl"):
-                kept = find_kept_run(record.root.parent, run) or kept
+            kept = find_kept_run(record.root.parent, run)
             if kept is not None and kept[0].restore_run(kept[1], "rl", run):
-                where = "" if kept[0] is record else f" (kept by {kept[0].root.name})"
+                where = "" if kept[0].root == record.root else f" (kept by {kept[0].root.name})"
                 print(f"[sweep] {job.method} seed {job.seed}: kept weights restored into {run.dir}{where}", flush=True)
     if backend == "local":
         for job in todo:
