@@ -203,8 +203,33 @@ class PretrainConfig:
 
 
 @dataclass
-class RLConfig:
-    """Downstream PPO with optional oracle guidance (paper IV-C, V-D)."""
+class GuidanceConfig:
+    """The decaying KL term towards a guide (paper IV-C, eq. 8; V-D: α from 0.95, decayed linearly): the weight α's
+    schedule, the KL scale β, and the std given to a deterministic (planner) guide. A student's settings are in
+    ``rl``, the oracle's own in ``oracle``, so that changing one never changes the other."""
+
+    alpha_schedule: str = _f("linear", choices=("linear", "exp", "fixed", "none"))
+    alpha_start: float = _f(0.95, lo=0.0, hi=1.0)
+    alpha_decay_steps: int = _f(100000, lo=1, hi=10**10, doc="linear: steps to reach 0")
+    alpha_exp_factor: float = _f(0.95, lo=0.0, hi=1.0, doc="exp: multiply every alpha_exp_every steps")
+    alpha_exp_every: int = _f(1000, lo=1, hi=10**9)
+    beta: float = _f(1.0, lo=0.0, hi=1000.0, doc="KL scale")
+    guide_std: float = _f(0.2, lo=1e-4, hi=10.0, doc="std given to a deterministic (planner) guide")
+
+
+@dataclass
+class OracleConfig(GuidanceConfig):
+    """The oracle teacher's own guidance (a kit deviation, docs/DEVIATIONS.md §4): its PPO is pulled early towards
+    the privileged Hybrid APF through the same decaying KL term a student has towards the oracle. Its PPO budget
+    and settings are ``rl``'s; only the guidance is its own."""
+
+    guide: str = _f("apf", choices=("apf", "none"), doc="'apf': Hybrid APF on the true map; 'none': pure PPO (paper)")
+
+
+@dataclass
+class RLConfig(GuidanceConfig):
+    """Downstream PPO with optional guidance (paper IV-C, V-D): a student's (and, but for its guidance in
+    ``oracle``, the oracle's)."""
 
     total_steps: int = _f(200000, lo=1, hi=10**10, doc="environment steps over all envs")
     n_envs: int = _f(2, lo=1, hi=256, doc="parallel environments")
@@ -221,18 +246,6 @@ class RLConfig:
     max_grad_norm: float = _f(0.5, lo=0.0, hi=1000.0)
     hidden: int = _f(256, lo=8, hi=8192, doc="width of the two actor/critic layers")
     init_log_std: float = _f(-0.5, lo=-10.0, hi=2.0)
-    alpha_schedule: str = _f("linear", choices=("linear", "exp", "fixed", "none"))
-    alpha_start: float = _f(0.95, lo=0.0, hi=1.0)
-    alpha_decay_steps: int = _f(100000, lo=1, hi=10**10, doc="linear: steps to reach 0")
-    alpha_exp_factor: float = _f(0.95, lo=0.0, hi=1.0, doc="exp: multiply every alpha_exp_every steps")
-    alpha_exp_every: int = _f(1000, lo=1, hi=10**9)
-    beta: float = _f(1.0, lo=0.0, hi=1000.0, doc="KL scale")
-    guide_std: float = _f(0.2, lo=1e-4, hi=10.0, doc="std given to a deterministic guide (NPE)")
-    oracle_guide: str = _f(
-        "apf",
-        choices=("apf", "none"),
-        doc="oracle PPO guided early by HybridAPF through the KL term ('none': pure PPO)",
-    )
     checkpoint_every: int = _f(20480, lo=1, hi=10**10, doc="env steps between checkpoints", execution=True)
     num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads while the envs step (rollouts)", execution=True)
     device: str = _f(
@@ -318,6 +331,7 @@ class Config:
     data: DataConfig = field(default_factory=DataConfig)
     pretrain: PretrainConfig = field(default_factory=PretrainConfig)
     rl: RLConfig = field(default_factory=RLConfig)
+    oracle: OracleConfig = field(default_factory=OracleConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     sweep: SweepConfig = field(default_factory=SweepConfig)
 
@@ -461,13 +475,18 @@ def _resolve_type(name: str) -> Any:
     }.get(name, eval(name))
 
 
+# Fields that moved, for the error a config file written before the move gets (a run's saved config.yaml).
+MOVED = {"rl.oracle_guide": "oracle.guide"}
+
+
 def _apply(obj: Any, values: dict, prefix: str = "") -> None:
     """Set ``values`` (nested dict) on dataclass ``obj``, validating each field; unknown names are errors."""
     by_name = {f.name: f for f in fields(obj)}
     for key, val in values.items():
         path = f"{prefix}{key}"
         if key not in by_name:
-            raise ConfigError(f"config field '{path}' does not exist; known fields: {sorted(by_name)}")
+            moved = f" (it is now '{MOVED[path]}')" if path in MOVED else ""
+            raise ConfigError(f"config field '{path}' does not exist{moved}; known fields: {sorted(by_name)}")
         cur = getattr(obj, key)
         if dataclasses.is_dataclass(cur):
             if not isinstance(val, dict):

@@ -55,6 +55,9 @@ def test_unknown_field_is_named():
         load_config("smoke", overrides=["env.wings=2"])
     with pytest.raises(ConfigError, match="nosection"):
         load_config("smoke", overrides={"nosection": {"x": 1}})
+    # A run's config.yaml from before a field moved names where it went.
+    with pytest.raises(ConfigError, match=r"'rl\.oracle_guide' does not exist \(it is now 'oracle\.guide'\)"):
+        load_config("smoke", overrides={"rl": {"oracle_guide": "apf"}})
 
 
 def test_nan_float_from_a_mapping():

@@ -15,6 +15,8 @@ from omcrl.config import (
     DataConfig,
     EnvConfig,
     EvalConfig,
+    GuidanceConfig,
+    OracleConfig,
     PretrainConfig,
     RLConfig,
     _f,
@@ -24,9 +26,18 @@ from omcrl.config import (
     validate,
 )
 from omcrl.pretrain.train import pretrain_run
+from omcrl.rl.methods import planner_factory
 from omcrl.rl.train import oracle_run, policy_run
 
-SECTIONS = {"env": EnvConfig, "data": DataConfig, "pretrain": PretrainConfig, "rl": RLConfig, "eval": EvalConfig}
+SECTIONS = {
+    "env": EnvConfig,
+    "data": DataConfig,
+    "pretrain": PretrainConfig,
+    "rl": RLConfig,
+    "oracle": OracleConfig,
+    "eval": EvalConfig,
+}
+GUIDANCE = {f.name for f in dataclasses.fields(GuidanceConfig)}
 
 
 def _cfg(tmp_path, *overrides: str) -> Config:
@@ -34,7 +45,8 @@ def _cfg(tmp_path, *overrides: str) -> Config:
 
 
 def _keys(cfg: Config, tmp_path) -> dict[str, str]:
-    """The keys of the runs a Table I grid opens: the oracle, the OMC encoder, a student on both."""
+    """The keys of the runs a Table I grid opens: the oracle, the OMC encoder, a student on both, an unguided and a
+    planner-guided pixel student."""
     enc, orc = tmp_path / "enc.pt", tmp_path / "oracle.pt"
     enc.write_bytes(b"encoder"), orc.write_bytes(b"oracle")
     return {
@@ -42,6 +54,7 @@ def _keys(cfg: Config, tmp_path) -> dict[str, str]:
         "encoder": pretrain_run(cfg).key,
         "student": policy_run(cfg, "ours", enc, orc).key,
         "ppo": policy_run(cfg, "ppo", None).key,
+        "npe": policy_run(cfg, "npe", None, None, planner_factory(cfg, "local-apf")).key,
     }
 
 
@@ -85,6 +98,7 @@ def test_section_identity_is_the_fields_off_their_defaults_less_execution_only()
         "data": ["file"],
         "pretrain": ["checkpoint_every", "num_threads", "device"],
         "rl": ["checkpoint_every", "num_threads", "device", "update_threads"],
+        "oracle": [],
         "eval": ["workers"],
     }
 
@@ -92,7 +106,14 @@ def test_section_identity_is_the_fields_off_their_defaults_less_execution_only()
 def test_a_field_added_at_its_default_changes_no_key(tmp_path):
     cfg = _cfg(tmp_path)
     before = _keys(cfg, tmp_path)
-    for name, base in (("rl", RLConfig), ("env", EnvConfig), ("pretrain", PretrainConfig), ("data", DataConfig)):
+    sections = {
+        "rl": RLConfig,
+        "oracle": OracleConfig,
+        "env": EnvConfig,
+        "pretrain": PretrainConfig,
+        "data": DataConfig,
+    }
+    for name, base in sections.items():
         grown = dataclasses.make_dataclass(
             f"Grown{base.__name__}", [("new_knob", float, _f(0.5, lo=0.0, hi=1.0, doc="added later"))], bases=(base,)
         )
@@ -105,12 +126,13 @@ def test_a_field_added_at_its_default_changes_no_key(tmp_path):
         assert changed, name
 
 
-@pytest.mark.parametrize("section", ["rl", "env", "pretrain", "data"])
+@pytest.mark.parametrize("section", ["rl", "oracle", "env", "pretrain", "data"])
 def test_every_identity_field_changes_a_key_and_no_execution_field_does(tmp_path, section):
     cfg = _cfg(tmp_path)
     before = _keys(cfg, tmp_path)
-    # The runs that read each section: the oracle reads rl and env, pretraining reads pretrain, data and env.
-    reader = {"rl": "oracle", "env": "oracle", "pretrain": "encoder", "data": "encoder"}[section]
+    # The runs that read each section: the oracle reads rl (less a student's guidance), oracle and env, pretraining
+    # reads pretrain, data and env.
+    reader = {"rl": "oracle", "oracle": "oracle", "env": "oracle", "pretrain": "encoder", "data": "encoder"}[section]
     tried = 0
     for f in dataclasses.fields(getattr(cfg, section)):
         value = getattr(getattr(cfg, section), f.name)
@@ -128,36 +150,43 @@ def test_every_identity_field_changes_a_key_and_no_execution_field_does(tmp_path
         keys = _keys(c, tmp_path)
         if f.metadata.get("execution"):
             assert keys == before, f"{section}.{f.name} is execution-only but changed a key"
-        elif section == "rl" and f.name == "oracle_guide":
-            assert keys["oracle"] != before["oracle"] and keys["student"] == before["student"]  # via the digest
+        elif section == "rl" and f.name in GUIDANCE:
+            # A student's guidance: the oracle-guided student reads the schedule and β, the planner-guided one its std.
+            who = "npe" if f.name == "guide_std" else "student"
+            assert keys["oracle"] == before["oracle"] and keys[who] != before[who], f"rl.{f.name}"
+        elif section == "oracle":
+            assert keys["oracle"] != before["oracle"], f"oracle.{f.name}"
+            assert keys["student"] == before["student"]  # a student sees its oracle by the oracle file's digest
         elif section == "env" and f.name == "scene":
             assert keys["oracle"] != before["oracle"] and keys["encoder"] == before["encoder"]  # data.scene is its
         else:
             assert keys[reader] != before[reader], f"{section}.{f.name}: {value!r} -> {new!r} kept the key"
         tried += 1
-    assert tried >= {"rl": 20, "env": 25, "pretrain": 20, "data": 9}[section]
+    assert tried >= {"rl": 20, "oracle": 7, "env": 25, "pretrain": 20, "data": 9}[section]
 
 
 def test_unread_fields_do_not_key_a_run(tmp_path):
-    """An unguided method does not read the α/β fields; a student does not read the oracle's guide."""
+    """An unguided method does not read the α/β fields; the oracle does not read a student's, nor a student the
+    oracle's (it sees its oracle by the file's digest)."""
     cfg = _cfg(tmp_path)
     before = _keys(cfg, tmp_path)
-    c = _cfg(tmp_path, "rl.alpha_decay_steps=12345", "rl.beta=0.5")
-    after = _keys(c, tmp_path)
-    assert (
-        after["ppo"] == before["ppo"] and after["student"] != before["student"] and after["oracle"] != before["oracle"]
-    )
+    after = _keys(_cfg(tmp_path, "rl.alpha_decay_steps=12345", "rl.beta=0.5"), tmp_path)
+    assert after["ppo"] == before["ppo"] and after["student"] != before["student"]
+    assert after["oracle"] == before["oracle"]
+    after = _keys(_cfg(tmp_path, "oracle.alpha_decay_steps=12345", "oracle.beta=0.5"), tmp_path)
+    assert after["oracle"] != before["oracle"]
+    assert {k for k in after if after[k] != before[k]} == {"oracle"}
 
 
 def test_a_behaviour_version_rekeys_what_depends_on_it(tmp_path, monkeypatch):
     cfg = _cfg(tmp_path)
     before = _keys(cfg, tmp_path)
     for component, moved in (
-        ("rl", {"oracle", "student", "ppo"}),
+        ("rl", {"oracle", "student", "ppo", "npe"}),
         ("pretrain", {"encoder"}),
         ("data", {"encoder"}),
-        ("env", {"oracle", "encoder", "student", "ppo"}),
-        ("planners", {"oracle", "student", "ppo"}),
+        ("env", {"oracle", "encoder", "student", "ppo", "npe"}),
+        ("planners", {"oracle", "student", "ppo", "npe"}),
         ("eval", set()),
     ):
         monkeypatch.setitem(R.BEHAVIOUR, component, R.BEHAVIOUR[component] + 1)

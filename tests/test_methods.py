@@ -104,11 +104,20 @@ def test_registry_separates_configs_that_change_the_artifact(grid):
     base = oracle_run(cfg)
     # feature_dim sets the oracle's depth-encoder width: another folder (the reported defect).
     assert oracle_run(_cfg(grid["root"], "pretrain.feature_dim=48")).dir != base.dir
-    for changed in ("rl.total_steps=512", "env.max_steps=61", "rl.oracle_guide=none", "rl.lr=0.001"):
+    for changed in (
+        "rl.total_steps=512",
+        "env.max_steps=61",
+        "oracle.guide=none",
+        "rl.lr=0.001",
+        "oracle.alpha_decay_steps=77",
+        "oracle.guide_std=0.3",
+    ):
         assert oracle_run(_cfg(grid["root"], changed)).dir != base.dir, changed
     # Fields that do not change what is trained: the same folder.
     same_artifact = ("rl.checkpoint_every=128", "rl.update_threads=1", "eval.episodes=7", "eval.workers=1")
-    for same in (*same_artifact, "pretrain.iterations=99", "seeds=[0,1]"):
+    # A student's guidance is not the oracle's: the decay ablation keeps the comparison's oracle.
+    students = ("rl.alpha_decay_steps=77", "rl.alpha_schedule=exp", "rl.beta=0.5", "rl.guide_std=0.3")
+    for same in (*same_artifact, *students, "pretrain.iterations=99", "seeds=[0,1]"):
         assert oracle_run(_cfg(grid["root"], same)).dir == base.dir, same
     # Another seed: same parent (method and key), its own seed folder.
     other = oracle_run(cfg.with_seed(3))

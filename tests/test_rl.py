@@ -362,7 +362,7 @@ def test_oracle_and_student_train_and_check_checkpoints(tmp_path):
         alpha_decay_steps=256,
     )
     cfg.pretrain.feature_dim = 8
-    cfg.rl.oracle_guide = "none"  # the toy env has no map for the HybridAPF guide (tests/test_integration.py has)
+    cfg.oracle.guide = "none"  # the toy env has no map for the HybridAPF guide (tests/test_integration.py has)
     oracle = train_oracle(cfg, make_env=toy_vec(), progress=False)
     pol = oracle.policy()
     env = ToyNav()
@@ -383,6 +383,7 @@ def test_oracle_and_student_train_and_check_checkpoints(tmp_path):
         train_student(cfg, enc, tmp_path / "missing_oracle.pt", name="y", make_env=toy_vec(), progress=False)
     cfg24 = rl_cfg(tmp_path / "b", total_steps=128, buffer_size=128, minibatch=64, checkpoint_every=10_000)
     cfg24.pretrain.feature_dim = 8
+    cfg24.oracle.guide = "none"
     other = train_oracle(cfg24, make_env=toy_vec(24), progress=False)
     with pytest.raises(CheckpointError, match=r"oracle-\w+/seed0/final.pt.*depth: checkpoint \[2, 24, 24\]"):
         train_student(cfg, enc, other.final_path, name="z", make_env=toy_vec(), progress=False)

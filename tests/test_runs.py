@@ -145,6 +145,7 @@ def test_one_lifecycle_stops_on_a_callback_and_resumes_from_its_checkpoint(tmp_p
     done = train_method(cfg, "ppo", progress=False, callbacks=(rec2,))
     assert rec2.events[0] == ("start", 256) and rec2.events[-1] == ("end", 512, True)
     assert done.steps == 512 and (done.run_dir / "final.pt").exists() and not (done.run_dir / "checkpoint.pt").exists()
+    assert (cut.start, done.start) == (0, 256)  # a sweep sets the resumed call's time against 256 steps, not 512
     rows = read_metrics(done.run_dir)
     assert sorted(set(rows["step"])) == [128, 256, 384, 512] and rows.groupby("step").size().nunique() == 1
     # Finished: a third call skips it, and the callbacks are not run.

@@ -162,7 +162,7 @@ def test_a_new_method_kind_is_one_recipe_class_and_one_registry_row(tmp_path, mo
                 save_encoder(path, enc.f, enc.phi, cfg)
             return path
 
-        def run(self, cfg, spec, oracle_cfg=None):
+        def run(self, cfg, spec):
             return policy_run(cfg, spec.name, self.encoder(cfg))
 
         def train(self, cfg, spec, needs, **common):

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Collection, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from omcrl.config import Config, ConfigError, config_hash, load_config, parse_override, project_root
-from omcrl.pipeline.grids import ABLATION_GRIDS, FULL_BUDGET_GRIDS, Variant, grid_variants
+from omcrl.config import Config, ConfigError, config_hash, load_config, parse_override, project_root, section_identity
+from omcrl.pipeline.grids import ABLATION_GRIDS, FULL_BUDGET_GRIDS, grid_variants
 from omcrl.pipeline.notebooks import overrides_from_config
 from omcrl.pretrain.train import pretrain_run
 from omcrl.rl.methods import encoder_config, get_method
@@ -41,7 +41,6 @@ class Job:
     overrides: tuple[str, ...]
     deps: tuple[str, ...] = ()
     label: str = ""
-    oracle_overrides: tuple[str, ...] | None = None  # where a train/evaluate job finds its oracle (None: overrides)
 
     @property
     def log_name(self) -> str:
@@ -89,14 +88,16 @@ def base_overrides(cfg: Config) -> list[str]:
 
 
 def budget_overrides(cfg: Config) -> tuple[str, ...]:
-    """Overrides that give sweep runs the budgets of ``cfg.sweep`` (none at 0): RL env steps, with the α decay
-    scaled by the same ratio so guidance fades over the same share of training, and pretraining iterations."""
+    """Overrides that give sweep runs the budgets of ``cfg.sweep`` (none at 0): RL env steps, with the α decays
+    (the students' and the oracle's) scaled by the same ratio so guidance fades over the same share of training,
+    and pretraining iterations."""
     out = []
     if cfg.sweep.rl_steps:
         ratio = cfg.sweep.rl_steps / cfg.rl.total_steps
         out += [
             f"rl.total_steps={cfg.sweep.rl_steps}",
             f"rl.alpha_decay_steps={max(1, round(cfg.rl.alpha_decay_steps * ratio))}",
+            f"oracle.alpha_decay_steps={max(1, round(cfg.oracle.alpha_decay_steps * ratio))}",
         ]
     if cfg.sweep.pretrain_iterations:
         out.append(f"pretrain.iterations={cfg.sweep.pretrain_iterations}")
@@ -118,16 +119,14 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
         return job.id
 
     for v in grid_variants(grid):
-        oracle_ov = (*budget, *v.overrides)
-        v = Variant(v.label, v.method, (*oracle_ov, *v.student_only))
+        overrides = (*budget, *v.overrides)
         spec = get_method(v.method)
         if not spec.learned:
             raise ConfigError(f"sweep {grid}: variant {v.label!r} uses planner {v.method!r}; sweeps train methods")
         for s in seeds:
-            c = job_config(cfg, v.overrides, s)
-            co = job_config(cfg, oracle_ov, s)
+            c = job_config(cfg, overrides, s)
             deps: list[str] = []
-            oracle = Job(f"train:{oracle_run(co).dir}", "train", "oracle", s, oracle_ov)
+            oracle = Job(f"train:{oracle_run(c).dir}", "train", "oracle", s, overrides)
             if spec.recipe.pretrained:
                 # Data flown partly by the oracle (data.policy=oracle) waits for that oracle.
                 by_oracle = c.data.policy == "oracle"
@@ -137,28 +136,26 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
                         "collect",
                         v.method,
                         s,
-                        v.overrides,
+                        overrides,
                         (add(oracle),) if by_oracle else (),
-                        oracle_overrides=oracle_ov if by_oracle else None,
                     )
                 )
                 enc_run = pretrain_run(encoder_config(c, spec))
-                deps.append(add(Job(f"pretrain:{enc_run.dir}", "pretrain", v.method, s, v.overrides, (col,))))
+                deps.append(add(Job(f"pretrain:{enc_run.dir}", "pretrain", v.method, s, overrides, (col,))))
             if spec.guide == "oracle" or spec.recipe.teacher:
                 deps.append(add(oracle))
             if not spec.recipe.teacher:
-                # Dependencies by their ids without this machine's project root: the same job has the same id (and
-                # sweep-storage key) on every machine.
+                # Dependencies by their ids without this machine's project root, and the sections by the one identity
+                # rule unresolved (no "auto" decided by this machine): the same job has the same id (and sweep-storage
+                # key) on every machine, and a field added at its default changes none.
                 portable = [d.replace(str(project_root()), "<root>") for d in deps]
-                ident = {"method": v.method, "rl": asdict(c.rl), "env": asdict(c.env), "deps": portable, "seed": s}
+                rl, env = section_identity(c.rl), section_identity(c.env)
+                ident = {"method": v.method, "rl": rl, "env": env, "deps": portable, "seed": s}
                 ident |= spec.recipe.job_identity(c)
-                tid = add(
-                    Job(f"train:{v.method}:{config_hash(ident)}", "train", v.method, s, v.overrides, tuple(deps),
-                        oracle_overrides=oracle_ov)
-                )  # fmt: skip
+                tid = add(Job(f"train:{v.method}:{config_hash(ident)}", "train", v.method, s, overrides, tuple(deps)))
             else:
                 tid = deps[-1]
-            add(Job(f"evaluate:{v.label}:{tid}", "evaluate", v.method, s, v.overrides, (tid,), v.label, oracle_ov))
+            add(Job(f"evaluate:{v.label}:{tid}", "evaluate", v.method, s, overrides, (tid,), v.label))
     return list(jobs.values())
 
 

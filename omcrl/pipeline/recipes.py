@@ -30,23 +30,21 @@ def train_method(
     progress: bool = True,
     overwrite: bool = False,
     make_env: Callable[[int], Any] | None = None,
-    oracle_cfg: Config | None = None,
     callbacks: tuple[Any, ...] = (),
 ) -> Result:
     """Train one learned method of the comparison at ``cfg.seed`` (skip if finished, resume if interrupted).
 
-    Prerequisites are found, not trained: a frozen encoder must have been pretrained
-    (:func:`pretrain_method`) and a method guided by the oracle needs the oracle's run finished: the oracle of
-    ``oracle_cfg`` when given (an ablation that changes the student's α schedule keeps the comparison's oracle),
-    else of ``cfg``. A missing one
-    raises :class:`CheckpointError` naming the file and the command that makes it, before anything is trained.
+    Prerequisites are found, not trained: a frozen encoder must have been pretrained (:func:`pretrain_method`) and
+    a method guided by the oracle needs the oracle's run finished (the oracle of ``cfg``, whose guidance is
+    ``cfg.oracle``: a student's ``rl.alpha_*`` do not change it). A missing one raises :class:`CheckpointError`
+    naming the file and the command that makes it, before anything is trained.
     ``callbacks``: :class:`omcrl.runs.Callback` s of the training lifecycle (e.g. :class:`omcrl.runs.StopAfter`).
     """
     spec = get_method(method)
     if not spec.learned:
         raise ConfigError(f"method {method!r} is a planner: it is not trained (evaluate it directly)")
     # Every missing prerequisite at once, with its command (not one now and the next after 30 minutes).
-    needs = spec.recipe.needs(cfg, spec, oracle_cfg)
+    needs = spec.recipe.needs(cfg, spec)
     missing = [n for n in needs if not n.path.exists()]
     if missing:
         raise CheckpointError(

@@ -49,7 +49,7 @@ from omcrl.pipeline.plan import (
     work_rows,
 )
 from omcrl.pipeline.recipes import pretrain_method, train_method
-from omcrl.pipeline.stages import collect_stage, oracle_policy
+from omcrl.pipeline.stages import collect_stage
 from omcrl.pipeline.storage import Storage, job_key
 from omcrl.planners import PLANNERS
 from omcrl.rl.methods import final_policy_path, get_method
@@ -72,6 +72,7 @@ class SweepResult:
     episodes: pd.DataFrame = field(default_factory=pd.DataFrame)
     wall_s: float = 0.0
     seconds: dict[str, float] = field(default_factory=dict)  # job id -> wall time of this invocation (s)
+    started: dict[str, int] = field(default_factory=dict)  # job id -> env step a resumed training began at
 
     @property
     def failed(self) -> list[Job]:
@@ -134,7 +135,7 @@ def run_job(preset_cfg: dict, job: Job, log_path: str, share: dict | None = None
             if store is not None:
                 got = store.pull(share["pull"])
                 print(f"[sweep] from storage {store.uri} into {project_root()}: {got}", flush=True)
-            status, rows, outputs = _run_stage(preset_cfg, job)
+            status, rows, outputs, start = _run_stage(preset_cfg, job)
             if store is not None:
                 m = store.push(share["key"], outputs)
                 print(f"[sweep] pushed {len(m['files'])} files to {store.uri} ({share['key']})", flush=True)
@@ -143,36 +144,35 @@ def run_job(preset_cfg: dict, job: Job, log_path: str, share: dict | None = None
     finally:
         if store is not None:
             store.push_log(share["grid"], Path(log_path).name, Path(log_path))
-    return {"status": status, "seconds": time.perf_counter() - t0, "rows": rows, "outputs": [str(p) for p in outputs]}
+    return {"status": status, "seconds": time.perf_counter() - t0, "rows": rows, "outputs": [str(p) for p in outputs],
+            "start": start}  # fmt: skip
 
 
-def _job_configs(preset_cfg: dict, job: Job) -> tuple[Config, Config | None]:
-    """The config a job runs with, and its oracle's (None: the job's own)."""
+def _job_config(preset_cfg: dict, job: Job) -> Config:
+    """The config a job runs with."""
     base = load_config(preset_cfg["preset"], overrides=preset_cfg["overrides"])
-    cfg = job_config(base, job.overrides, job.seed)
-    return cfg, None if job.oracle_overrides is None else job_config(base, job.oracle_overrides, job.seed)
+    return job_config(base, job.overrides, job.seed)
 
 
-def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path]]:
-    """The stage of one job in this process: ``(status, evaluation rows, output paths)``."""
-    cfg, oracle_cfg = _job_configs(preset_cfg, job)
+def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path], int]:
+    """The stage of one job in this process: ``(status, evaluation rows, output paths, start)``; ``start``: the env
+    step a resumed training began at (0 otherwise), so that its time is set against the steps it trained."""
+    cfg = _job_config(preset_cfg, job)
     if cfg.eval.workers == 0 and job.kind == "evaluate":
         cfg.eval.workers = job_cpus(cfg, job)
     rows: list[dict] = []
     result: Any = None
     if job.kind == "collect":
-        # The oracle that flies the policy share is the variant's teacher (without student-only overrides).
-        flyer = oracle_policy(oracle_cfg) if oracle_cfg is not None and cfg.data.policy == "oracle" else None
-        result = collect_stage(cfg, flyer, progress=False)
+        result = collect_stage(cfg, progress=False)  # with data.policy=oracle, the variant's oracle flies
         skipped = bool(result.skipped)
     elif job.kind == "pretrain":
         result = pretrain_method(cfg, job.method, progress=False)
         skipped = bool(result.skipped)
     elif job.kind == "train":
-        result = train_method(cfg, job.method, progress=False, oracle_cfg=oracle_cfg)
+        result = train_method(cfg, job.method, progress=False)
         skipped = bool(result.skipped)
     else:
-        path = final_policy_path(cfg, job.method, oracle_cfg)
+        path = final_policy_path(cfg, job.method)
         if path is None:
             raise FileNotFoundError(f"{job.method} seed {job.seed}: no finished run to evaluate")
         counts: dict[str, int] = {}
@@ -181,7 +181,8 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path]]
         skipped = counts.get("evaluated", 0) == 0
         df = df.drop(columns=["trajectory"], errors="ignore").assign(label=job.label, overrides=" ".join(job.overrides))
         rows = json.loads(df.to_json(orient="records"))
-    return ("skipped" if skipped else "done"), rows, _outputs(cfg, job, result)
+    start = int(getattr(result, "start", 0)) if job.kind == "train" else 0
+    return ("skipped" if skipped else "done"), rows, _outputs(cfg, job, result), start
 
 
 def upstream(jobs: Sequence[Job]) -> dict[str, list[str]]:
@@ -273,6 +274,7 @@ def run_sweep(
         else:
             res.status[job.id] = out["status"]
             res.seconds[job.id] = float(out["seconds"])
+            res.started[job.id] = int(out.get("start", 0))
             rows.extend(out["rows"])
             if record is not None:
                 for label, stage in targets.get(job.id, ()):
@@ -400,9 +402,9 @@ def _teachers(jobs: Sequence[Job], targets: dict[str, list[tuple[str, str]]]) ->
 
 def _train_run(preset_cfg: dict, job: Job) -> Any:
     """The :class:`omcrl.runs.Run` a training job trains into, or None while its own prerequisites are missing."""
-    cfg, oracle_cfg = _job_configs(preset_cfg, job)
+    cfg = _job_config(preset_cfg, job)
     spec = get_method(job.method)
-    return spec.recipe.run(cfg, spec, oracle_cfg)
+    return spec.recipe.run(cfg, spec)
 
 
 def _recorded(jobs: Sequence[Job], record: GridData) -> set[str]:
@@ -449,9 +451,11 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path, portable: bool 
         st = res.status.get(j.id)
         if st == "done" or (st == "skipped" and name(j.id) not in kept):
             w = plan[j.id]
+            # A resumed training timed only the part after its checkpoint: its work is that part too.
+            work = max(0, w.work - res.started.get(j.id, 0))
             kept[name(j.id)] = {"id": name(j.id), "kind": j.kind, "method": j.method, "seed": j.seed, "status": st,
                           "seconds": round(res.seconds.get(j.id, float("nan")), 2), "rate_key": w.rate_key,
-                          "work": w.work}  # fmt: skip
+                          "work": work}  # fmt: skip
     # Named columns: a sweep that measured nothing (every job recorded) still writes a file that reads back.
     atomic_write_text(path, pd.DataFrame(list(kept.values()), columns=JOB_TIME_COLUMNS).to_csv(index=False))
 
@@ -766,8 +770,7 @@ def variant_runs(cfg: Config, res: SweepResult) -> dict[str, dict[int, Path]]:
     for j in res.jobs:
         if j.kind != "evaluate":
             continue
-        oracle_cfg = None if j.oracle_overrides is None else job_config(cfg, j.oracle_overrides, j.seed)
-        path = final_policy_path(job_config(cfg, j.overrides, j.seed), j.method, oracle_cfg)
+        path = final_policy_path(job_config(cfg, j.overrides, j.seed), j.method)
         if path is not None:
             out.setdefault(j.label, {})[j.seed] = path.parent
     return out

@@ -8,7 +8,7 @@ with the same env-step budget, PPO settings and seed for every method.
 
 | method | features | encoder | guide |
 | --- | --- | --- | --- |
-| ``oracle`` | depth + privileged state | — (trained) | Hybrid APF (``rl.oracle_guide``) |
+| ``oracle`` | depth + privileged state | — (trained) | Hybrid APF (``oracle.guide``) |
 | ``ours`` | frozen f+φ | OMC | the oracle |
 | ``ours-noOT`` | frozen f+φ | OMC | none |
 | ``curl`` | frozen f | CURL (no φ) | none |
@@ -48,8 +48,8 @@ class MethodSpec:
     features : the method's kind, a key of :data:`RECIPES`: ``oracle`` | ``frozen`` | ``pixel`` | ``planner``.
     encoder : pretraining overrides for a frozen encoder (``{"method": "curl", "use_projection": False}``).
     guide : the guide of a student: ``oracle`` | a planner guide of :data:`omcrl.planners.GUIDES` (``local-apf``,
-        ``apf``) | None. The oracle has none here: its own guide is ``rl.oracle_guide``, read by its recipe's
-        trainer (:func:`omcrl.rl.train.train_oracle`).
+        ``apf``) | None. The oracle has none here: its own guide is ``oracle.guide``, with its own schedule in
+        ``cfg.oracle`` (:func:`omcrl.rl.train.oracle_config`).
     privileged : uses inputs a real robot does not have (true map or depth + obstacle vectors).
     description : one line for ``--help``.
     ablation : a variant for the ablations (VI-C), not a row of Table I.
@@ -166,14 +166,14 @@ def planner_factory(cfg: Config, guide: str | None) -> Callable[[], Any] | None:
     return factory
 
 
-def final_policy_path(cfg: Config, method: str, oracle_cfg: Config | None = None) -> Path | None:
+def final_policy_path(cfg: Config, method: str) -> Path | None:
     """``final.pt`` of a learned method's finished run at ``cfg.seed``, or None when it is not there.
 
     The run is derived from the current config and upstream artifacts exactly as its recipe trains it
     (:meth:`Recipe.run`), so only a run of this very configuration is found.
     """
     spec = get_method(method)
-    run = spec.recipe.run(cfg, spec, oracle_cfg)
+    run = spec.recipe.run(cfg, spec)
     p = None if run is None else run.dir / "final.pt"
     return p if p is not None and p.exists() else None
 
@@ -216,15 +216,13 @@ class Recipe:
     camera: ClassVar[bool] = False  # sees the camera through an encoder (Grad-CAM, disturbance tests)
     teacher: ClassVar[bool] = False  # its run is the oracle that guided students need (one shared sweep job)
 
-    def needs(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> list[Need]:
-        """The upstream artifacts, whether present or not: the oracle when the guide is the oracle (that of
-        ``oracle_cfg`` when given: an ablation that changes the student's α schedule keeps the comparison's
-        oracle), and the frozen encoder of a pretrained kind."""
+    def needs(self, cfg: Config, spec: MethodSpec) -> list[Need]:
+        """The upstream artifacts, whether present or not: the oracle when the guide is the oracle, and the frozen
+        encoder of a pretrained kind."""
         out = []
         if spec.guide == "oracle":
-            c = oracle_cfg or cfg
-            cmd = f"python -m omcrl train --method oracle --preset {c.preset} --seed {c.seed}"
-            out.append(Need("oracle", oracle_path(c), "oracle checkpoint", cmd))
+            cmd = f"python -m omcrl train --method oracle --preset {cfg.preset} --seed {cfg.seed}"
+            out.append(Need("oracle", oracle_path(cfg), "oracle checkpoint", cmd))
         if self.pretrained:
             out.append(Need("encoder", encoder_path(cfg, spec), f"{spec.name} encoder", pretrain_command(cfg, spec)))
         return out
@@ -232,10 +230,10 @@ class Recipe:
     def _path(self, needs: list[Need], role: str) -> Path | None:
         return next((n.path for n in needs if n.role == role), None)
 
-    def run(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> Run | None:
+    def run(self, cfg: Config, spec: MethodSpec) -> Run | None:
         """The run this method trains into at ``cfg.seed``, or None while a prerequisite is missing (a policy's
         run identity takes its upstream files' digests)."""
-        needs = self.needs(cfg, spec, oracle_cfg)
+        needs = self.needs(cfg, spec)
         if any(not n.path.exists() for n in needs):
             return None
         enc = self._path(needs, "encoder")
@@ -267,7 +265,7 @@ class OracleRecipe(Recipe):
     kind = "oracle"
     teacher = True
 
-    def run(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> Run | None:
+    def run(self, cfg: Config, spec: MethodSpec) -> Run | None:
         return oracle_run(cfg)
 
     def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:
@@ -309,10 +307,10 @@ class PlannerRecipe(Recipe):
     kind = "planner"
     learned = False
 
-    def needs(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> list[Need]:
+    def needs(self, cfg: Config, spec: MethodSpec) -> list[Need]:
         return []
 
-    def run(self, cfg: Config, spec: MethodSpec, oracle_cfg: Config | None = None) -> Run | None:
+    def run(self, cfg: Config, spec: MethodSpec) -> Run | None:
         return None
 
     def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:

@@ -20,18 +20,19 @@ and reset with a new seed (``seed·1000 + 100·resumes``), so episodes after the
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from omcrl.config import Config, field_default, save_config, section_identity
+from omcrl.config import Config, GuidanceConfig, field_default, save_config, section_identity
 from omcrl.envs import make_vec_env
 from omcrl.envs.render import env_identity
 from omcrl.models.actor_critic import ActorCritic
@@ -71,6 +72,7 @@ __all__ = [
     "METRIC_NAMES",
     "Result",
     "RunConfigMismatch",
+    "oracle_config",
     "oracle_run",
     "policy_run",
     "rl_identity",
@@ -102,8 +104,6 @@ METRIC_NAMES = (
     "update_s",
 )
 
-_GUIDE_FIELDS = ("alpha_schedule", "alpha_start", "alpha_decay_steps", "alpha_exp_factor", "alpha_exp_every", "beta")
-
 
 @dataclass
 class Result:
@@ -113,6 +113,7 @@ class Result:
     final_path: Path
     steps: int
     skipped: bool
+    start: int = 0  # the env step this call began at: a resumed run's checkpoint step (its earlier part not timed)
 
     @property
     def run_dir(self) -> Path:
@@ -139,27 +140,40 @@ def rollout_geometry(rl: Any) -> tuple[int, int, int, int]:
     return length, per_update, n_updates, n_updates * per_update
 
 
-def rl_identity(cfg: Config, guide: str | None, *, oracle: bool = False, **extra: Any) -> dict:
+def rl_identity(cfg: Config, guide: str | None, **extra: Any) -> dict:
     """The identity of an RL run: the RL and env sections as the method reads them, and ``extra``.
 
     Both sections by :func:`~omcrl.config.section_identity` (fields off their defaults; execution-only fields
     never), precision and renderer resolved. Fields the method does not read are set to their defaults first:
     without a guide (``guide`` None, or ``alpha_schedule='none'``) the α/β fields and ``guide_std``, with
     ``alpha_schedule`` 'none'; ``guide_std`` unless the guide is a planner (``"planner"``; ``"policy"``: the
-    oracle); ``oracle_guide`` unless this is the oracle (``oracle``; a student sees it through the oracle's
-    digest). ``extra``: upstream digests and the fields read from other sections (network sizes).
+    oracle). The oracle's run passes its own config (:func:`oracle_config`: its guidance in ``rl``). ``extra``:
+    upstream digests and the fields read from other sections (network sizes).
     """
     rl = cfg.rl
     unread: dict[str, Any] = {}
     if guide is None or rl.alpha_schedule == "none":
-        unread = {k: field_default(rl, k) for k in (*_GUIDE_FIELDS, "guide_std")}
+        unread = {f.name: field_default(rl, f.name) for f in fields(GuidanceConfig)}
         unread["alpha_schedule"] = "none"
     elif guide != "planner":
         unread["guide_std"] = field_default(rl, "guide_std")
-    if not oracle:
-        unread["oracle_guide"] = field_default(rl, "oracle_guide")
     rl_ident = section_identity(rl, precision=section_precision(rl), **unread)
     return {"rl": rl_ident, "env": env_identity(cfg.env), **extra}
+
+
+def oracle_config(cfg: Config) -> Config:
+    """``cfg`` as the oracle teacher trains on it (a copy): ``rl`` with the oracle's own guidance (``cfg.oracle``:
+    its α schedule, β and planner std) in place of the student's, and no guidance with ``oracle.guide='none'``.
+
+    So a change to a student's guidance (``rl.alpha_*``: the decay ablation) leaves the oracle, and the students
+    that learn from it, where they were; the oracle's PPO budget and settings are ``rl``'s.
+    """
+    out = copy.deepcopy(cfg)
+    for f in fields(GuidanceConfig):
+        setattr(out.rl, f.name, getattr(cfg.oracle, f.name))
+    if cfg.oracle.guide == "none":
+        out.rl.alpha_schedule = "none"
+    return out
 
 
 def rl_run(cfg: Config, method: str, identity: dict) -> Run:
@@ -240,6 +254,7 @@ def train(
             optimizer.load_state_dict(ckpt["optimizer"])
             step, update = int(ckpt["step"]), int(ckpt["update"])
             set_rng_state(ckpt["rng"])
+        start = step
         runner = Runner(env, agent, guide, seed=cfg.seed * 1000 + 100 * resumes)
         log = MetricsLog(run.dir, step if ckpt is not None else None)
         bar = Progress(
@@ -337,14 +352,14 @@ def train(
         for cb in callbacks:
             cb.on_end(run, step, finished)
         if not finished:
-            return Result(run, run.checkpoint_path, step, False)
+            return Result(run, run.checkpoint_path, step, False, start)
         meta = {"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})}
         payload = {**policy_payload(agent, space_shapes(obs_space), step, meta=meta), "key": run.key}
         final = run.finish(payload)
     finally:
         env.close()
         run.release()
-    return Result(run, final, step, False)
+    return Result(run, final, step, False, start)
 
 
 # ---------------------------------------------------------------- trainers
@@ -396,23 +411,21 @@ def train_oracle(
 ) -> Result:
     """Oracle teacher π^o: PPO on [DepthEncoder(depth stack), v, ω, θ, Δp ∈ R⁶] (paper IV-C).
 
-    With ``rl.oracle_guide == 'apf'`` (default) the PPO loss gets the same decaying KL term as the student,
-    towards the privileged HybridAPF planner (fixed std ``rl.guide_std``), so the oracle becomes an expert in
-    a CPU budget; ``'none'`` is the paper's unguided PPO (see docs/DEVIATIONS.md for why and what it costs).
-    The depth encoder's width is ``pretrain.feature_dim`` (the same d as the student's features), which is
-    therefore part of the run's identity.
+    With ``oracle.guide == 'apf'`` (default) the PPO loss gets the same decaying KL term as a student has,
+    towards the privileged HybridAPF planner, with the oracle's own schedule and planner std (``cfg.oracle``, put
+    in ``rl`` by :func:`oracle_config`), so the oracle becomes an expert in a CPU budget; ``'none'`` is the
+    paper's unguided PPO (see docs/DEVIATIONS.md for why and what it costs). The depth encoder's width is
+    ``pretrain.feature_dim`` (the same d as the student's features), which is therefore part of the run's
+    identity.
     """
-    guided = cfg.rl.oracle_guide != "none"
+    cfg = oracle_config(cfg)
 
     def make_guide(env: Any) -> Guide | None:
-        if not guided:
-            return None
-
         return PlannerGuide(lambda: HybridAPF(cfg.env), cfg.rl.guide_std, n_envs=env.num_envs)
 
     return train(
         cfg,
-        run=oracle_run(cfg, name, custom_env=make_env is not None),
+        run=_oracle_run(cfg, name, custom_env=make_env is not None),
         make_env=make_env or _default_make_env(cfg),
         build_features=lambda space: make_oracle_features(space, cfg.pretrain.feature_dim, cfg.env.far),
         make_guide=make_guide,
@@ -441,12 +454,18 @@ def _guide_maker(
 
 
 def oracle_run(cfg: Config, name: str = "oracle", *, custom_env: bool = False) -> Run:
-    """The run of the oracle for ``cfg``: its depth encoder's width ``pretrain.feature_dim`` is part of it."""
-    guided = cfg.rl.oracle_guide != "none"
-    ident = rl_identity(
-        cfg, "planner" if guided else None, oracle=True, feature_dim=cfg.pretrain.feature_dim, **_custom(custom_env)
-    )
-    return rl_run(cfg, name, ident)
+    """The run of the oracle for ``cfg``: ``rl`` and ``env`` with the oracle's guidance (:func:`oracle_config`);
+    its depth encoder's width ``pretrain.feature_dim`` is part of it."""
+    return _oracle_run(oracle_config(cfg), name, custom_env=custom_env)
+
+
+def _oracle_run(ocfg: Config, name: str, *, custom_env: bool) -> Run:
+    # The oracle section's guidance fields are in ``rl`` (oracle_config); its other fields off their defaults
+    # (``guide='none'``, any added later) enter here, under their section's name.
+    guidance = {f.name for f in fields(GuidanceConfig)}
+    own = {k: v for k, v in section_identity(ocfg.oracle).items() if k not in guidance}
+    extra = {"feature_dim": ocfg.pretrain.feature_dim, **({"oracle": own} if own else {}), **_custom(custom_env)}
+    return rl_run(ocfg, name, rl_identity(ocfg, "planner", **extra))
 
 
 def policy_run(
