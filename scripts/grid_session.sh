@@ -12,8 +12,8 @@
 # After each variant of each seed, the worktree's reference/<preset>/<grid>-<suite>/ is copied into this checkout
 # and committed alone (`git commit -- <that folder>`: nothing else staged here is committed with it). A variant whose
 # episodes are already recorded there is not trained again, so a session that ends midway loses only the variant in
-# flight. Rebuild the README's and docs/results.md's blocks after it by hand (they are rendered by this checkout's
-# code): python -m omcrl summary --preset quick --readme
+# flight. The README's and docs/results.md's blocks (rendered by this checkout's code) are rebuilt and committed after
+# each ship of table1 (`summary --readme`), unless those files hold uncommitted edits.
 #
 # A teacher's weights (the oracle's final.pt, ~15 MB a seed) are committed with its records; once every evaluation
 # that needs them is recorded, they are released (`sweep --release-teachers`: a pointer to their git blob replaces
@@ -63,6 +63,25 @@ ship() {  # $1: what finished
     fi
   done
   release "$1"
+  summary "$1"
+}
+
+summary() {  # $1: after what; rebuilds and commits the README's and docs/results.md's blocks and the figures
+  # A commit of grid data with the README's block left as it was fails test_summary (the block must match the data),
+  # so the block follows each ship. Skipped, with a line, while those files hold edits of someone else's.
+  [[ "$grid" == table1 ]] || return 0
+  local docs=(README.md docs/results.md "docs/figures/$preset")
+  if ! git -C "$root" diff --quiet HEAD -- "${docs[@]}"; then
+    echo "grid_session: README.md/docs/results.md have uncommitted edits: blocks not rebuilt (run: python -m omcrl summary --preset $preset --readme)"
+    return 0
+  fi
+  (cd "$root" && "$py" -m omcrl summary --preset "$preset" --readme) ||
+    { echo "grid_session: summary --readme failed (the blocks stay as they were)"; return 0; }
+  git -C "$root" add -- "${docs[@]}"
+  if ! git -C "$root" diff --cached --quiet -- "${docs[@]}"; then
+    git -C "$root" commit -q -m "README and docs/results.md blocks and figures rebuilt after $1 (summary --readme)" -- "${docs[@]}"
+    echo "grid_session: committed the rebuilt README and docs/results.md blocks"
+  fi
 }
 
 release() {  # $1: after what; commits the teacher weights that nothing left to train needs any more
