@@ -1,4 +1,5 @@
-"""Migrate pretraining runs written before they finished through ``run.json`` (issue 43: one way to finish a run).
+"""Migrate runs and bundles written before two changes of issue 43 (one way to finish a run; the oracle's guidance in
+its own config section).
 
     python scripts/migrate_runs.py PATH [PATH ...]
 
@@ -14,6 +15,12 @@ stay as they are. A PATH is any of:
   members rewritten in the same order, the manifest's file list and archive digest updated and the migration noted
   under ``migrated``. The new bundle is built beside the old one and swapped in only when complete.
 
+A bundle's manifest also gets, for each override of the guidance fields of ``rl`` it was made under
+(``rl.alpha_*``, ``rl.beta``, ``rl.guide_std``), the same override of ``oracle``: until the oracle had its own
+section (``oracle``, :func:`omcrl.rl.train.oracle_config`) it trained under ``rl``'s, so the shipped quick bundle's
+``rl.alpha_decay_steps=75000`` was its oracle's decay too, and without ``oracle.alpha_decay_steps=75000`` its oracle
+(and the students found through the oracle's file) would be looked for under another key. Only the manifest changes.
+
 What is already migrated is left alone, so running it twice changes nothing. A ``done.json`` whose key is not its
 ``run.json``'s, or an encoder that does not match its recorded digest, stops the script, naming the file, before it
 writes anything for that folder. (The quick bundle's ``done.json`` files predate the one identity rule and name the
@@ -28,13 +35,17 @@ import datetime as dt
 import json
 import shutil
 import sys
+from dataclasses import fields
 from pathlib import Path
 
+from omcrl.config import GuidanceConfig
 from omcrl.pipeline.reference import ARCHIVE, MANIFEST, verify_reference, write_archive
 from omcrl.pipeline.storage import sha256
 from omcrl.utils.io import atomic_write_text, bytes_digest, file_digest
 
 MIGRATION = "pretraining records: done.json merged into run.json (scripts/migrate_runs.py, issue 43)"
+ORACLE_MIGRATION = "overrides: rl's guidance overrides given to the oracle's own section too (scripts/migrate_runs.py)"
+GUIDANCE = tuple(f.name for f in fields(GuidanceConfig))
 
 
 def merged(run: dict, done: dict, where: str) -> dict:
@@ -115,6 +126,39 @@ def migrate_bundle(bundle: Path) -> int:
     return len(dones)
 
 
+def oracle_overrides(overrides: list[str]) -> list[str]:
+    """``overrides`` with an ``oracle.<field>=v`` added after each ``rl.<field>=v`` of a guidance field that has none,
+    and ``rl.oracle_guide=v`` renamed ``oracle.guide=v``."""
+    out: list[str] = []
+    for o in overrides:
+        key, _, value = o.partition("=")
+        section, _, name = key.strip().partition(".")
+        if section == "rl" and name == "oracle_guide":
+            out.append(f"oracle.guide={value}")
+            continue
+        out.append(o)
+        if section == "rl" and name in GUIDANCE and not any(x.startswith(f"oracle.{name}=") for x in overrides):
+            out.append(f"oracle.{name}={value}")
+    return out
+
+
+def migrate_manifest_overrides(bundle: Path) -> int:
+    """Give the oracle's section the guidance overrides a bundle was made under (see the module's text); returns how
+    many overrides were added or renamed."""
+    manifest, _ = verify_reference(bundle)
+    before = list(manifest.get("overrides", []))
+    after = oracle_overrides(before)
+    if after == before:
+        return 0
+    out = dict(manifest, overrides=after)
+    when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    changed = [o for o in after if o not in before]
+    out["migrated"] = [*manifest.get("migrated", []), {"what": ORACLE_MIGRATION, "made": when, "added": changed}]
+    atomic_write_text(bundle / MANIFEST, json.dumps(out, indent=1, sort_keys=True) + "\n")
+    verify_reference(bundle)
+    return len(changed)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("paths", nargs="+", type=Path, help="results folders, grid data folders or bundle folders")
@@ -124,6 +168,7 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"{p}: not a folder")
         if (p / MANIFEST).is_file():
             print(f"{p}: bundle, {migrate_bundle(p)} pretraining runs migrated")
+            print(f"{p}: bundle, {migrate_manifest_overrides(p)} overrides given to the oracle's section")
         else:
             print(f"{p}: {migrate_folders(p)} pretraining runs migrated")
     return 0
