@@ -226,6 +226,10 @@ class OracleConfig(GuidanceConfig):
     guide: str = _f("apf", choices=("apf", "none"), doc="'apf': Hybrid APF on the true map; 'none': pure PPO (paper)")
 
 
+# The guidance fields a student (``rl``) and the oracle (``oracle``) each have: what oracle_config swaps in.
+GUIDANCE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(GuidanceConfig))
+
+
 @dataclass
 class RLConfig(GuidanceConfig):
     """Downstream PPO with optional guidance (paper IV-C, V-D): a student's (and, but for its guidance in

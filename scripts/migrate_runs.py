@@ -35,17 +35,15 @@ import datetime as dt
 import json
 import shutil
 import sys
-from dataclasses import fields
 from pathlib import Path
 
-from omcrl.config import GuidanceConfig
+from omcrl.config import GUIDANCE_FIELDS
 from omcrl.pipeline.reference import ARCHIVE, MANIFEST, verify_reference, write_archive
 from omcrl.pipeline.storage import sha256
 from omcrl.utils.io import atomic_write_text, bytes_digest, file_digest
 
 MIGRATION = "pretraining records: done.json merged into run.json (scripts/migrate_runs.py, issue 43)"
 ORACLE_MIGRATION = "overrides: rl's guidance overrides given to the oracle's own section too (scripts/migrate_runs.py)"
-GUIDANCE = tuple(f.name for f in fields(GuidanceConfig))
 
 
 def merged(run: dict, done: dict, where: str) -> dict:
@@ -137,7 +135,7 @@ def oracle_overrides(overrides: list[str]) -> list[str]:
             out.append(f"oracle.guide={value}")
             continue
         out.append(o)
-        if section == "rl" and name in GUIDANCE and not any(x.startswith(f"oracle.{name}=") for x in overrides):
+        if section == "rl" and name in GUIDANCE_FIELDS and not any(x.startswith(f"oracle.{name}=") for x in overrides):
             out.append(f"oracle.{name}={value}")
     return out
 

@@ -94,11 +94,10 @@ def budget_overrides(cfg: Config) -> tuple[str, ...]:
     out = []
     if cfg.sweep.rl_steps:
         ratio = cfg.sweep.rl_steps / cfg.rl.total_steps
-        out += [
-            f"rl.total_steps={cfg.sweep.rl_steps}",
-            f"rl.alpha_decay_steps={max(1, round(cfg.rl.alpha_decay_steps * ratio))}",
-            f"oracle.alpha_decay_steps={max(1, round(cfg.oracle.alpha_decay_steps * ratio))}",
-        ]
+        out.append(f"rl.total_steps={cfg.sweep.rl_steps}")
+        for section in ("rl", "oracle"):  # every guidance decay scales, the student's and the oracle's
+            decay = getattr(cfg, section).alpha_decay_steps
+            out.append(f"{section}.alpha_decay_steps={max(1, round(decay * ratio))}")
     if cfg.sweep.pretrain_iterations:
         out.append(f"pretrain.iterations={cfg.sweep.pretrain_iterations}")
     return tuple(out)

@@ -25,14 +25,14 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from omcrl.config import Config, GuidanceConfig, field_default, save_config, section_identity
+from omcrl.config import GUIDANCE_FIELDS, Config, field_default, save_config, section_identity
 from omcrl.envs import make_vec_env
 from omcrl.envs.render import env_identity
 from omcrl.models.actor_critic import ActorCritic
@@ -153,7 +153,7 @@ def rl_identity(cfg: Config, guide: str | None, **extra: Any) -> dict:
     rl = cfg.rl
     unread: dict[str, Any] = {}
     if guide is None or rl.alpha_schedule == "none":
-        unread = {f.name: field_default(rl, f.name) for f in fields(GuidanceConfig)}
+        unread = {name: field_default(rl, name) for name in GUIDANCE_FIELDS}
         unread["alpha_schedule"] = "none"
     elif guide != "planner":
         unread["guide_std"] = field_default(rl, "guide_std")
@@ -169,8 +169,8 @@ def oracle_config(cfg: Config) -> Config:
     that learn from it, where they were; the oracle's PPO budget and settings are ``rl``'s.
     """
     out = copy.deepcopy(cfg)
-    for f in fields(GuidanceConfig):
-        setattr(out.rl, f.name, getattr(cfg.oracle, f.name))
+    for name in GUIDANCE_FIELDS:
+        setattr(out.rl, name, getattr(cfg.oracle, name))
     if cfg.oracle.guide == "none":
         out.rl.alpha_schedule = "none"
     return out
@@ -462,8 +462,7 @@ def oracle_run(cfg: Config, name: str = "oracle", *, custom_env: bool = False) -
 def _oracle_run(ocfg: Config, name: str, *, custom_env: bool) -> Run:
     # The oracle section's guidance fields are in ``rl`` (oracle_config); its other fields off their defaults
     # (``guide='none'``, any added later) enter here, under their section's name.
-    guidance = {f.name for f in fields(GuidanceConfig)}
-    own = {k: v for k, v in section_identity(ocfg.oracle).items() if k not in guidance}
+    own = {k: v for k, v in section_identity(ocfg.oracle).items() if k not in GUIDANCE_FIELDS}
     extra = {"feature_dim": ocfg.pretrain.feature_dim, **({"oracle": own} if own else {}), **_custom(custom_env)}
     return rl_run(ocfg, name, rl_identity(ocfg, "planner", **extra))
 
