@@ -203,6 +203,13 @@ def build_parser() -> argparse.ArgumentParser:
                 help="rebuild Table I, the ledger's verdicts and Fig. 5 from reference/<preset>/table1-<suite>/ "
                 "alone (nothing trained or flown)",
             )
+        if name == "ladder":
+            sp.add_argument(
+                "--reports",
+                action="store_true",
+                help="first write the encoder reports (probe R², shift, top-1) the grids' records lack, from the "
+                "encoders in results/<preset>/runs/pretrain (pilot frames flown once)",
+            )
         if name == "replay":
             sp.add_argument("log", help="a flight log CSV (ControlLoop's log_path)")
             sp.add_argument("--out", default=None, help="the PNG (default: beside the log)")
@@ -299,6 +306,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             result = func(cfg, readme=args.readme)
         elif args.stage == "tables":
             result = func(cfg, from_reference=args.from_reference)
+        elif args.stage == "ladder":
+            result = func(cfg, reports=args.reports)
         elif args.stage == "notebooks":
             result = func(cfg, only=_csv(args.only), skip=_csv(args.skip))
         elif args.stage == "sweep":

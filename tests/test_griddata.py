@@ -27,6 +27,8 @@ def test_a_grid_is_recorded_resumed_from_its_records_and_rebuilt_without_trainin
     # The runs' records, small and portable: no weights, metrics compressed, no machine path in the episodes.
     files = {p.relative_to(record.root).as_posix() for p in record.root.rglob("*") if p.is_file()}
     assert "PPO/seed0/rl/metrics.csv.gz" in files and "Ours_w_o_OT/seed0/pretrain/run.json" in files
+    # What its encoder learned travels too (the budget ladder's encoder table reads it).
+    assert "Ours_w_o_OT/seed0/pretrain/report.json" in files
     assert not [f for f in files if f.endswith(".pt")]
     text = gzip.decompress((record.root / "PPO" / "seed0" / "episodes.csv.gz").read_bytes()).decode()
     assert str(tmp_path) not in text

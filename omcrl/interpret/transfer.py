@@ -118,16 +118,22 @@ def pilot_episodes(cfg: Config) -> int:
 
 
 def setting_samples(
-    cfg: Config, episodes: int | None = None, *, progress: bool = False
+    cfg: Config,
+    episodes: int | None = None,
+    *,
+    settings: Sequence[tuple[str, str, dict | None]] = SETTINGS,
+    progress: bool = False,
 ) -> dict[str, dict[str, np.ndarray]]:
     """:func:`omcrl.interpret.shift.pilot_samples` (with the probe's privileged targets) of every setting in
-    :data:`SETTINGS`. Box and "box, other layouts" fly different seeds; every other setting flies the seeds of
-    "box, other layouts", so the two look-swapped settings share their geometry with a scene of their own."""
+    ``settings`` (``(name, scene, disturbance)``, default :data:`SETTINGS`). The first setting (the reference:
+    box) flies twice the episodes on seeds of its own; every other setting flies the seeds of the second ("box,
+    other layouts"), so the two look-swapped settings share their geometry with a scene of their own."""
 
     n = int(episodes if episodes is not None else pilot_episodes(cfg))
     out = {}
-    for name, scene, dist in track(SETTINGS, desc="transfer/pilot frames", unit="setting", enabled=progress):
-        seed, k = (PILOT_SEED + 100, 2 * n) if name == "box" else (PILOT_SEED, n)
+    reference = settings[0][0]
+    for name, scene, dist in track(settings, desc="transfer/pilot frames", unit="setting", enabled=progress):
+        seed, k = (PILOT_SEED + 100, 2 * n) if name == reference else (PILOT_SEED, n)
         out[name] = pilot_samples(scene, k, seed, env_config=cfg.env, disturbance=dist, privileged=True)
     return out
 

@@ -30,6 +30,10 @@ STAGES: dict[str, tuple[str, str]] = {
     "train": ("omcrl.pipeline.stages:train_stage", "train one method of the comparison: --method NAME [--seed K]"),
     "evaluate": ("omcrl.eval:evaluate_stage", "evaluate the policies of --seed (or cfg.seed) and write a quick table"),
     "tables": ("omcrl.pipeline.griddata:tables_stage", "evaluate every method at cfg.seeds and write Table I with CIs"),
+    "ladder": (
+        "omcrl.pipeline.ladder:ladder_stage",
+        "the budget ladder from the grids' records: SR by budget, the encoders' report, the ledger at each budget",
+    ),
     "interpret": (
         "omcrl.interpret.stage:interpret_stage",
         "disturbance tests in a simulated room, Grad-CAM mass on obstacles, feature stability (notebook 08)",
@@ -81,6 +85,9 @@ STAGE_OUTPUTS: dict[str, str] = {
     "default: every finished policy of seed 0 and the Hybrid APF, eval.episodes per scene of eval.scenes",
     "tables": "tables/table1.{csv,md,tex}, table1_vs_paper.{csv,md}, table1_significance.csv, table1_episodes.csv; "
     'default: the config\'s seeds (--set "seeds=[0,1,2]" for three); missing runs are listed, not trained',
+    "ladder": "tables/ladder_table, ladder_encoders, ladder_verdicts (.csv, .md) and figures/ladder_<scene>.png from "
+    "reference/<preset>/{table1,ladder-pretrain,ladder-rl}-<suite>/; default: seeds 0-2, nothing trained or flown "
+    "(--reports first writes the encoder reports the records lack, from this machine's encoders)",
     "interpret": "tables/disturbance, gradcam_mass, stability (.csv, .md) and eval/ caches; default seed 0",
     "transfer": "tables/transfer_*.{csv,md}; default: seed 0's ours run and the scenes of eval.scenes",
     "gradient": "tables/scene_gradient.{csv,md}, scene_gradient_order.md; nothing trained is used",

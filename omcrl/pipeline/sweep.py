@@ -35,6 +35,7 @@ import pandas as pd
 from omcrl.config import ROOT_ENV, Config, ConfigError, load_config, project_root, resolve_path
 from omcrl.eval.ablation import ablation_table, write_ablation, write_precision, write_remedies
 from omcrl.eval.stage import eval_cache_dir, evaluate_methods
+from omcrl.interpret.encoder_report import write_encoder_report
 from omcrl.pipeline.griddata import GridData, find_kept_run, grid_data_dir
 from omcrl.pipeline.grids import ABLATION_GRIDS, DEFAULT_VARIANT, GRIDS, REMEDY_GRIDS, grid_variants
 from omcrl.pipeline.plan import (
@@ -112,7 +113,9 @@ def _outputs(cfg: Config, job: Job, result: Any) -> list[Path]:
 def run_job(preset_cfg: dict, job: Job, log_path: str, share: dict | None = None) -> dict:
     """Run one job (any backend) with its output in ``log_path``; returns ``{"status", "seconds", "rows"}``.
 
-    ``preset_cfg`` is ``{"preset", "overrides"}`` of the sweep's base config (plain data: it travels to Ray workers).
+    ``preset_cfg`` is ``{"preset", "overrides"}`` of the sweep's base config (plain data: it travels to Ray workers),
+    and ``"encoder_reports": True`` when a pretraining job should also write its encoder's ``report.json``
+    (:func:`omcrl.interpret.encoder_report.write_encoder_report`: a grid recorded to the checkout keeps it).
     ``share`` (with ``sweep.storage``): ``{"uri", "grid", "key", "pull"}``: the job pulls the manifests ``pull``
     (its dependencies' and its own) from storage first, and pushes its outputs under ``key`` and its log after;
     ``log_path`` is then taken from this node's project root when relative. Raises whatever the stage raises (the
@@ -168,6 +171,8 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
     elif job.kind == "pretrain":
         result = pretrain_method(cfg, job.method, progress=False)
         skipped = bool(result.skipped)
+        if preset_cfg.get("encoder_reports"):
+            write_encoder_report(cfg, result.run_dir)
     elif job.kind == "train":
         result = train_method(cfg, job.method, progress=False)
         skipped = bool(result.skipped)
@@ -258,7 +263,8 @@ def run_sweep(
     ids = {j.id for j in jobs}
     teachers = {jid: label for jid, label in _teachers(every, _record_targets(every)).items() if jid in ids}
     logs_dir = cfg.run_root / "sweeps" / grid / "logs"
-    base = {"preset": cfg.preset, "overrides": base_overrides(cfg)}
+    # A grid recorded to the checkout keeps what its encoders learned too (the budget ladder's encoder table).
+    base = {"preset": cfg.preset, "overrides": base_overrides(cfg), "encoder_reports": record is not None}
     res = SweepResult(grid, jobs, {}, logs={j.id: logs_dir / j.log_name for j in jobs})
     store = Storage(cfg.sweep.storage) if cfg.sweep.storage else None
     shares = _shares(jobs, grid, store)

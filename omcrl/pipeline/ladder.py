@@ -1,0 +1,295 @@
+"""The budget ladder from the grids' data in the checkout: does a verdict move with scale?
+
+``python -m omcrl ladder --preset quick`` reads what the grids ``table1`` (the ×1 points), ``ladder-pretrain`` and
+``ladder-rl`` recorded under ``reference/<preset>/`` (:mod:`omcrl.pipeline.griddata`) and writes, nothing trained or
+flown::
+
+    tables/ladder_table.{csv,md}      per ladder (pretrain, rl), method, budget multiplier and scene: SR, CR and SPL
+                                      with 95 % CIs over seeds × layouts (Table I's intervals, omcrl.eval.stats)
+    tables/ladder_encoders.{csv,md}   per pretraining point: the objective's top-1 at the end of pretraining, the
+                                      linear probe's R² in the training scene and each unseen scene, and the
+                                      features' shift (MMD²) from the training scene (omcrl.interpret.encoder_report),
+                                      mean over the seeds whose report is recorded
+    tables/ladder_verdicts.{csv,md}   the claim ledger (omcrl.eval.ledger) judged at each point of each ladder, on the
+                                      rows whose methods that ladder trains (planners are budget-free and join every
+                                      point); Holm over the rows judged at that point; ``stable`` says whether a
+                                      row's verdict is the same at every budget of the ladder
+    figures/ladder_<scene>.png        SR against budget (log axis), one panel per ladder
+
+A point is a method at a multiplier of the preset's budget: pretraining (dataset episodes, iterations and the
+Transformer's warm-up scaled together) or RL (env steps, with the guidance decay scaled). The ×1 points are Table I's
+runs at the ladder's seeds (:data:`LADDER_SEEDS`), so every point is compared over the same seeds and layouts.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import pandas as pd
+
+from omcrl.config import Config
+from omcrl.eval.stage import to_markdown
+from omcrl.eval.stats import DEFAULT_REPS, aggregate
+from omcrl.eval.verdicts import ledger_verdicts
+from omcrl.interpret.encoder_report import REPORT, read_report, suite_settings, write_encoder_report
+from omcrl.interpret.transfer import setting_samples
+from omcrl.pipeline.griddata import GridData, grid_data_dir
+from omcrl.pipeline.grids import GRIDS
+from omcrl.pipeline.reference import config_suite
+from omcrl.planners import PLANNERS
+from omcrl.utils.io import atomic_write_bytes, atomic_write_text
+from omcrl.viz import save_figure
+from omcrl.viz.ladder import plot_ladder
+
+BASE_GRID = "table1"
+# ladder -> (its grid, the field whose multiplier is the ladder's budget)
+LADDERS: dict[str, tuple[str, str]] = {
+    "pretrain": ("ladder-pretrain", "pretrain.iterations"),
+    "rl": ("ladder-rl", "rl.total_steps"),
+}
+# The issue's seeds for the ladder; Table I's ×1 points are taken at the same ones.
+LADDER_SEEDS = (0, 1, 2)
+SHOWN = ("SR", "CR", "SPL")
+
+
+def _multiplier(overrides: Sequence[str], field_name: str) -> float | None:
+    for o in overrides:
+        m = re.fullmatch(rf"{re.escape(field_name)}\*=([0-9.]+)", o.strip())
+        if m:
+            return float(m.group(1))
+    return None
+
+
+def ladder_points() -> pd.DataFrame:
+    """Every point of every ladder: ``axis, grid, label, method, scale`` (the ×1 points are Table I's labels)."""
+    rows = []
+    for axis, (grid, field_name) in LADDERS.items():
+        variants = GRIDS[grid]
+        for method in dict.fromkeys(v.method for v in variants):
+            rows.append({"axis": axis, "grid": BASE_GRID, "label": method, "method": method, "scale": 1.0})
+        for v in variants:
+            scale = _multiplier(v.overrides, field_name)
+            if scale is None:
+                raise ValueError(f"ladder {axis}: variant {v.label!r} of {grid} has no '{field_name}*=' override")
+            rows.append({"axis": axis, "grid": grid, "label": v.label, "method": v.method, "scale": scale})
+    return pd.DataFrame(rows)
+
+
+def budgets(cfg: Config) -> dict[str, str]:
+    """``{axis: what its ×1 is at cfg}``, for the figure's axis labels."""
+    return {
+        "pretrain": f"{cfg.pretrain.iterations:,} iterations on {cfg.data.episodes:,} episodes",
+        "rl": f"{cfg.rl.total_steps:,} env steps",
+    }
+
+
+def _planners(cfg: Config) -> pd.DataFrame:
+    """The planners' recorded episodes (budget-free: they join every point)."""
+    ep = GridData(grid_data_dir(cfg, BASE_GRID)).episodes()
+    return ep[ep["method"].isin(list(PLANNERS))] if len(ep) else ep
+
+
+def ladder_episodes(cfg: Config, seeds: Sequence[int] = LADDER_SEEDS) -> pd.DataFrame:
+    """Every recorded episode of every ladder point at the training ``seeds``, with ``axis`` and ``scale`` columns
+    (``method`` is the point's method, ``label`` its grid label); an empty frame when nothing is recorded."""
+    frames = []
+    data = {g: GridData(grid_data_dir(cfg, g)) for g in {BASE_GRID, *(g for g, _ in LADDERS.values())}}
+    for p in ladder_points().itertuples():
+        ep = data[p.grid].episodes([p.label])
+        if len(ep):
+            ep = ep[ep["train_seed"].isin(list(seeds))]
+            frames.append(ep.assign(axis=p.axis, scale=p.scale, method=p.method))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def ladder_table(episodes: pd.DataFrame, reps: int = DEFAULT_REPS) -> pd.DataFrame:
+    """Mean and 95 % CI (omcrl.eval.stats.aggregate) of every metric per ``axis, method, scale, scene``."""
+    if episodes.empty:
+        return pd.DataFrame(columns=["axis", "method", "scale", "scene", "seeds", "episodes"])
+    out = aggregate(episodes, ("axis", "method", "scale", "scene"), reps=reps).reset_index()
+    return out.sort_values(["axis", "method", "scale"], kind="stable", ignore_index=True)
+
+
+def encoder_rows(cfg: Config, seeds: Sequence[int] = LADDER_SEEDS) -> pd.DataFrame:
+    """The recorded encoder reports of the pretraining ladder's points, long: ``method, scale, seed, quantity,
+    setting, value`` (quantity ``top1``, ``probe_r2`` or ``mmd``)."""
+    rows = []
+    for p in ladder_points().query("axis == 'pretrain'").itertuples():
+        data = GridData(grid_data_dir(cfg, p.grid))
+        for s in seeds:
+            rep = read_report(data.folder(p.label, s) / "pretrain")
+            if rep is None:
+                continue
+            base = {"method": p.method, "scale": p.scale, "seed": s}
+            rows.append({**base, "quantity": "top1", "setting": "", "value": rep.get("top1", math.nan)})
+            for q in ("probe_r2", "mmd"):
+                rows += [{**base, "quantity": q, "setting": k, "value": v} for k, v in rep.get(q, {}).items()]
+    return pd.DataFrame(rows, columns=["method", "scale", "seed", "quantity", "setting", "value"])
+
+
+def encoder_table(rows: pd.DataFrame, reference: str) -> pd.DataFrame:
+    """One row per ``method, scale``: ``seeds`` reported, ``top1`` and a column per setting for the probe's R²
+    (``R2 <setting>``) and the shift from ``reference`` (``MMD <setting>``; the reference itself, 0 by
+    construction, left out), each the mean over the seeds."""
+    if rows.empty:
+        return pd.DataFrame(columns=["method", "scale", "seeds", "top1"])
+    out = rows.groupby(["method", "scale"], sort=False)["seed"].nunique().rename("seeds").to_frame()
+    for q, prefix in (("top1", ""), ("probe_r2", "R2 "), ("mmd", "MMD ")):
+        sub = rows[(rows["quantity"] == q) & ~((q == "mmd") & (rows["setting"] == reference))]
+        wide = sub.pivot_table(index=["method", "scale"], columns="setting", values="value", aggfunc="mean", sort=False)
+        out = out.join(wide.rename(columns=lambda c, p=prefix: (p + c) if c else "top1"))
+    return out.reset_index().sort_values(["method", "scale"], kind="stable", ignore_index=True)
+
+
+def _training(cfg: Config, axis: str, scale: float, seeds: Sequence[int]) -> dict[str, dict[int, Path]]:
+    """``{method: {seed: metrics.csv.gz}}`` of the point's RL runs (Fig. 5's rows of the ledger)."""
+    out: dict[str, dict[int, Path]] = {}
+    points = ladder_points()
+    for p in points[(points["axis"] == axis) & (points["scale"] == scale)].itertuples():
+        runs = GridData(grid_data_dir(cfg, p.grid)).label_metrics(p.label, "rl")
+        got = {s: m for s, m in runs.items() if s in seeds}
+        if got:
+            out[p.method] = got
+    return out
+
+
+def verdicts_by_budget(
+    cfg: Config, episodes: pd.DataFrame, seeds: Sequence[int] = LADDER_SEEDS, reps: int = DEFAULT_REPS
+) -> pd.DataFrame:
+    """The ledger judged at every point of every ladder, long: the ledger's columns plus ``axis`` and ``scale``.
+
+    A point's episodes are its methods' and the planners' (which have no budget); its training runs are its
+    methods'. The rows kept are those that point can judge (a method outside the ladder makes a row ``not run``) and
+    that involve a method of the ladder, so each point's Holm family is the ledger rows of its own methods."""
+    suite = config_suite(cfg)
+    planners = _planners(cfg)
+    frames = []
+    points = ladder_points()
+    for axis in LADDERS:
+        for scale in sorted(points.loc[points["axis"] == axis, "scale"].unique()):
+            ep = episodes[(episodes["axis"] == axis) & (episodes["scale"] == scale)] if len(episodes) else episodes
+            ep = pd.concat([ep, planners], ignore_index=True) if len(planners) else ep
+            v = ledger_verdicts(ep, _training(cfg, axis, scale, seeds), suite, reps)
+            # Rows of planners alone do not depend on a budget: only those with a method of the ladder are kept.
+            mine = v["a"].isin(set(points.loc[points["axis"] == axis, "method"])) | v["b"].isin(
+                set(points.loc[points["axis"] == axis, "method"])
+            )
+            v = v[mine & (v["verdict"] != "not run")]
+            if len(v):
+                frames.append(v.assign(axis=axis, scale=scale))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def verdicts_wide(long: pd.DataFrame) -> pd.DataFrame:
+    """One row per hypothesis, one column per ``<axis> ×<scale>`` (its verdict and estimate; empty where that point
+    has no data), and per ladder ``stable <axis>``: ``yes`` when every budget that judged the row (holds, reversed
+    or undecided; not ``one seed``) gave the same verdict, ``no`` when they differ, empty when fewer than two did."""
+    if long.empty:
+        return pd.DataFrame()
+    long = long.assign(point=[f"{a} ×{s:g}" for a, s in zip(long["axis"], long["scale"])])
+    long["shown"] = [f"{v} ({e:+.1f})" if math.isfinite(e) else v for v, e in zip(long["verdict"], long["estimate"])]
+    wide = long.pivot_table(index=["claim", "hypothesis"], columns="point", values="shown", aggfunc="first", sort=False)
+    for axis in LADDERS:
+        judged = long[(long["axis"] == axis) & (long["verdict"] != "one seed")]
+        same = judged.groupby(["claim", "hypothesis"], sort=False)["verdict"].agg(
+            lambda v: "" if len(v) < 2 else ("yes" if v.nunique() == 1 else "no")
+        )
+        wide[f"stable {axis}"] = same
+    return wide.fillna("").reset_index()
+
+
+def record_encoder_reports(cfg: Config, grids: Sequence[str] = (BASE_GRID, "ladder-pretrain")) -> tuple[list, list]:
+    """Write the encoder report of every recorded pretraining run of ``grids`` that lacks one, from its encoder in
+    ``<run_root>/runs/pretrain/`` (found by the run's key), and record it beside the run's record.
+
+    Returns ``(written, missing)``: the record folders given a report, and those whose encoder is not on this
+    machine (each with the run folder looked for), or is there but is not the file the record's run wrote (another
+    digest: pretrained again). Pilot frames are flown once, on the first report written."""
+    written, missing, samples = [], [], None
+    for grid in grids:
+        data = GridData(grid_data_dir(cfg, grid))
+        for rec in sorted(data.root.glob("*/seed*/pretrain/run.json")):
+            folder = rec.parent
+            if (folder / REPORT).is_file():
+                continue
+            ident = json.loads(rec.read_text(encoding="utf-8"))
+            run_dir = cfg.run_root / "runs" / "pretrain" / f"{ident['method']}-{ident['key']}" / f"seed{ident['seed']}"
+            if not (run_dir / "encoder.pt").is_file():
+                missing.append((folder, run_dir))
+                continue
+            if samples is None:
+                samples = setting_samples(cfg, settings=suite_settings(cfg))
+            report = write_encoder_report(cfg, run_dir, samples)
+            got = json.loads(report.read_text(encoding="utf-8")).get("encoder_digest")
+            if ident.get("artifact_digest") and got != ident["artifact_digest"]:
+                # Another encoder under the same key (pretrained again, not bit for bit): not this record's.
+                missing.append((folder, run_dir))
+                continue
+            atomic_write_bytes(folder / REPORT, report.read_bytes())
+            written.append(folder)
+    return written, missing
+
+
+@dataclass
+class LadderResult:
+    """What :func:`ladder_stage` wrote and the tables it wrote them from."""
+
+    table: pd.DataFrame
+    encoders: pd.DataFrame
+    verdicts: pd.DataFrame
+    paths: dict[str, Path] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    def __repr__(self) -> str:
+        return f"LadderResult({len(self.table)} cells, {len(self.verdicts)} verdicts, {len(self.paths)} files)"
+
+
+def ladder_stage(
+    cfg: Config, *, seeds: Sequence[int] = LADDER_SEEDS, reports: bool = False, reps: int = DEFAULT_REPS
+) -> LadderResult:
+    """CLI stage ``ladder``: the module's tables and figures from the grids' records (FileNotFoundError when no
+    point has recorded episodes). ``reports``: first write the encoder reports the records lack
+    (:func:`record_encoder_reports`, from this machine's encoders)."""
+    t0 = time.perf_counter()
+    if reports:
+        written, missing = record_encoder_reports(cfg)
+        for folder, run_dir in missing:
+            print(f"ladder: no encoder for {folder} on this machine (looked in {run_dir}); its report is left out")
+    episodes = ladder_episodes(cfg, seeds)
+    if episodes.empty:
+        raise FileNotFoundError(
+            f"no ladder point has recorded episodes under {grid_data_dir(cfg, BASE_GRID).parent}; run python -m omcrl "
+            f"sweep table1|ladder-pretrain|ladder-rl --preset {cfg.preset} --to-reference first"
+        )
+    table = ladder_table(episodes, reps)
+    reference = suite_settings(cfg)[0][0]
+    encoders = encoder_table(encoder_rows(cfg, seeds), reference)
+    long = verdicts_by_budget(cfg, episodes, seeds, reps)
+    wide = verdicts_wide(long)
+    out = cfg.run_root / "tables"
+    out.mkdir(parents=True, exist_ok=True)
+    cols = ["axis", "method", "scale", "scene", "seeds", *(c for m in SHOWN for c in (m, f"{m}_lo", f"{m}_hi"))]
+    shown = table[[c for c in cols if c in table]]
+    paths: dict[str, Path] = {}
+    for name, df, md in (
+        ("ladder_table", shown, to_markdown(shown.round(1).set_index("axis"), "axis")),
+        ("ladder_encoders", encoders, to_markdown(encoders.round(3).set_index("method"), "method")),
+        ("ladder_verdicts", long, to_markdown(wide.set_index("claim"), "claim") if len(wide) else "(none)\n"),
+    ):
+        paths[f"{name}.csv"], paths[f"{name}.md"] = out / f"{name}.csv", out / f"{name}.md"
+        atomic_write_text(paths[f"{name}.csv"], df.to_csv(index=False))
+        atomic_write_text(paths[f"{name}.md"], md)
+    points = ladder_points()
+    scales = {a: sorted(points.loc[points["axis"] == a, "scale"].unique()) for a in LADDERS}
+    for scene in dict.fromkeys(table["scene"]):
+        fig = plot_ladder(table, scene, budgets(cfg), scales)
+        paths[f"ladder_{scene}"] = save_figure(fig, cfg.run_root / "figures", f"ladder_{scene}")
+        plt.close(fig)
+    return LadderResult(table, encoders, long, paths, time.perf_counter() - t0)

@@ -1,0 +1,124 @@
+"""The budget ladder (omcrl.pipeline.ladder): its points from the grids, its tables, verdicts by budget and figures
+rebuilt from grid records alone, and the encoder reports (omcrl.interpret.encoder_report) its encoder table reads."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from omcrl.config import load_config
+from omcrl.pipeline.griddata import GridData, grid_data_dir
+from omcrl.pipeline.ladder import ladder_points, ladder_stage, record_encoder_reports
+
+SCENES = ("box-v2", "furniture-v2", "barrier-v2", "tree-v2")
+
+
+def _episodes(
+    method: str, label: str, p: float, seed: int, rng: np.random.Generator, layouts: int = 40
+) -> pd.DataFrame:
+    ok = rng.random((len(SCENES), layouts)) < p
+    rows = [{"method": method, "label": label, "scene": sc, "train_seed": seed, "seed": j, "success": bool(ok[i, j]),
+             "collision": not ok[i, j], "final_distance": 0.1 if ok[i, j] else 3.0,
+             "min_distance": 0.1 if ok[i, j] else 2.0, "path_length": 8.0, "optimal_path_length": 7.0, "steps": 80}
+            for i, sc in enumerate(SCENES) for j in range(layouts)]  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_the_ladders_points_come_from_the_grids():
+    pts = ladder_points()
+    pre = pts[pts.axis == "pretrain"]
+    assert {(m, s) for m, s in zip(pre.method, pre.scale)} == {(m, s) for m in ("ours", "curl") for s in (1, 4, 16)}
+    assert set(pre.loc[pre.scale == 1, "grid"]) == {"table1"} and set(pre.loc[pre.scale > 1, "grid"]) == {
+        "ladder-pretrain"
+    }
+    rl = pts[pts.axis == "rl"]
+    assert {(m, s) for m, s in zip(rl.method, rl.scale)} == {
+        (m, s) for m in ("ours", "npe", "curl", "ppo") for s in (1, 3)
+    }
+
+
+def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    cfg = load_config("smoke", overrides=["eval.scenes=[box-v2,furniture-v2,barrier-v2,tree-v2]"])
+    with pytest.raises(FileNotFoundError, match="no ladder point has recorded episodes"):
+        ladder_stage(cfg, reps=100)
+    rng = np.random.default_rng(0)
+    base, pre = GridData(grid_data_dir(cfg, "table1")), GridData(grid_data_dir(cfg, "ladder-pretrain"))
+    # x1: ours and curl alike (the ledger's "ours > curl" undecided); x4: ours far ahead of curl (it holds).
+    for s in (0, 1, 2):
+        for m in ("ours", "curl"):
+            base.save_episodes(m, s, _episodes(m, m, 0.5, s, rng))
+        pre.save_episodes("ours pretrain x4", s, _episodes("ours", "ours pretrain x4", 0.9, s, rng))
+        pre.save_episodes("curl pretrain x4", s, _episodes("curl", "curl pretrain x4", 0.1, s, rng))
+    base.save_episodes("ours", 3, _episodes("ours", "ours", 0.0, 3, rng))  # Table I's seed 3: not a ladder seed
+    base.save_episodes("hybrid-apf", 0, _episodes("hybrid-apf", "hybrid-apf", 0.3, 0, rng))
+    rec = pre.folder("ours pretrain x4", 0) / "pretrain"
+    rec.mkdir(parents=True)
+    settings = ["box-v2", "box-v2, other layouts", "furniture-v2"]
+    (rec / "report.json").write_text(json.dumps({"top1": 0.4, "probe_r2": dict(zip(settings, (0.3, 0.25, 0.1))),
+                                                 "mmd": dict(zip(settings, (0.0, 0.01, 0.2)))}))  # fmt: skip
+
+    res = ladder_stage(cfg, reps=300)
+    t = res.table.set_index(["axis", "method", "scale", "scene"])
+    assert (
+        t.loc[("pretrain", "ours", 4.0, "tree-v2"), "SR"] > 75
+        and t.loc[("pretrain", "curl", 4.0, "tree-v2"), "SR"] < 25
+    )
+    assert t.loc[("pretrain", "ours", 1.0, "tree-v2"), "seeds"] == 3  # the x1 points at the ladder's seeds only
+    assert ("rl", "ours", 1.0, "box-v2") in t.index and ("pretrain", "ours", 16.0, "box-v2") not in t.index
+    enc = res.encoders.set_index(["method", "scale"])
+    assert enc.loc[("ours", 4.0), "top1"] == 0.4 and enc.loc[("ours", 4.0), "R2 furniture-v2"] == 0.1
+    assert "MMD box-v2" not in enc and enc.loc[("ours", 4.0), "MMD furniture-v2"] == 0.2
+    v = res.verdicts.set_index(["axis", "scale", "hypothesis"])
+    row = "ours > curl on SR in tree-v2"
+    assert v.loc[("pretrain", 4.0, row), "verdict"] == "holds"
+    assert v.loc[("pretrain", 1.0, row), "verdict"] == "undecided"
+    assert not res.verdicts["a"].eq("hybrid-apf").all()  # planner-only rows are left out
+    wide = pd.read_csv(res.paths["ladder_verdicts.csv"])
+    assert len(wide) == len(res.verdicts)
+    md = res.paths["ladder_verdicts.md"].read_text()
+    line = next(x for x in md.splitlines() if f"| {row} |" in x)
+    assert "holds" in line and "undecided" in line and line.rstrip("| ").endswith("no")  # stable pretrain: no
+    for scene in SCENES:
+        assert res.paths[f"ladder_{scene}"].stat().st_size > 5_000
+
+
+def test_an_encoder_report_is_written_once_per_encoder_and_travels_with_the_record(tmp_path, monkeypatch):
+    from omcrl.interpret.encoder_report import read_report, write_encoder_report
+    from omcrl.pipeline import pretrain_method
+    from omcrl.pipeline.stages import collect_stage
+
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    cfg = load_config("smoke", overrides=["eval.scenes=[box-v2,tree-v2]", "eval.episodes=8"])
+    collect_stage(cfg, progress=False)
+    run = pretrain_method(cfg, "ours", progress=False)
+    # The grid's record of that run (as a sweep keeps it) and one whose encoder this machine does not have.
+    data = GridData(grid_data_dir(cfg, "ladder-pretrain"))
+    data.save_run("ours pretrain x4", 0, "pretrain", run.run_dir)
+    other = data.folder("curl pretrain x4", 0) / "pretrain"
+    other.mkdir(parents=True)
+    (other / "run.json").write_text(json.dumps({"method": "curl", "key": "0123456789", "seed": 0}))
+    # ... and one whose run folder is here, but holds another encoder than the one its record names.
+    (data.folder("ours pretrain x16", 0) / "pretrain").mkdir(parents=True)
+    foreign = json.loads((run.run_dir / "run.json").read_text()) | {"artifact_digest": "of the recorded encoder"}
+    (data.folder("ours pretrain x16", 0) / "pretrain" / "run.json").write_text(json.dumps(foreign))
+    written, missing = record_encoder_reports(cfg, ["ladder-pretrain"])
+    assert written == [data.folder("ours pretrain x4", 0) / "pretrain"]
+    assert [m[0] for m in missing] == [other, data.folder("ours pretrain x16", 0) / "pretrain"]
+    assert "curl-0123456789" in str(missing[0][1]) and not (missing[1][0] / "report.json").exists()
+    rep = read_report(written[0])
+    assert rep == read_report(run.run_dir) and rep["reference"] == "box-v2"
+    assert list(rep["probe_r2"]) == ["box-v2", "box-v2, other layouts", "tree-v2"] and rep["episodes"] == 2
+    assert rep["mmd"]["box-v2"] == 0.0 and rep["mmd"]["tree-v2"] > rep["mmd"]["box-v2, other layouts"]
+    assert 0.0 <= rep["top1"] <= 1.0 and all(np.isfinite(list(rep["probe_r2"].values())))
+    # Once per encoder: a second call keeps the file; a report of another encoder file (digest) is made again.
+    path = run.run_dir / "report.json"
+    before = path.stat().st_mtime_ns
+    write_encoder_report(cfg, run.run_dir)
+    assert path.stat().st_mtime_ns == before
+    path.write_text(json.dumps({**rep, "encoder_digest": "of another encoder"}))
+    write_encoder_report(cfg, run.run_dir)
+    assert read_report(run.run_dir) == rep
