@@ -37,6 +37,7 @@ import numpy as np
 
 from omcrl.config import Config, config_hash
 from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
+from omcrl.utils.runtime import machine_info
 
 RUN_FILE = "run.json"
 CHECKPOINT = "checkpoint.pt"
@@ -226,6 +227,12 @@ class Run:
         if found is None:
             record = {"stage": self.stage, "method": self.method, "seed": self.seed, "key": self.key}
             atomic_write_text(self.dir / RUN_FILE, json.dumps({**record, "identity": self.identity}, indent=1))
+        # Same seed, same result holds per machine and torch build (omcrl.utils.runtime.machine_info): every
+        # machine that trained a part of this run is kept, so a result that differs can be traced to its host.
+        here = machine_info()
+        machines = (read_identity(self.dir) or {}).get("machines") or []
+        if not machines or machines[-1] != here:
+            self.record(machines=[*machines, here])
 
     def checkpoint_recorder(self) -> Any:
         """``before_replace`` for :func:`~omcrl.utils.io.atomic_save_torch` of ``checkpoint.pt``: records the new

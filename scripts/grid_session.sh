@@ -2,6 +2,7 @@
 # Run what is left of a grid over seeds, one variant at a time, and commit each finished variant's grid data.
 #
 #   scripts/grid_session.sh [--grid table1] [--seeds 0,1,2,3,4] [--variants oracle,ours,...] [--dir ../omcrl-grid]
+#                           [--backend local|ray] [--set FIELD=VALUE ...]
 #
 # A session is shorter than the grid (about 6 machine-hours a seed at the quick preset), so this is what a session
 # starts first, in the background, with its log on disk:
@@ -26,6 +27,8 @@ seeds=0,1,2,3,4
 # runs (about 70 min each), so that what a session finishes is as many whole rows as it can be.
 variants=oracle,ours,ours-noOT,ours-lapf,curl,curl-phi,npe,npe-ot,ppo
 preset=quick
+backend=local
+sets=()
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 dir="$(dirname "$root")/omcrl-grid"
 while [[ $# -gt 0 ]]; do
@@ -35,6 +38,8 @@ while [[ $# -gt 0 ]]; do
     --variants) variants="$2"; shift 2 ;;
     --preset) preset="$2"; shift 2 ;;
     --dir) dir="$2"; shift 2 ;;
+    --backend) backend="$2"; shift 2 ;;
+    --set) sets+=(--set "$2"); shift 2 ;;  # e.g. --set sweep.storage=/shared/omcrl (an embedded Ray resumes from it)
     *) echo "grid_session: unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -58,8 +63,13 @@ ship() {  # $1: what finished
     cp -a "$src". "$root/$sub"
     git -C "$root" add -- "$sub"
     if ! git -C "$root" diff --cached --quiet -- "$sub"; then
-      git -C "$root" commit -q -m "$grid grid: $1 recorded ($sub)" -- "$sub"
-      echo "grid_session: committed $1 ($sub)"
+      # Name what the commit holds (<variant>/seed<k>), not only what just ran: a variant interrupted by the end of
+      # an earlier session may have recorded its pretraining there, and it is shipped with whatever runs next.
+      local held
+      held="$(git -C "$root" diff --cached --name-only -- "$sub" | awk -F/ 'NF > 5 {print $4 "/" $5}' | sort -u |
+        paste -sd, -)"
+      git -C "$root" commit -q -m "$grid grid: $1 recorded ($sub${held:+: $held})" -- "$sub"
+      echo "grid_session: committed $1 ($sub${held:+: $held})"
     fi
   done
   release "$1"
@@ -102,8 +112,8 @@ for seed in "${seed_list[@]}"; do
   for v in "${variant_list[@]}"; do
     echo "grid_session: seed $seed $v start $(date -u +%FT%TZ)"
     rc=0
-    (cd "$dir" && "$py" -m omcrl sweep "$grid" --preset "$preset" --seeds "$seed" --backend local --to-reference \
-      --variants "$v") || rc=$?
+    (cd "$dir" && "$py" -m omcrl sweep "$grid" --preset "$preset" --seeds "$seed" --backend "$backend" \
+      --to-reference --variants "$v" "${sets[@]}") || rc=$?
     echo "grid_session: seed $seed $v exit $rc $(date -u +%FT%TZ)"
     ship "seed $seed, $v"
   done

@@ -48,6 +48,27 @@ def test_identity_decides_the_folder_and_claim_refuses_another(tmp_path):
     assert [r["key"] for r in find_runs(tmp_path / "smoke", "rl")] == ["ffffffffff"]
 
 
+def test_run_json_names_every_machine_that_trained_the_run(tmp_path, monkeypatch):
+    """Same seed, same result holds per CPU and torch build: a run resumed on another host says so."""
+    import omcrl.runs as runs
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    run = make_run(cfg, "rl", "m", {"x": 1})
+    run.claim()
+    run.release()
+    first = json.loads((run.dir / "run.json").read_text())["machines"]
+    assert len(first) == 1 and first[0]["cpu_model"] and first[0]["cpu_capability"] and first[0]["torch"]
+    run.claim()  # a resume on the same machine adds nothing
+    run.release()
+    assert json.loads((run.dir / "run.json").read_text())["machines"] == first
+    other = {**first[0], "cpu_model": "Another CPU", "cpu_capability": "AVX512"}
+    monkeypatch.setattr(runs, "machine_info", lambda: other)
+    run.claim()
+    run.release()
+    rec = json.loads((run.dir / "run.json").read_text())
+    assert rec["machines"] == [*first, other] and rec["key"] == run.key
+
+
 def test_metrics_log_resume_drops_rows_past_the_checkpoint(tmp_path):
     log = MetricsLog(tmp_path, None, tensorboard=False)
     for step in (10, 20, 30):

@@ -302,13 +302,6 @@ class GridData:
             out.setdefault(label, {})[seed] = p
         return out
 
-    def label_metrics(self, label: str, stage: str = "rl") -> dict[int, Path]:
-        """``{seed: metrics.csv.gz}`` of ``label``'s recorded runs of ``stage``."""
-        out = {}
-        for p in sorted((self.root / _folder_name(label)).glob(f"seed*/{stage}/metrics.csv.gz")):
-            out[int(p.parent.parent.name.removeprefix("seed"))] = p
-        return out
-
     def progress(self, labels: Iterable[str], seeds: Iterable[int]) -> pd.DataFrame:
         """``(label × seed)`` booleans: which evaluations are recorded (the grid's progress)."""
         seeds = list(seeds)

@@ -23,7 +23,6 @@ runs at the ladder's seeds (:data:`LADDER_SEEDS`), so every point is compared ov
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import time
@@ -44,6 +43,7 @@ from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.pipeline.grids import GRIDS
 from omcrl.pipeline.reference import config_suite
 from omcrl.planners import PLANNERS
+from omcrl.runs import read_identity
 from omcrl.utils.io import atomic_write_bytes, atomic_write_text
 from omcrl.viz import save_figure
 from omcrl.viz.ladder import plot_ladder
@@ -153,7 +153,8 @@ def _training(cfg: Config, axis: str, scale: float, seeds: Sequence[int]) -> dic
     out: dict[str, dict[int, Path]] = {}
     points = ladder_points()
     for p in points[(points["axis"] == axis) & (points["scale"] == scale)].itertuples():
-        runs = GridData(grid_data_dir(cfg, p.grid)).label_metrics(p.label, "rl")
+        data = GridData(grid_data_dir(cfg, p.grid))
+        runs = data.metrics("rl").get(data.folder(p.label, 0).parent.name, {})  # keyed by the label's folder
         got = {s: m for s, m in runs.items() if s in seeds}
         if got:
             out[p.method] = got
@@ -219,7 +220,7 @@ def record_encoder_reports(cfg: Config, grids: Sequence[str] = (BASE_GRID, "ladd
             folder = rec.parent
             if (folder / REPORT).is_file():
                 continue
-            ident = json.loads(rec.read_text(encoding="utf-8"))
+            ident = read_identity(folder) or {}
             run_dir = cfg.run_root / "runs" / "pretrain" / f"{ident['method']}-{ident['key']}" / f"seed{ident['seed']}"
             if not (run_dir / "encoder.pt").is_file():
                 missing.append((folder, run_dir))
@@ -227,7 +228,7 @@ def record_encoder_reports(cfg: Config, grids: Sequence[str] = (BASE_GRID, "ladd
             if samples is None:
                 samples = setting_samples(cfg, settings=suite_settings(cfg))
             report = write_encoder_report(cfg, run_dir, samples)
-            got = json.loads(report.read_text(encoding="utf-8")).get("encoder_digest")
+            got = (read_report(run_dir) or {}).get("encoder_digest")
             if ident.get("artifact_digest") and got != ident["artifact_digest"]:
                 # Another encoder under the same key (pretrained again, not bit for bit): not this record's.
                 missing.append((folder, run_dir))

@@ -81,8 +81,8 @@ def _machine() -> str:
 
     gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "no GPU"
     return (
-        f"{platform.system()} {platform.machine()}, {info['cpu_count']} CPU cores{mem}, {gpu}; "
-        f"Python {info['python']}, torch {torch.__version__}"
+        f"{platform.system()} {platform.machine()}, {info['cpu_model']} ({info.get('cpu_capability', '?')} "
+        f"kernels), {info['cpu_count']} CPU cores{mem}, {gpu}; Python {info['python']}, torch {torch.__version__}"
     )
 
 

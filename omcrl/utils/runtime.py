@@ -105,11 +105,28 @@ def to_device(tree: Any, device: Any) -> Any:
     return tree
 
 
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo`` on Linux; ``platform.processor()`` elsewhere), or ``unknown``."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
 def machine_info() -> dict[str, Any]:
-    """What the numbers depend on: CPU count, threads, Python and torch versions."""
+    """What the numbers depend on: the CPU (model, and the vector ISA torch's kernels dispatch to), CPU count,
+    threads, Python and torch versions.
+
+    The same seed gives bit-identical results on one machine and build; torch picks its CPU kernels by
+    ``cpu_capability`` (e.g. AVX2 vs AVX512), and kernels of different widths round differently, so results from
+    another CPU or torch build can differ from the second iteration on.
+    """
     info: dict[str, Any] = {
         "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
+        "cpu_model": cpu_model(),
         "cpu_count": os.cpu_count(),
         "python": platform.python_version(),
         "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
@@ -117,6 +134,7 @@ def machine_info() -> dict[str, Any]:
     torch = sys.modules.get("torch")
     if torch is not None:
         info["torch"] = torch.__version__
+        info["cpu_capability"] = torch.backends.cpu.get_cpu_capability()
         info["torch_threads"] = torch.get_num_threads()
         info["cuda"] = bool(torch.cuda.is_available())
     return info

@@ -53,6 +53,7 @@ def plot_ladder(
         if len(sub):
             ax.legend(fontsize=8)
     axes[0][0].set_ylabel(f"{metric} % (95 % CI)" if metric in ("SR", "CR", "OS") else metric)
-    axes[0][0].set_ylim(-2, 102) if metric in ("SR", "CR", "OS") else None
+    if metric in ("SR", "CR", "OS"):
+        axes[0][0].set_ylim(-2, 102)
     fig.tight_layout()
     return fig
