@@ -132,19 +132,46 @@ def test_docs_and_readmes_exist(repo_root):
         assert (repo_root / rel).is_file(), rel
 
 
+def _anchors(page) -> set[str]:
+    """The anchors GitHub gives the headings of a Markdown page: the heading's text (links and code marks
+    dropped) lower-cased, every character that is not a letter, digit, ``_``, ``-`` or space removed, spaces
+    made hyphens; a repeated heading gets ``-1``, ``-2``, ..."""
+    import re
+
+    out, seen, fence = set(), {}, False
+    for line in page.read_text().splitlines():
+        if line.startswith("```"):
+            fence = not fence
+        m = None if fence else re.match(r"#{1,6}\s+(.*?)\s*#*\s*$", line)
+        if m is None:
+            continue
+        text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", m.group(1)).replace("`", "").replace("*", "")
+        slug = re.sub(r"[^\w\- ]", "", text.strip().lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
 def test_every_relative_link_in_the_docs_resolves(repo_root):
-    """Links between the README, docs/ and the repository's files (``[text](path)`` and ``[text](path#anchor)``)
-    point at files that exist; web links are not followed."""
+    """Links between the README, docs/ and the repository's files (``[text](path)``, ``[text](path#anchor)`` and
+    ``[text](#anchor)``) point at files that exist, and an anchor into a Markdown page at one of its headings; web
+    links are not followed."""
     import re
 
     pages = [repo_root / "README.md", *sorted((repo_root / "docs").glob("*.md"))]
-    checked, broken = 0, []
+    checked, anchored, broken = 0, 0, []
     for page in pages:
         for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
-            if re.match(r"[a-z]+:", target) or target.startswith("#"):
+            if re.match(r"[a-z]+:", target):
                 continue
-            path = (page.parent / target.split("#")[0]).resolve()
+            file, _, anchor = target.partition("#")
+            path = (page.parent / file).resolve() if file else page
             checked += 1
             if not path.exists():
                 broken.append(f"{page.relative_to(repo_root)} -> {target}")
-    assert checked >= 15 and broken == [], broken
+            elif anchor and path.suffix == ".md":
+                anchored += 1
+                if anchor not in _anchors(path):
+                    broken.append(f"{page.relative_to(repo_root)} -> {target} (no such heading)")
+    assert checked >= 15 and anchored >= 10 and broken == [], broken
