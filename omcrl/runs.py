@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from omcrl.config import Config, config_hash
+from omcrl.config import Config, config_hash, save_config
 from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
 from omcrl.utils.runtime import machine_info
 
@@ -90,6 +90,7 @@ DIGEST_FIELDS = {
     "final.pt": ("run.json", "artifact_digest"),
     "checkpoint.pt": ("run.json", "checkpoint_digests"),
     "encoder.pt": ("run.json", "artifact_digest"),
+    "config.yaml": ("run.json", "config_digest"),
 }
 
 
@@ -233,6 +234,14 @@ class Run:
         machines = (read_identity(self.dir) or {}).get("machines") or []
         if not machines or machines[-1] != here:
             self.record(machines=[*machines, here])
+
+    def write_config(self, cfg: Config) -> Path:
+        """Write the resolved ``cfg`` as the run's ``config.yaml`` (:func:`omcrl.config.save_config`) and record its
+        digest in ``run.json``, so a reader of the file (the ONNX export) refuses it when it was damaged: a
+        truncated YAML file can still parse, its missing fields then silently taking their defaults."""
+        path = save_config(cfg, self.dir)
+        self.record(config_digest=file_digest(path))
+        return path
 
     def checkpoint_recorder(self) -> Any:
         """``before_replace`` for :func:`~omcrl.utils.io.atomic_save_torch` of ``checkpoint.pt``: records the new

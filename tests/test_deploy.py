@@ -106,6 +106,30 @@ def test_export_parity_metadata_and_refusals(tmp_path, seeker):
         export_onnx(tmp_path / "nothing")
 
 
+def test_a_damaged_run_config_is_refused_though_it_still_parses(tmp_path, seeker):
+    """A run records its config.yaml's digest (Run.write_config): the export refuses a changed file. Cut at a line
+    boundary, the YAML still parses, and the fields after the cut would silently take their defaults."""
+    import shutil
+
+    import yaml
+
+    from omcrl.runs import ArtifactMismatch, make_run
+
+    cfg, run, _ = seeker
+    r = make_run(cfg.with_overrides([f"results_dir={tmp_path}"]), "rl", "seeker", {"test": "config digest"})
+    r.claim()
+    shutil.copyfile(run / "final.pt", r.dir / "final.pt")
+    r.write_config(cfg)
+    r.release()
+    assert export_onnx(r.dir).is_file()
+    cfg_path = r.dir / "config.yaml"
+    lines = cfg_path.read_text().splitlines()
+    cfg_path.write_text("\n".join(lines[: len(lines) // 2]) + "\n")
+    assert isinstance(yaml.safe_load(cfg_path.read_text()), dict)
+    with pytest.raises(ArtifactMismatch, match=r"run config .*config.yaml does not match the digest recorded"):
+        export_onnx(r.dir)
+
+
 def test_exported_policy_flies_evaluate_like_the_torch_policy(seeker):
     cfg, run, path = seeker
     onnx_pol, torch_pol = OnnxPolicy(path), load_policy(run / "final.pt")

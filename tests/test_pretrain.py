@@ -333,8 +333,10 @@ def test_a_run_finished_in_the_old_done_json_form_is_migrated_by_script_and_then
     script = [sys.executable, str(project_root() / "scripts" / "migrate_runs.py"), str(tmp_path / "res")]
     out = subprocess.run(script, capture_output=True, text=True, check=True).stdout
     assert "1 pretraining runs migrated" in out and not (r.run_dir / "done.json").exists()
-    # What the old code recorded, completed; it named no machine (run.json's `machines` came later), so none is made up.
-    assert json.loads((r.run_dir / "run.json").read_text()) == {k: v for k, v in now.items() if k != "machines"}
+    # What the old code recorded, completed; fields it never wrote (added to run.json later: the machines, the
+    # config's digest) are not made up.
+    later = ("machines", "config_digest")
+    assert json.loads((r.run_dir / "run.json").read_text()) == {k: v for k, v in now.items() if k not in later}
     again = pretrain_encoder(cfg, data, progress=False)
     assert again.skipped and r.encoder_path.read_bytes() == encoder and again.final_loss == r.final_loss
     assert "0 pretraining runs migrated" in subprocess.run(script, capture_output=True, text=True, check=True).stdout

@@ -28,6 +28,7 @@ from torch import nn
 
 from omcrl.config import ConfigError
 from omcrl.rl.policy import load_policy
+from omcrl.runs import verify_artifact
 from omcrl.utils.io import atomic_write_bytes
 
 SPEC_KEY = "omcrl_spec"
@@ -67,6 +68,7 @@ def _env_section(policy_path: Path) -> dict:
     cfg_path = policy_path.parent / "config.yaml"
     if not cfg_path.is_file():
         raise ExportError(f"{cfg_path} not found: the policy's run folder must hold its config.yaml")
+    verify_artifact(cfg_path, "run config", "it is written by the run's training; restore it or train the run again")
     try:
         doc = yaml.safe_load(cfg_path.read_text(encoding="utf-8")) or {}
     except (OSError, ValueError, yaml.YAMLError) as e:

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import torch
 
-from omcrl.config import Config, PretrainConfig, save_config, section_identity
+from omcrl.config import Config, PretrainConfig, section_identity
 from omcrl.data.collect import collection_env
 from omcrl.data.dataset import DatasetError, open_dataset
 from omcrl.data.sampler import SequenceSampler
@@ -174,7 +174,7 @@ def pretrain_encoder(
     state = run_rec.load("pretraining checkpoint")  # before anything is written: a damaged one is refused
     run_rec.claim()
     try:
-        save_config(cfg, out)
+        run_rec.write_config(cfg)
 
         torch.manual_seed(cfg.seed)
         # The objective, chosen once: OMC reconstructs masked latents of a sequence; CURL matches two views of a

@@ -3,7 +3,7 @@
 Run folder (:mod:`omcrl.runs`) ``<run_root>/runs/rl/<method>-<key>/seed<k>/``::
 
     run.json         identity: method, seed, key and what the key hashes (config fields, upstream digests)
-    config.yaml      resolved config (omcrl.config.save_config)
+    config.yaml      resolved config (omcrl.runs.Run.write_config: its digest in run.json)
     checkpoint.pt    latest resumable state, written atomically every ``rl.checkpoint_every`` env steps:
                      model, optimizer, RNG states (tensors and plain containers: loads with weights_only=True),
                      env-step count, update index, schedule state (α, lr)
@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from omcrl.config import GUIDANCE_FIELDS, Config, field_default, save_config, section_identity
+from omcrl.config import GUIDANCE_FIELDS, Config, field_default, section_identity
 from omcrl.envs import make_vec_env
 from omcrl.envs.render import env_identity
 from omcrl.models.actor_critic import ActorCritic
@@ -247,7 +247,7 @@ def train(
         # Only now, with encoder / oracle / env known to fit, does the run folder appear: a failed start
         # (missing or mismatched checkpoint) leaves nothing behind that looks like a run.
         run.claim(overwrite=overwrite)
-        save_config(cfg, run.dir)
+        run.write_config(cfg)
         step, update = 0, 0
         if ckpt is not None:
             agent.load_state_dict(ckpt["model"])
