@@ -91,6 +91,7 @@ DIGEST_FIELDS = {
     "checkpoint.pt": ("run.json", "checkpoint_digests"),
     "encoder.pt": ("run.json", "artifact_digest"),
     "config.yaml": ("run.json", "config_digest"),
+    "episodes.csv": ("run.json", "artifact_digest"),
 }
 
 
@@ -257,10 +258,10 @@ class Run:
     def checkpoint_path(self) -> Path:
         return self.dir / CHECKPOINT
 
-    def finished(self, artifact: str = "final.pt") -> Path | None:
+    def finished(self, artifact: str = "final.pt", again: str = "training this run again") -> Path | None:
         """The run's finished ``artifact`` when it is there and matches the digest ``run.json`` recorded (or none
         was recorded), else None. A finished artifact that changed since it was written is not trusted: it is moved
-        aside (``<name>.corrupt``, with a warning) so that the run trains again."""
+        aside (``<name>.corrupt``, with a warning ending in ``again``) so that the run is made again."""
         path = self.dir / artifact
         if not path.exists():
             return None
@@ -269,8 +270,8 @@ class Run:
         aside = path.with_name(f"{artifact}.corrupt")
         path.replace(aside)
         warnings.warn(
-            f"{path} does not match the digest recorded when it was written (moved to {aside.name}); training this "
-            "run again",
+            f"{path} does not match the digest recorded when it was written (damaged or changed; moved to "
+            f"{aside.name}); {again}",
             stacklevel=2,
         )
         return None
@@ -293,15 +294,20 @@ class Run:
         return self.checkpoint_path
 
     def finish(
-        self, payload: dict, artifact: str = "final.pt", *, keep_checkpoint: bool = False, **record: Any
+        self, payload: dict | str, artifact: str = "final.pt", *, keep_checkpoint: bool = False, **record: Any
     ) -> Path:
-        """Write the finished ``artifact`` atomically, then record its digest and ``record`` (what the run ended
+        """Write the finished ``artifact`` atomically (``payload``: tensors and plain containers, saved by torch, or
+        text, e.g. an evaluation's episodes as CSV), then record its digest and ``record`` (what the run ended
         with: iterations, final loss, the data it was made of) in ``run.json``: a run is finished when ``run.json``
         holds the digest of an artifact that matches it (:meth:`finished`). The checkpoint is dropped (the artifact is
         the result; the resumable state is obsolete) unless ``keep_checkpoint`` (pretraining keeps its last one, from
         which a damaged encoder is rebuilt without training). Returns the artifact's path."""
         path = self.dir / artifact
-        digest = atomic_save_torch(payload, path)
+        if isinstance(payload, str):
+            atomic_write_text(path, payload)
+            digest = file_digest(path)
+        else:
+            digest = atomic_save_torch(payload, path)
         self.record(**record, artifact_digest=digest)
         if not keep_checkpoint:
             self.checkpoint_path.unlink(missing_ok=True)
@@ -365,6 +371,17 @@ def make_run(cfg: Config, stage: str, method: str, identity: dict) -> Run:
     key = run_key(ident)
     d = cfg.run_root / "runs" / stage / f"{method}-{key}" / f"seed{cfg.seed}"
     return Run(stage, method, int(cfg.seed), key, ident, d)
+
+
+def cache_run(folder: str | Path, name: str, seed: int, identity: dict, stage: str = "eval") -> Run:
+    """The :class:`Run` of one cached result under ``folder``: ``<folder>/<name>-<key>/`` (``run.json`` and the
+    artifact). Evaluations are runs too (``stage`` ``eval``): ``identity`` is everything that decides their rows
+    (:func:`omcrl.eval.stage.evaluation_identity`, which carries the behaviour versions), so one lock, one record
+    and one digest check serve them as they serve training. ``name``: what the result is of (a scene, a
+    condition), readable in the folder's name beside the key."""
+    ident = _plain(identity)
+    key = run_key(ident)
+    return Run(stage, name, int(seed), key, ident, Path(folder) / f"{name}-{key}")
 
 
 def read_identity(run_dir: str | Path) -> dict | None:

@@ -64,11 +64,14 @@ def _episodes(folder: Path) -> str:
     import pandas as pd
 
     rows = []
-    for csv in sorted(folder.glob("*.csv")):
+    # A cached evaluation is a run folder <scene>-<key>/episodes.csv; <scene>-<key>.csv was the layout before, read
+    # too so that digests from either side of that change compare.
+    for csv in sorted([*folder.glob("*.csv"), *folder.glob("*/episodes.csv")]):
         df = pd.read_csv(csv).drop(columns=["checkpoint"], errors="ignore")
         buf = io.StringIO()
         df.to_csv(buf, index=False)
-        rows.append(csv.name.rsplit("-", 1)[0] + ":" + hashlib.sha256(buf.getvalue().encode()).hexdigest())
+        name = csv.parent.name if csv.name == "episodes.csv" else csv.stem
+        rows.append(name.rsplit("-", 1)[0] + ":" + hashlib.sha256(buf.getvalue().encode()).hexdigest())
     return hashlib.sha256("\n".join(rows).encode()).hexdigest()[:16] + f" ({len(rows)} scenes)"
 
 

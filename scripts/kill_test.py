@@ -130,15 +130,15 @@ def _fraction_left(stage: str, base: Path, ref: Path) -> float:
         runs = sorted(res.glob(pattern))
         if not runs:
             return 1.0
-        if (runs[0] / ("done.json" if stage == "pretrain" else "final.pt")).exists():
+        if (runs[0] / ("encoder.pt" if stage == "pretrain" else "final.pt")).exists():
             return 0.0
         ck = runs[0] / "checkpoint.pt"
         if not ck.exists():
             return 1.0
         total = 20 if stage == "pretrain" else 2048  # smoke iterations / RL steps
         return 1.0 - int(torch.load(ck, weights_only=True)["step"]) / total
-    want = len(list((ref / "results" / "smoke" / "eval").glob("*/seed0/*.csv")))
-    have = len(list((res / "eval").glob("*/seed0/*.csv")))
+    want = len(list((ref / "results" / "smoke" / "eval").glob("*/seed0/*/episodes.csv")))
+    have = len(list((res / "eval").glob("*/seed0/*/episodes.csv")))
     return 1.0 - have / max(want, 1)
 
 

@@ -242,7 +242,7 @@ def test_evaluation_cache_keeps_each_checkpoint_under_one_label(chain, monkeypat
     cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", "eval.scenes=[box]", "eval.episodes=2"])
     first = stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path})
     second = stage.evaluate_methods(cfg, {"ours": chain["student"].final_path})
-    assert len(list((cfg.run_root / "eval" / "ours" / "seed0").glob("box-*.csv"))) == 2
+    assert len(list((cfg.run_root / "eval" / "ours" / "seed0").glob("box-*/episodes.csv"))) == 2
     monkeypatch.setattr(stage, "evaluate", lambda *a, **k: pytest.fail("cache miss"))
     _same_episodes(stage.evaluate_methods(cfg, {"ours": chain["oracle"].final_path}), first)
     _same_episodes(stage.evaluate_methods(cfg, {"ours": chain["student"].final_path}), second)

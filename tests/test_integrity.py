@@ -303,15 +303,61 @@ def test_a_truncated_evaluation_cache_is_evaluated_again(tmp_path):
 
     cfg = load_config("smoke", overrides={"results_dir": str(tmp_path), "eval": {"workers": 1}})
     first = evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["box"], 3)
-    (csv,) = (tmp_path / "smoke" / "eval" / "hybrid-apf" / "seed0").glob("box-v2-*.csv")
+    (csv,) = (tmp_path / "smoke" / "eval" / "hybrid-apf" / "seed0").glob("box-v2-*/episodes.csv")
     lines = csv.read_text().splitlines()
     csv.write_text("\n".join(lines[:2]) + "\n")  # header and one episode
-    with pytest.warns(UserWarning, match=r"damaged evaluation cache \(its content does not match"):
+    with pytest.warns(UserWarning, match=r"does not match the digest recorded .*damaged evaluation cache; evaluating"):
         again = evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["box"], 3)
     assert len(again) == 3 and list(again.success) == list(first.success)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # rewritten whole: read back without a warning
         assert len(evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["box"], 3)) == 3
+
+
+def test_a_cached_evaluation_is_a_run_recorded_and_locked_like_a_training(tmp_path, repo_root, monkeypatch):
+    """One lifecycle for evaluations: run.json names the evaluation's identity, its rows and the CSV's digest; a
+    second process flying the same evaluation is refused while the first holds it; a bumped behaviour version of a
+    component it depends on makes it a new run, flown again."""
+    import pytest
+
+    import omcrl.runs as runs
+    from omcrl.config import load_config
+    from omcrl.eval.stage import evaluate_methods
+    from omcrl.runs import RunLocked, read_identity
+    from omcrl.utils.io import file_digest
+
+    cfg = load_config("smoke", overrides={"results_dir": str(tmp_path), "eval": {"workers": 1}})
+    evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["box"], 2)
+    seed0 = tmp_path / "smoke" / "eval" / "hybrid-apf" / "seed0"
+    (run_dir,) = (p for p in seed0.glob("box-v2-*") if p.is_dir())  # beside it: its lock file
+    rec = read_identity(run_dir)
+    assert rec["stage"] == "eval" and rec["rows"] == 2 and run_dir.name == f"box-v2-{rec['key']}"
+    assert rec["identity"]["policy"] == "hybrid-apf" and rec["identity"]["versions"]["planners"] >= 1
+    assert rec["artifact_digest"] == file_digest(run_dir / "episodes.csv") and rec["machines"]
+    # Another process holds the run that is to be flown (furniture has no cache yet): refused, naming its PID.
+    evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["furniture"], 2)
+    (other,) = (p for p in seed0.glob("furniture-v2-*") if p.is_dir())
+    import shutil
+
+    shutil.rmtree(other)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", f"from pathlib import Path\nfrom omcrl.runs import acquire_lock\n"
+         f"acquire_lock(Path({str(other)!r}))\nprint('held', flush=True)\nimport time\ntime.sleep(120)"],
+        cwd=repo_root, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(RunLocked, match=rf"in use by another process \(PID {holder.pid}\)"):
+            evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["furniture"], 2)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not (other / "episodes.csv").exists()
+    # A planners' behaviour bump: the box evaluation is another run, and flown again beside the old one.
+    monkeypatch.setitem(runs.BEHAVIOUR, "planners", runs.BEHAVIOUR["planners"] + 1)
+    stats: dict[str, int] = {}
+    evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["box"], 2, stats=stats)
+    assert stats == {"evaluated": 1} and len(list(seed0.glob("box-v2-*/episodes.csv"))) == 2
 
 
 # ---------------------------------------------------------------- every file kind, damaged three ways
@@ -337,7 +383,7 @@ def _smoke_artifacts(root):
     part = pretrain(cfg.with_seed(1), progress=False, stop_after=10)
     ppo = train_method(cfg, "ppo", progress=False)
     evaluate_methods(cfg, {"ppo": ppo.final_path}, ["box"], 2)
-    (cache,) = (root / "smoke" / "eval" / "ppo" / "seed0").glob("box-v2-*.csv")
+    (cache,) = (root / "smoke" / "eval" / "ppo" / "seed0").glob("box-v2-*/episodes.csv")
     return cfg, {
         "policy final.pt": ppo.final_path,
         "run.json": ppo.run_dir / "run.json",
@@ -347,8 +393,8 @@ def _smoke_artifacts(root):
         "pretraining run.json": enc.run_dir / "run.json",
         "pretraining checkpoint.pt": part.run_dir / "checkpoint.pt",
         "dataset .h5": root / "box.h5",
-        "evaluation cache .csv": cache,
-        "evaluation cache .json": cache.with_suffix(".json"),
+        "evaluation cache episodes.csv": cache,
+        "evaluation cache run.json": cache.with_name("run.json"),
     }
 
 
@@ -415,7 +461,12 @@ def test_every_damaged_file_is_one_line_or_rebuilt_and_leaves_the_others_alone(t
                     assert files[kind].name in msg or str(files[kind].parent) in msg, (kind, how, msg)
                     outcome = "refused"
             # Nothing but the damaged file (and what a rebuild legitimately rewrites) changed.
-            rewritable = {"evaluation cache .csv", "evaluation cache .json", "pretraining run.json", "encoder.pt"}
+            rewritable = {
+                "evaluation cache episodes.csv",
+                "evaluation cache run.json",
+                "pretraining run.json",
+                "encoder.pt",
+            }
             changed = [p for p, d in before.items() if p.exists() and file_digest(p) != d and p.suffix != ".lock"]
             if kind not in rewritable:
                 assert not changed, (kind, how, changed)

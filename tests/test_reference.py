@@ -44,7 +44,7 @@ def _bundle(path: Path, files: dict[str, bytes], fields: dict | None = None, arc
 
 FILES = {
     "runs/rl/ppo-abc/seed0/metrics.csv": b"step,metric,value\n1,x,2\n",
-    "eval/ppo/seed0/box-v0-k.csv": b"a\n1\n",
+    "eval/ppo/seed0/box-v0-k/episodes.csv": b"a\n1\n",
 }
 
 
@@ -62,9 +62,10 @@ def test_unpack_copies_verified_files_and_a_second_unpack_finds_them_there(tmp_p
 def test_a_damaged_file_is_named_and_nothing_is_copied(tmp_path):
     cfg = load_config("smoke", overrides=[f"results_dir={tmp_path / 'results'}"])
     # Same size, other content: only the digest can tell.
-    damaged = {**FILES, "eval/ppo/seed0/box-v0-k.csv": b"a\n2\n"}
+    damaged = {**FILES, "eval/ppo/seed0/box-v0-k/episodes.csv": b"a\n2\n"}
     b = _bundle(tmp_path / "one", FILES, archive=damaged)
-    with pytest.raises(ReferenceError, match="member 'eval/ppo/seed0/box-v0-k.csv' does not match its SHA-256"):
+    member = "eval/ppo/seed0/box-v0-k/episodes.csv"
+    with pytest.raises(ReferenceError, match=f"member '{member}' does not match its SHA-256"):
         unpack_reference(cfg, b)
     assert not cfg.run_root.exists() or not any(p.is_file() for p in cfg.run_root.rglob("*"))
     # The archive itself changed after the manifest was written.
@@ -80,7 +81,7 @@ def test_a_damaged_file_is_named_and_nothing_is_copied(tmp_path):
         FILES,
         archive={"runs/rl/ppo-abc/seed0/metrics.csv": FILES["runs/rl/ppo-abc/seed0/metrics.csv"]},
     )
-    with pytest.raises(ReferenceError, match="box-v0-k.csv is listed in .* but not in the archive"):
+    with pytest.raises(ReferenceError, match="box-v0-k/episodes.csv is listed in .* but not in the archive"):
         verify_reference(b)
     b = _bundle(tmp_path / "four", FILES, archive={**FILES, "../../outside.txt": b"x"})
     with pytest.raises(ReferenceError, match="member '../../outside.txt' is not in the manifest"):

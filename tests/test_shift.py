@@ -262,12 +262,13 @@ def test_disturbed_evaluations_have_their_own_cache_and_undisturbed_keys_do_not_
     cfg = load_config("smoke", overrides={"results_dir": str(tmp_path), "eval": {"workers": 1}})
     own = evaluate_methods(cfg, {"HybridAPF": "HybridAPF"}, ["box"], 2)
     folder = tmp_path / "smoke" / "eval" / "HybridAPF" / "seed0"
-    (plain,) = folder.glob("box-v2-*.csv")
+    (plain,) = folder.glob("box-v2-*/episodes.csv")
     look = {"appearance": "furniture-v0", "appearance_parts": "surroundings"}
     swapped = evaluate_methods(cfg, {"HybridAPF": "HybridAPF"}, ["box"], 2, disturbance=look)
-    (cached,) = folder.glob("box-v2-furniture-v0-surroundings-*.csv")
+    (cached,) = folder.glob("box-v2-furniture-v0-surroundings-*/episodes.csv")
     # The undisturbed cache keeps its file; the swapped look is another evaluation of the same layouts.
-    assert sorted(p.name for p in folder.glob("*.csv")) == sorted([plain.name, cached.name])
+    runs = sorted(p.parent.name for p in folder.glob("*/episodes.csv"))
+    assert runs == sorted([plain.parent.name, cached.parent.name])
     np.testing.assert_allclose(own["optimal_path_length"], swapped["optimal_path_length"])
     mtime = cached.stat().st_mtime_ns
     again = evaluate_methods(cfg, {"HybridAPF": "HybridAPF"}, ["box"], 2, disturbance=look)

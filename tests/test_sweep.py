@@ -490,11 +490,13 @@ def test_a_job_no_node_can_run_is_one_line_not_a_hang(tmp_path):
 
 def _rows(root):
     """Episode rows of a smoke sweep as its evaluation caches under ``root`` hold them (one frame, sorted)."""
-    files = sorted((root / "results" / "smoke" / "eval").glob("*/seed0/*.csv"))
+    files = sorted((root / "results" / "smoke" / "eval").glob("*/seed0/*/episodes.csv"))
     assert files, f"no evaluation rows under {root}"
     # By method and scene, not the cache key: a policy file records where its encoder was, so its digest (the key)
     # differs between roots while the weights and the episodes do not.
-    df = pd.concat([pd.read_csv(f).assign(file=f"{f.parent.parent.name}/{f.name.rsplit('-', 1)[0]}") for f in files])
+    df = pd.concat(
+        [pd.read_csv(f).assign(file=f"{f.parents[2].name}/{f.parent.name.rsplit('-', 1)[0]}") for f in files]
+    )
     return df.drop(columns=["checkpoint", "trajectory"], errors="ignore").reset_index(drop=True)
 
 

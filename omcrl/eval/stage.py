@@ -5,21 +5,23 @@ policy under ``<run_root>/runs/rl/<method>-<key>/seed<k>/final.pt`` plus the pri
 in ``cfg.eval.scenes`` for ``cfg.eval.episodes`` episodes each (the same evaluation seeds for every method),
 and writes under ``<run_root>/``::
 
-    eval/<method>/seed<k>/<scene>-<key>.csv  one row per episode (cache; key: checkpoint, env config, seeds)
+    eval/<method>/seed<k>/<scene>-<key>/     run.json + episodes.csv, one row per episode (cache; key: checkpoint,
+                                             env config, seeds, behaviour versions)
     tables/<name>_episodes.csv     all episodes of this evaluation
     tables/<name>.csv              method × scene metrics (long form: NE OS SR SPL CR TTS episodes)
     tables/<name>.md               the paper's Table I layout (methods × (scene, metric))
 
-Evaluating one (method, scene) pair is cached: a CSV with the same key is read back instead of re-running
-the episodes, so the notebooks and the CLI share results.
+Evaluating one (method, scene) pair is cached as a run (:func:`cached_episodes`): a finished one of the same key
+is read back instead of re-running the episodes, so the notebooks and the CLI share results.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -28,12 +30,12 @@ from typing import Any
 import pandas as pd
 
 from omcrl import planners
-from omcrl.config import Config, config_hash
+from omcrl.config import Config
 from omcrl.envs.render import env_identity
 from omcrl.eval.metrics import format_table, summary_table
 from omcrl.eval.runner import EvalPool, evaluate
 from omcrl.rl import load_policy
-from omcrl.runs import behaviour, find_runs
+from omcrl.runs import Run, RunConfigMismatch, behaviour, cache_run, find_runs, read_identity
 from omcrl.scenes import scene_id
 from omcrl.utils.io import atomic_write_text, file_digest
 
@@ -93,13 +95,6 @@ def _load(method: str, source: Any) -> tuple[Any, str]:
     return source, (file_digest(Path(ckpt)) if ckpt and Path(ckpt).is_file() else "")
 
 
-def _cache_file(folder: Path, stem: str, key: str) -> Path:
-    """The cache file of one evaluation (``<stem>-<key[:12]>.csv``). The key is part of the name so that
-    evaluations of different checkpoints under one label (a sweep's variants of ``ours``, or Table I's ``ours``
-    beside them) never evict each other."""
-    return folder / f"{stem}-{key[:12]}.csv"
-
-
 def evaluation_identity(
     cfg: Config,
     policy_key: str,
@@ -129,39 +124,42 @@ def evaluation_identity(
     }
 
 
-def _read_cache(folder: Path, stem: str, key: str, rows: int | None = None) -> pd.DataFrame | None:
-    """The cached episodes of ``key`` under ``folder``, or None.
+EPISODES = "episodes.csv"
 
-    A cache is trusted only whole: its CSV must match the digest and row count recorded beside it (and ``rows``,
-    the episodes asked for, when given); a damaged one is reported (a warning naming the file) and evaluated
-    again, never used."""
-    if not key:
-        return None
-    path = _cache_file(folder, stem, key)
-    meta_path = path.with_suffix(".json")
-    if not (path.exists() and meta_path.exists()):
-        return None
+
+def _episodes_csv(df: pd.DataFrame) -> str:
+    out = df.copy()
+    if "trajectory" in out:
+        out["trajectory"] = [json.dumps([[round(x, 3), round(y, 3)] for x, y in t]) for t in out["trajectory"]]
+    return out.to_csv(index=False)
+
+
+def _read_episodes(run: Run, rows: int) -> pd.DataFrame | None:
+    """The finished evaluation ``run``'s rows, or None when it has none or they cannot be trusted (a warning
+    naming the file, then the episodes are flown again): a cache is used only whole, its CSV matching the digest
+    and row count ``run.json`` recorded when it was written."""
     try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        if not isinstance(meta, dict):
-            raise ValueError("not a JSON object")
-    except (OSError, ValueError) as e:
-        warnings.warn(f"{meta_path}: damaged evaluation cache record ({e}); evaluating again", stacklevel=3)
+        rec = read_identity(run.dir)
+    except RunConfigMismatch as e:  # run.json damaged: the record of this cache, nothing else depends on it
+        warnings.warn(f"damaged evaluation cache record: {e}; evaluating again", stacklevel=3)
+        shutil.rmtree(run.dir)
         return None
-    if meta.get("key") != key:
+    if rec is None or rec.get("key") != run.key or rec.get("rows") != rows:
+        return None  # not this evaluation, or never finished
+    path = run.finished(EPISODES, again="damaged evaluation cache; evaluating again")
+    if path is None:
         return None
-    problem = None
-    if meta.get("digest") is not None and file_digest(path) != meta["digest"]:
-        problem = "its content does not match the digest recorded when it was written"
     try:
         df = pd.read_csv(path)
     except (OSError, ValueError, UnicodeDecodeError) as e:
-        df, problem = None, problem or f"unreadable ({type(e).__name__})"
-    want = meta.get("rows", rows)
-    if df is not None and problem is None and want is not None and len(df) != int(want):
-        problem = f"{len(df)} rows, expected {int(want)}"
-    if problem is not None:
-        warnings.warn(f"{path}: damaged evaluation cache ({problem}); evaluating again", stacklevel=3)
+        warnings.warn(
+            f"{path}: damaged evaluation cache (unreadable, {type(e).__name__}); evaluating again", stacklevel=3
+        )
+        return None
+    if len(df) != rows:
+        warnings.warn(
+            f"{path}: damaged evaluation cache ({len(df)} rows, expected {rows}); evaluating again", stacklevel=3
+        )
         return None
     # CSV writes "" and NaN alike; a planner's empty checkpoint must come back as "", like a fresh row.
     if "checkpoint" in df:
@@ -175,15 +173,38 @@ def _read_cache(folder: Path, stem: str, key: str, rows: int | None = None) -> p
     return df
 
 
-def _write_cache(folder: Path, stem: str, key: str, df: pd.DataFrame) -> None:
-    out = df.copy()
-    if "trajectory" in out:
-        out["trajectory"] = [json.dumps([[round(x, 3), round(y, 3)] for x, y in t]) for t in out["trajectory"]]
-    path = _cache_file(folder, stem, key)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, out.to_csv(index=False))
-    meta = {"key": key, "rows": len(df), "digest": file_digest(path)}
-    atomic_write_text(path.with_suffix(".json"), json.dumps(meta))
+def cached_episodes(
+    folder: Path,
+    name: str,
+    seed: int,
+    identity: dict | None,
+    rows: int,
+    fly: Callable[[], pd.DataFrame],
+    stats: dict[str, int] | None = None,
+) -> pd.DataFrame:
+    """The ``rows`` episodes of the evaluation ``identity`` (:func:`evaluation_identity`), read from its cache run
+    ``<folder>/<name>-<key>/`` (:func:`omcrl.runs.cache_run`) when it finished, else flown by ``fly()`` and kept.
+
+    ``identity`` None: not cached (a policy object without a checkpoint has nothing to key it by). The run is locked
+    while it is flown, so two processes never write one cache (:class:`omcrl.runs.RunLocked` names the other).
+    ``stats``: ``stats["cached"]`` / ``stats["evaluated"]`` count what was read and what was flown.
+    """
+    run = cache_run(folder, name, seed, identity) if identity is not None else None
+    df = _read_episodes(run, rows) if run is not None else None
+    if stats is not None:
+        k = "cached" if df is not None else "evaluated"
+        stats[k] = stats.get(k, 0) + 1
+    if df is not None:
+        return df
+    if run is None:
+        return fly()
+    run.claim(overwrite=True)  # a folder of this key that is not a finished cache of it is made again
+    try:
+        df = fly()
+        run.finish(_episodes_csv(df), EPISODES, rows=len(df))
+    finally:
+        run.release()
+    return df
 
 
 def eval_cache_root(cfg: Config) -> Path:
@@ -218,8 +239,9 @@ def evaluate_methods(
     methods : ``{label: source}``, source = a policy checkpoint path, ``"HybridAPF"`` or a policy object with
         ``act(obs, info)``.
     scenes, episodes : default ``cfg.eval.scenes`` and ``cfg.eval.episodes``.
-    cache : read/write ``<run_root>/eval/<label>/seed<k>/<scene>-<key>.csv``, the key a hash of checkpoint content,
-        env config and episode seeds.
+    cache : read/write the cache run ``<run_root>/eval/<label>/seed<k>/<scene>-<key>/`` (:func:`cached_episodes`),
+        the key a hash of :func:`evaluation_identity`: checkpoint content, env config, episode seeds, lanes and the
+        behaviour versions of the code that flies them.
     pool : an open :class:`~omcrl.eval.runner.EvalPool` to run episodes in; default: one of
         ``cfg.eval.workers`` processes for this call (in this process when 1). Results do not depend on it.
     disturbance : passed to every env (e.g. ``{"appearance": "box"}``: each scene's layouts in box's look, see
@@ -251,16 +273,10 @@ def evaluate_methods(
                 ident = evaluation_identity(
                     cfg, pkey, env, episodes, planner=planner, lanes=lanes, disturbance=disturbance
                 )
-                key = config_hash(ident) if pkey else ""
-                folder = eval_cache_dir(cfg, label)
                 tail = "" if not disturbance else "-" + "-".join(f"{v}" for v in disturbance.values())
-                stem = scene + tail
-                df = _read_cache(folder, stem, key, rows=episodes) if cache else None
-                if stats is not None:
-                    k = "cached" if df is not None else "evaluated"
-                    stats[k] = stats.get(k, 0) + 1
-                if df is None:
-                    df = evaluate(
+
+                def fly(policy: Any = policy, label: str = label, scene: str = scene) -> pd.DataFrame:
+                    return evaluate(
                         policy,
                         scene,
                         episodes,
@@ -273,8 +289,16 @@ def evaluate_methods(
                         config=cfg.env,
                         **({"disturbance": dict(disturbance)} if disturbance else {}),
                     )
-                    if cache and key:
-                        _write_cache(folder, stem, key, df)
+
+                df = cached_episodes(
+                    eval_cache_dir(cfg, label),
+                    scene + tail,
+                    cfg.seed,
+                    ident if cache and pkey else None,
+                    episodes,
+                    fly,
+                    stats,
+                )
                 frames.append(df.assign(method=label, scene=scene, train_seed=cfg.seed))
     return pd.concat(frames, ignore_index=True)
 

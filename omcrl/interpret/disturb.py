@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from omcrl.config import Config, ConfigError, EnvConfig, config_hash, validate_env
+from omcrl.config import Config, ConfigError, EnvConfig, validate_env
 from omcrl.eval.runner import EvalPool, evaluate
-from omcrl.eval.stage import _read_cache, _write_cache, evaluation_identity
+from omcrl.eval.stage import cached_episodes, evaluation_identity
 from omcrl.eval.stats import mean_ci
 from omcrl.rl.methods import final_policy_path, get_method
 from omcrl.rl.policy import CheckpointError, load_policy
@@ -102,9 +102,9 @@ def disturbance_episodes(
 ) -> pd.DataFrame:
     """Fly every method in the room under every condition; one row per episode (with its trajectory).
 
-    Methods and conditions are checked (and policies loaded) before any episode runs. Results are cached under
-    ``<run_root>/interpret/disturbance/<method>/seed<k>/<condition>-<key>.csv``, keyed by the policy file, the room's
-    env config, the condition and the episode seeds.
+    Methods and conditions are checked (and policies loaded) before any episode runs. Results are cached as runs
+    ``<run_root>/interpret/disturbance/<method>/seed<k>/<condition>-<key>/`` (``cached_episodes``),
+    keyed by the policy file, the room's env config, the condition and the episode seeds.
     """
 
     episodes = int(episodes if episodes is not None else cfg.eval.episodes)
@@ -125,11 +125,9 @@ def disturbance_episodes(
                     seed_offset=SEED_OFFSET,
                     disturbance=dist,
                 )
-                key = config_hash(ident)
-                folder = cfg.run_root / "interpret" / "disturbance" / m / f"seed{cfg.seed}"
-                df = _read_cache(folder, c, key, rows=episodes) if cache else None
-                if df is None:
-                    df = evaluate(
+
+                def fly(pol: Any = pol, m: str = m, dist: Any = dist) -> pd.DataFrame:
+                    return evaluate(
                         pol,
                         ROOM_SCENE,
                         episodes,
@@ -142,8 +140,9 @@ def disturbance_episodes(
                         config=room,
                         disturbance=dist or None,
                     )
-                    if cache:
-                        _write_cache(folder, c, key, df)
+
+                folder = cfg.run_root / "interpret" / "disturbance" / m / f"seed{cfg.seed}"
+                df = cached_episodes(folder, c, cfg.seed, ident if cache else None, episodes, fly)
                 frames.append(df.assign(method=m, condition=c, train_seed=cfg.seed))
     return pd.concat(frames, ignore_index=True)
 

@@ -37,11 +37,11 @@ from pathlib import Path
 from typing import Any
 
 from omcrl.config import Config, field_default, load_config, project_root, section_identity
-from omcrl.eval.stage import eval_cache_root
+from omcrl.eval.stage import EPISODES, eval_cache_root
 from omcrl.eval.table1 import evaluate_grid
 from omcrl.pipeline.storage import sha256
 from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path
-from omcrl.runs import DIGEST_FIELDS, read_identity, recorded_digest, run_key
+from omcrl.runs import DIGEST_FIELDS, RUN_FILE, read_identity, recorded_digest, run_key
 from omcrl.scenes import SUITES, suite_of, suite_overrides
 from omcrl.utils.io import atomic_save_torch, atomic_write_bytes, atomic_write_text, load_torch
 from omcrl.utils.runtime import code_commit
@@ -326,8 +326,9 @@ def pack_reference(
     ev_src = eval_cache_root(cfg)
     rounding: dict[str, Any] = {}
     for s in seeds:
-        for f in sorted(p for p in ev_src.glob(f"*/seed{s}/*") if p.is_file()):  # episodes and their cache record
-            label = f.parent.parent.name
+        # Each cached evaluation is a run folder (<label>/seed<k>/<scene>-<key>/: run.json and episodes.csv).
+        for f in sorted(p for p in ev_src.glob(f"*/seed{s}/*/*") if p.name in (RUN_FILE, EPISODES)):
+            label = f.parent.parent.parent.name
             # A rounded policy is another checkpoint: its episodes are flown again below; planners' stay.
             if not rounded or not (label in METHODS and METHODS[label].learned):
                 (stage.run_root / f.relative_to(root)).parent.mkdir(parents=True, exist_ok=True)

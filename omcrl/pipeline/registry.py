@@ -81,7 +81,8 @@ STAGE_OUTPUTS: dict[str, str] = {
     "encoder of the same seed; default seed 0",
     "train": "runs/rl/<method>-<key>/seed<k>/ (final.pt, run.json, metrics.csv, tb/); every missing "
     "prerequisite is named at once with its command; default seed 0",
-    "evaluate": "eval/<method>/seed<k>/<scene>-<key>.csv (cached episodes) and tables/evaluate_seed<k>.{csv,md}; "
+    "evaluate": "eval/<method>/seed<k>/<scene>-<key>/ (cached episodes: run.json, episodes.csv) and "
+    "tables/evaluate_seed<k>.{csv,md}; "
     "default: every finished policy of seed 0 and the Hybrid APF, eval.episodes per scene of eval.scenes",
     "tables": "tables/table1.{csv,md,tex}, table1_vs_paper.{csv,md}, table1_significance.csv, table1_episodes.csv; "
     'default: the config\'s seeds (--set "seeds=[0,1,2]" for three); missing runs are listed, not trained',
