@@ -232,7 +232,7 @@ class Run:
         # Same seed, same result holds per machine and torch build (omcrl.utils.runtime.machine_info): every
         # machine that trained a part of this run is kept, so a result that differs can be traced to its host.
         here = machine_info()
-        machines = (read_identity(self.dir) or {}).get("machines") or []
+        machines = (found or {}).get("machines") or []
         if not machines or machines[-1] != here:
             self.record(machines=[*machines, here])
 
