@@ -157,7 +157,7 @@ def test_a_bundle_names_its_scene_suite_and_one_from_before_v2_holds_v1_runs(tmp
         config_suite(load_config("smoke", overrides=["env.scene=tree-v2"]))
 
 
-def test_the_shipped_bundle_is_found_by_this_codes_registry(tmp_path):
+def test_the_shipped_bundle_is_found_by_this_codes_registry(tmp_path, monkeypatch):
     """Every run of reference/quick/bundle is where the run registry of this code looks for it: a change of run
     identity that would orphan the shipped runs fails here (re-key them once with scripts/rekey_reference.py)."""
     from omcrl.pipeline.reference import bundle_overrides, default_bundle
@@ -174,6 +174,21 @@ def test_the_shipped_bundle_is_found_by_this_codes_registry(tmp_path):
     for m in frozen:
         enc = pretrain_encoder(encoder_config(no_data, METHODS[m]), progress=False)
         assert enc.skipped and enc.iterations == 1500, m
+    # Its evaluations are finished cache runs of this code (scripts/migrate_runs.py): read back, none flown again.
+    import omcrl.eval.stage as stage
+
+    def fly(*args, **kwargs):
+        raise AssertionError(f"a shipped evaluation was flown again: {args[:2]}")
+
+    monkeypatch.setattr(stage, "evaluate", fly)
+    from omcrl.pipeline.reference import manifest_overrides
+
+    for s in res.manifest["seeds"]:
+        c = cfg.with_overrides(manifest_overrides(res.manifest)).with_seed(int(s))
+        stats: dict[str, int] = {}
+        policies = {m: res.found[f"{m}/seed{s}"] / "final.pt" for m in res.manifest["methods"]}
+        episodes = stage.evaluate_methods(c, policies, stats=stats)
+        assert stats == {"cached": len(policies) * len(c.eval.scenes)} and len(episodes) > 0
 
 
 def test_a_bundle_records_the_overrides_its_runs_were_trained_under():
@@ -229,3 +244,49 @@ def test_a_bundle_with_done_json_records_is_migrated_once_in_place(tmp_path):
     digest = sha256(b / ARCHIVE)
     assert "0 pretraining runs migrated" in subprocess.run(script, capture_output=True, text=True, check=True).stdout
     assert sha256(b / ARCHIVE) == digest and not list(tmp_path.glob("bundle.*"))
+
+
+def test_a_bundles_old_evaluation_caches_become_cache_runs_and_a_key_no_identity_gives_is_refused(tmp_path):
+    """scripts/migrate_runs.py: ``<scene>-<key>.csv/.json`` becomes ``<scene>-<key>/{run.json, episodes.csv}``, its
+    identity rebuilt and taken only when it hashes to the recorded key; then read back as a finished cache run."""
+    import subprocess
+    import sys
+    from dataclasses import replace
+
+    from omcrl.config import config_hash, project_root
+    from omcrl.eval.stage import cached_episodes, evaluation_identity
+    from omcrl.utils.io import bytes_digest
+
+    cfg = load_config("smoke").with_suite("v1")  # a manifest without "suite" holds v1 runs
+    episodes = b"success,collision\n1,0\n0,1\n"
+    ident = evaluation_identity(cfg, "HybridAPF", replace(cfg.env, scene="box-v0"), 2, planner=True, lanes=1)
+    key = config_hash(ident)
+    meta = {"key": key, "rows": 2, "digest": bytes_digest(episodes)}
+    old = f"eval/HybridAPF/seed0/box-v0-{key[:12]}"
+    files = {**FILES, f"{old}.csv": episodes, f"{old}.json": json.dumps(meta).encode()}
+    script = [sys.executable, str(project_root() / "scripts" / "migrate_runs.py")]
+    b = _bundle(tmp_path / "bundle", files)
+    out = subprocess.run([*script, str(b)], capture_output=True, text=True, check=True).stdout
+    assert "1 evaluation caches made runs" in out
+    manifest, contents = verify_reference(b)
+    new = [f for f in contents if f.startswith("eval/HybridAPF/")]
+    assert len(new) == 2 and all(f.startswith(f"eval/HybridAPF/seed0/box-v0-{key[:10]}/") for f in new)
+    assert manifest["migrated"][-1]["evaluations"] == 1
+    # Unpacked, this code reads it back as the finished evaluation of that identity, without flying.
+    cfg = cfg.with_overrides([f"results_dir={tmp_path / 'results'}"])
+    unpack_reference(cfg, b)
+
+    def fly():
+        raise AssertionError("flown again")
+
+    got = cached_episodes(cfg.run_root / "eval" / "HybridAPF" / "seed0", "box-v0", 0, ident, 2, fly)
+    assert got["success"].tolist() == [1, 0]
+    assert "0 evaluation caches" in subprocess.run([*script, str(b)], capture_output=True, text=True).stdout
+
+    # A key that no identity of this code gives is refused, naming the cache, and the bundle is left as it was.
+    wrong = {**FILES, f"{old}.csv": episodes, f"{old}.json": json.dumps({**meta, "key": "f" * 64}).encode()}
+    b2 = _bundle(tmp_path / "bundle2", wrong)
+    before = sha256(b2 / ARCHIVE)
+    res = subprocess.run([*script, str(b2)], capture_output=True, text=True)
+    assert res.returncode != 0 and f"{old}.json's key is not this code's" in res.stderr
+    assert sha256(b2 / ARCHIVE) == before
