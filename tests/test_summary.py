@@ -135,6 +135,17 @@ def test_readme_v2_table_and_verdicts_are_what_the_grid_data_gives(repo_root):
     assert "**tree-v2 (hard)**" in full and "| E1 | ours > npe on SR in tree-v2 |" in full
 
 
+def test_the_glossarys_metrics_table_is_the_one_the_tables_print(repo_root):
+    """docs/glossary.md's metrics table is omcrl.eval.metrics.GLOSSARY rendered (what Table I, the summary and
+    notebook 07 print): a definition edited by hand on the page fails here."""
+    from omcrl.eval.metrics import glossary_markdown
+    from omcrl.pipeline.glance import GLOSSARY_END, GLOSSARY_START, current_block
+
+    page = (repo_root / "docs" / "glossary.md").read_text(encoding="utf-8")
+    assert current_block(page, "docs/glossary.md", GLOSSARY_START, GLOSSARY_END) == glossary_markdown()
+    assert max(len(line) for line in glossary_markdown().splitlines()) <= 120
+
+
 def test_readme_block_is_replaced_between_its_markers_only(tmp_path):
     from omcrl.pipeline.glance import END, START, GlanceError, current_block, replace_block
 

@@ -19,7 +19,7 @@ GLOSSARY: dict[str, tuple[str, str, str, str]] = {
     "NE": ("navigation error", "distance from the drone to the goal when the episode ends", "m", "lower"),
     "OS": (
         "oracle success",
-        "episodes that came within 0.5 m of the goal at any time (an upper bound on SR; not the oracle policy)",
+        "episodes that came within 0.5 m of the goal at any time (≥ SR; not the oracle)",
         "%",
         "higher",
     ),
@@ -31,7 +31,7 @@ GLOSSARY: dict[str, tuple[str, str, str, str]] = {
     ),
     "SPL": (
         "success weighted by path length",
-        "mean over episodes of S·ℓ/max(d, ℓ): S success, ℓ shortest feasible path, d path flown",
+        "mean of S·ℓ/max(d, ℓ): S success, ℓ shortest path, d flown",
         "0-1",
         "higher",
     ),

@@ -22,6 +22,7 @@ import pandas as pd
 
 from omcrl import planners
 from omcrl.config import load_config, project_root
+from omcrl.eval.metrics import glossary_markdown
 from omcrl.eval.table1 import Table1Result, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, verdict_counts
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
@@ -38,6 +39,8 @@ V2_END = "<!-- results-v2: end -->"
 FULL_START = "<!-- results-v2-full: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 FULL_END = "<!-- results-v2-full: end -->"
 V2_FIGURE = "docs/figures/quick/v2/fig5_training_curves.png"
+GLOSSARY_START = "<!-- metrics: start (python -m omcrl summary --preset quick --readme writes this block) -->"
+GLOSSARY_END = "<!-- metrics: end -->"
 # A claim's verdict over its hypotheses (omcrl.eval.verdicts.verdict_counts), in the README's order.
 CLAIM_VERDICTS = ("holds", "reversed", "mixed", "undecided", "one seed", "not run")
 # The commit that fixed the claim ledger before any v2 Table I evaluation (omcrl.eval.ledger; docs/results.md).
@@ -110,11 +113,14 @@ def render_glance(table_dir: str | Path, figure: str = "docs/figures/quick/v1/fi
     """The markdown block (without the markers) for the reference Table I in ``table_dir``."""
     sr, record = _read(Path(table_dir))
     seeds, n = int(sr["seeds"].max()), int(sr["episodes"].min())
+    # Planners are code, not trained: a row of one run flies the same episodes once.
+    once = " (rows of one run, the planners: those episodes once)" if (sr["seeds"] < seeds).any() else ""
     lines = [
         V1_CAVEAT,
         "",
-        f"Success rate % over {seeds} training seeds × {n} episodes per scene, mean [95 % CI] (two-stage bootstrap); "
-        "the paper's value (200 episodes, Unity scenes) in *italics*. Trained in box only; every other scene unseen.",
+        f"Success rate % over {seeds} training seeds × {n} episodes per scene{once}, mean [95 % CI] (two-stage "
+        "bootstrap); the paper's value (200 episodes, Unity scenes) in *italics*. Trained in box only; every other "
+        "scene unseen.",
         "",
         *wide_table(sr),
     ]
@@ -304,9 +310,11 @@ def _rewrite(path: Path, blocks: list[tuple[str, str, str]]) -> bool:
 
 def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bool:
     """Rewrite the README's blocks (v2 from ``reference/<preset>/table1-v2/``, v1 from ``reference/<preset>/table1``),
-    docs/results.md's v2 block and the v2 Fig. 5 beside them (:data:`V2_FIGURE`); True when the README changed."""
+    docs/results.md's v2 block and the v2 Fig. 5 beside them (:data:`V2_FIGURE`), and docs/glossary.md's metrics
+    table (:func:`omcrl.eval.metrics.glossary_markdown`); True when the README changed."""
     root = project_root()
     path = Path(readme) if readme is not None else root / "README.md"
     short, full = v2_blocks(preset, figure_to=root / V2_FIGURE)
     _rewrite(root / "docs" / "results.md", [(full, FULL_START, FULL_END)])
+    _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
     return _rewrite(path, [(render_glance(reference_table_dir(preset)), START, END), (short, V2_START, V2_END)])
