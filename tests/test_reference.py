@@ -290,3 +290,49 @@ def test_a_bundles_old_evaluation_caches_become_cache_runs_and_a_key_no_identity
     res = subprocess.run([*script, str(b2)], capture_output=True, text=True)
     assert res.returncode != 0 and f"{old}.json's key is not this code's" in res.stderr
     assert sha256(b2 / ARCHIVE) == before
+
+
+def test_a_retired_bundle_is_read_from_git_history_and_a_copy_without_it_is_told(tmp_path):
+    """retire_bundle: the archive leaves the checkout for a pointer to its git blob (only once committed); the bundle
+    still verifies and unpacks from a full clone; a copy without the repository's objects is refused by name; a
+    pointer to other bytes is caught by the manifest's SHA-256."""
+    import shutil
+    import subprocess
+
+    from omcrl.pipeline.reference import retire_bundle
+
+    def git(*args):
+        return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, check=True).stdout
+
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    git("init", "-q")
+    git("config", "user.email", "t@example.org")
+    git("config", "user.name", "t")
+    b = _bundle(repo / "bundle", FILES)
+    with pytest.raises(ReferenceError, match="commit the bundle before retiring it"):
+        retire_bundle(b)
+    assert (b / ARCHIVE).is_file()
+    git("add", "-A")
+    git("commit", "-qm", "bundle")
+    before = verify_reference(b)
+    pointer = retire_bundle(b)
+    assert pointer == b / f"{ARCHIVE}.git.json" and not (b / ARCHIVE).exists()
+    assert verify_reference(b) == before
+    res = unpack_reference(load_config("smoke", overrides=[f"results_dir={tmp_path / 'results'}"]), b)
+    assert sorted(res.copied) == sorted(FILES)
+
+    copy = shutil.copytree(b, tmp_path / "copy")  # outside the repository: no objects to read the blob from
+    with pytest.warns(UserWarning, match="git blob .* is not in this repository"):
+        with pytest.raises(ReferenceError, match="its git blob is not in this repository"):
+            verify_reference(copy)
+
+    other = repo / "other.bin"
+    other.write_bytes(b"not the archive")
+    rec = json.loads(pointer.read_text())
+    pointer.write_text(json.dumps({**rec, "git_blob": git("hash-object", "-w", str(other)).strip()}))
+    with pytest.raises(ReferenceError, match="does not match its SHA-256"):
+        verify_reference(b)
+    pointer.write_text("{not json")
+    with pytest.raises(ReferenceError, match="not a readable git pointer"):
+        verify_reference(b)

@@ -28,14 +28,10 @@ retrains the encoders those need, and lays a kept teacher out as its finished ru
 from __future__ import annotations
 
 import gzip
-import hashlib
 import io
-import json
 import re
 import shutil
-import subprocess
 import time
-import warnings
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -47,8 +43,9 @@ from omcrl.eval.table1 import Table1Result, write_table1
 from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
 from omcrl.pipeline.reference import config_suite
+from omcrl.pipeline.released import POINTER, available, read_kept, read_pointer, release
 from omcrl.runs import ArtifactMismatch, CorruptFile, Run, read_identity, verify_artifact
-from omcrl.utils.io import atomic_write_bytes, atomic_write_text, bytes_digest
+from omcrl.utils.io import atomic_write_bytes, bytes_digest
 from omcrl.viz import save_figure
 from omcrl.viz.compare import curve_window, plot_learning_curves
 
@@ -57,26 +54,7 @@ EPISODES = "episodes.csv.gz"
 RECORD_SUFFIXES = (".json", ".yaml", ".csv")
 WEIGHTS = "final.pt"
 # Released weights: a pointer to the git blob that holds them (GridData.release_weights).
-WEIGHTS_POINTER = WEIGHTS + ".git.json"
-
-
-def git_blob_id(data: bytes) -> str:
-    """The id git gives a file of content ``data`` (``git hash-object``): SHA-1 of ``blob <size>\\0`` + content."""
-    return hashlib.sha1(b"blob %d\0" % len(data) + data).hexdigest()
-
-
-def _git(where: Path, *args: str) -> subprocess.CompletedProcess | None:
-    """``git -C <where> <args>`` (output as bytes), or None when git or the folder is missing."""
-    try:
-        return subprocess.run(["git", "-C", str(where), *args], capture_output=True, check=False)
-    except OSError:
-        return None
-
-
-def _committed(where: Path, blob: str) -> bool:
-    """Is blob ``blob`` part of a commit of the repository holding ``where`` (any branch)?"""
-    r = _git(where, "log", "--all", "--format=%H", "-1", f"--find-object={blob}")
-    return r is not None and r.returncode == 0 and bool(r.stdout.strip())
+WEIGHTS_POINTER = WEIGHTS + POINTER
 
 
 def grid_data_dir(cfg: Config, grid: str) -> Path:
@@ -170,54 +148,21 @@ class GridData:
         """True when ``final.pt`` of ``label``'s ``stage`` run at ``seed`` is kept: in the checkout, or released and
         still in the repository's git objects."""
         src = self.folder(label, seed) / stage
-        if (src / WEIGHTS).is_file():
-            return True
-        blob = self._pointer(src).get("git_blob")
-        r = _git(src, "cat-file", "-e", str(blob)) if blob else None
-        return r is not None and r.returncode == 0
-
-    @staticmethod
-    def _pointer(src: Path) -> dict:
-        """The released weights' pointer in ``src`` ({} when there is none)."""
-        p = src / WEIGHTS_POINTER
-        if not p.is_file():
-            return {}
-        try:
-            rec = json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as e:
-            raise CorruptFile(
-                f"{p} is not a readable weights pointer ({e}); delete {src} to train that run again"
-            ) from None
-        if not isinstance(rec, dict) or not isinstance(rec.get("git_blob"), str):
-            raise CorruptFile(f"{p}: expected an object with a 'git_blob' field; delete {src} to train that run again")
-        return rec
+        return available(src / WEIGHTS, f"delete {src} to train that run again")
 
     def kept_weights(self, label: str, seed: int, stage: str) -> bytes | None:
         """The bytes of ``label``'s kept ``stage`` weights at ``seed``: the file in the checkout, or the git blob its
-        pointer names. None (with a warning naming the blob) when neither can be read, e.g. in a shallow clone.
+        pointer names (:func:`omcrl.pipeline.released.read_kept`). None (with a warning naming the blob) when
+        neither can be read, e.g. in a shallow clone.
 
         Raises :class:`omcrl.runs.CorruptFile` when the bytes do not match the digest the run recorded.
         """
         src = self.folder(label, seed) / stage
-        where = src / WEIGHTS
-        if where.is_file():
-            data = where.read_bytes()
-        else:
-            where = src / WEIGHTS_POINTER
-            blob = self._pointer(src).get("git_blob")
-            if blob is None:
-                return None
-            r = _git(src, "cat-file", "blob", blob)
-            if r is None or r.returncode != 0:
-                warnings.warn(
-                    f"{src / WEIGHTS_POINTER}: git blob {blob} is not in this repository (a shallow clone, or git "
-                    "missing); the teacher is trained again",
-                    stacklevel=2,
-                )
-                return None
-            data = r.stdout
-            if git_blob_id(data) != blob:
-                raise CorruptFile(f"{src / WEIGHTS_POINTER}: git returned other bytes than blob {blob}")
+        where = src / WEIGHTS if (src / WEIGHTS).is_file() else src / WEIGHTS_POINTER
+        read_pointer(src / WEIGHTS, f"delete {src} to train that run again")  # a damaged pointer is named first
+        data = read_kept(src / WEIGHTS, "the teacher is trained again")
+        if data is None:
+            return None
         want = (read_identity(src) or {}).get("artifact_digest")
         got = bytes_digest(data)
         if want is not None and got != want:
@@ -235,19 +180,10 @@ class GridData:
         pointer must name a blob that git history keeps, so weights are released only after they were committed.
         """
         src = self.folder(label, seed) / stage
-        path = src / WEIGHTS
-        if not path.is_file():
+        if not (src / WEIGHTS).is_file():
             return None
         data = self.kept_weights(label, seed, stage)  # checked against the run's digest before anything changes
-        assert data is not None
-        blob = git_blob_id(data)
-        if not _committed(src, blob):
-            return None
-        pointer = src / WEIGHTS_POINTER
-        record = {"git_blob": blob, "digest": bytes_digest(data), "bytes": len(data)}
-        atomic_write_text(pointer, json.dumps(record, indent=1) + "\n")
-        path.unlink()
-        return pointer
+        return release(src / WEIGHTS, data)
 
     def restore_run(self, label: str, stage: str, run: Run) -> bool:
         """Lay ``label``'s kept ``stage`` run (record and weights) out as the finished folder of ``run``, so that

@@ -39,9 +39,10 @@ from typing import Any
 from omcrl.config import Config, field_default, load_config, project_root, section_identity
 from omcrl.eval.stage import EPISODES, eval_cache_root
 from omcrl.eval.table1 import evaluate_grid
+from omcrl.pipeline.released import pointer_path, read_kept, release
 from omcrl.pipeline.storage import sha256
 from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path
-from omcrl.runs import DIGEST_FIELDS, RUN_FILE, read_identity, recorded_digest, run_key
+from omcrl.runs import DIGEST_FIELDS, RUN_FILE, CorruptFile, read_identity, recorded_digest, run_key
 from omcrl.scenes import SUITES, suite_of, suite_overrides
 from omcrl.utils.io import atomic_save_torch, atomic_write_bytes, atomic_write_text, load_torch
 from omcrl.utils.runtime import code_commit
@@ -470,13 +471,19 @@ def verify_reference(bundle: str | Path, preset: str | None = None) -> tuple[dic
     b = Path(bundle)
     m = read_manifest(b, preset)
     arch = b / ARCHIVE
-    if not arch.is_file():
-        raise ReferenceError(f"{arch}: listed in {b / MANIFEST} but missing")
-    if arch.stat().st_size != m["archive"].get("bytes") or sha256(arch) != m["archive"]["sha256"]:
+    # A retired bundle's archive lives in git history (retire_bundle): read from the blob its pointer names.
+    try:
+        data = read_kept(arch, "this bundle cannot be read here (a full clone has it)")
+    except CorruptFile as e:
+        raise ReferenceError(str(e)) from None
+    if data is None:
+        where = "its git blob is not in this repository" if pointer_path(arch).is_file() else "missing"
+        raise ReferenceError(f"{arch}: listed in {b / MANIFEST} but {where}")
+    if len(data) != m["archive"].get("bytes") or hashlib.sha256(data).hexdigest() != m["archive"]["sha256"]:
         raise ReferenceError(f"{arch}: does not match its SHA-256 in {b / MANIFEST} (damaged or changed)")
     out: dict[str, bytes] = {}
     try:
-        with tarfile.open(arch, "r:xz") as tar:
+        with tarfile.open(fileobj=io.BytesIO(data), mode="r:xz") as tar:
             for member in tar:
                 name = member.name
                 where = f"{arch}: member {name!r}"
@@ -496,6 +503,22 @@ def verify_reference(bundle: str | Path, preset: str | None = None) -> tuple[dic
     if lacking:
         raise ReferenceError(f"{arch}: {lacking[0]} is listed in {b / MANIFEST} but not in the archive")
     return m, out
+
+
+def retire_bundle(bundle: str | Path) -> Path:
+    """Take a committed bundle's archive out of the checkout, leaving ``runs.tar.xz.git.json`` (its git blob) beside
+    the manifest: the bundle stays verifiable and unpackable from a full clone (:func:`verify_reference` reads the
+    blob), and ``reference/`` keeps its 60 MB for the bundles in use. Returns the pointer written.
+
+    Raises ReferenceError when the bundle does not verify, or its archive is not in a commit yet (commit it first:
+    the pointer must name a blob that git history keeps).
+    """
+    b = Path(bundle)
+    verify_reference(b)  # whole before anything changes
+    pointer = release(b / ARCHIVE)
+    if pointer is None:
+        raise ReferenceError(f"{b / ARCHIVE}: not in a commit of this repository; commit the bundle before retiring it")
+    return pointer
 
 
 def registered_runs(cfg: Config, manifest: dict[str, Any]) -> tuple[dict[str, Path], list[str]]:
