@@ -114,7 +114,7 @@ def render_glance(table_dir: str | Path, figure: str = "docs/figures/quick/v1/fi
     sr, record = _read(Path(table_dir))
     seeds, n = int(sr["seeds"].max()), int(sr["episodes"].min())
     # Planners are code, not trained: a row of one run flies the same episodes once.
-    once = " (rows of one run, the planners: those episodes once)" if (sr["seeds"] < seeds).any() else ""
+    once = " (the planners, which are not trained: one run of the same episodes)" if (sr["seeds"] < seeds).any() else ""
     lines = [
         V1_CAVEAT,
         "",
