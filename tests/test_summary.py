@@ -120,6 +120,17 @@ def test_readme_results_at_a_glance_match_the_reference_table(repo_root):
     assert current_block(readme) == render_glance(reference_table_dir("quick"))
 
 
+def test_results_pages_v1_table_and_orderings_are_what_the_reference_table_gives(repo_root):
+    """docs/results.md's v1 Table I and its orderings are rendered from reference/quick/table1 (a hand-edited cell
+    fails here): re-run `python -m omcrl summary --preset quick --readme` after that table changes."""
+    from omcrl.pipeline.glance import V1_END, V1_START, current_block, reference_table_dir, render_v1_results
+
+    page = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
+    block = current_block(page, "docs/results.md", V1_START, V1_END)
+    assert "| Ours | 95 [91, 98] |" in block and "| curl > npe | **reversed**" in block
+    assert block == render_v1_results(reference_table_dir("quick"))
+
+
 def test_readme_v2_table_and_verdicts_are_what_the_grid_data_gives(repo_root):
     """The README's v2 block is rebuilt from reference/quick/table1-v2/ alone (Table I, the ledger's verdicts): re-run
     `python -m omcrl summary --preset quick --readme` after grid data is committed. A hand-edited cell fails here."""

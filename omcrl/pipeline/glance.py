@@ -39,6 +39,8 @@ V2_END = "<!-- results-v2: end -->"
 FULL_START = "<!-- results-v2-full: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 FULL_END = "<!-- results-v2-full: end -->"
 V2_FIGURE = "docs/figures/quick/v2/fig5_training_curves.png"
+V1_START = "<!-- results-v1: start (python -m omcrl summary --preset quick --readme writes this block) -->"
+V1_END = "<!-- results-v1: end -->"
 GLOSSARY_START = "<!-- metrics: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 GLOSSARY_END = "<!-- metrics: end -->"
 # A claim's verdict over its hypotheses (omcrl.eval.verdicts.verdict_counts), in the README's order.
@@ -70,7 +72,9 @@ def _read(table_dir: Path) -> tuple[pd.DataFrame, Table1Record]:
 
 
 def _signed(x: float) -> str:
-    return f"{x:+.0f}".replace("-", "−")
+    """A difference in whole points with its sign (``+5``, ``−3``; ``0`` without one)."""
+    text = f"{x:+.0f}"
+    return "0" if text in ("+0", "-0") else text.replace("-", "−")
 
 
 def wide_table(rows: pd.DataFrame, with_paper: bool = True, digits: int = 0) -> list[str]:
@@ -142,6 +146,46 @@ def render_glance(table_dir: str | Path, figure: str = "docs/figures/quick/v1/fi
             lines.append(f"- `{claim}`: " + "; ".join(parts) + ".")
     lines += ["", f"![Fig. 5: training curves]({figure})"]
     return "\n".join(_wrap(x) for x in lines)
+
+
+def render_v1_results(table_dir: str | Path) -> str:
+    """docs/results.md's block for the v1 suite's Table I in ``table_dir``: SR per method and scene, and every
+    ordering the v1 check judged in every scene (the README's block lists the decided ones)."""
+    sr, record = _read(Path(table_dir))
+    seeds, n = int(sr["seeds"].max()), int(sr["episodes"].min())
+    lines = [
+        _wrap(
+            f"SR %, mean [95 % CI] over {seeds} training seeds × {n} episodes (two-stage bootstrap; the planners, "
+            "which are not trained: one run of the same episodes):"
+        ),
+        "",
+        *wide_table(sr, with_paper=False),
+    ]
+    claims = pd.DataFrame(record.claims)
+    if len(claims):
+        scenes = list(dict.fromkeys(claims["scene"]))
+        lines += [
+            "",
+            _wrap(
+                "The paper's orderings (the v1 check, since replaced by the claim ledger): SR difference in points "
+                "[95 % CI], *holds* / *reversed* where the CI excludes 0:"
+            ),
+            "",
+            "| claim | " + " | ".join(scenes) + " |",
+            "|---|" + "---|" * len(scenes),
+        ]
+        for claim, g in claims.groupby("claim", sort=False):
+            cells = {r.scene: r for r in g.itertuples()}
+            out = []
+            for sc in scenes:
+                r = cells.get(sc)
+                if r is None:
+                    out.append("")
+                    continue
+                text = f"{_signed(r.diff)} [{_signed(r.lo)}, {_signed(r.hi)}]"
+                out.append(f"**{r.verdict}** {text}" if r.verdict in ("holds", "reversed") else text)
+            lines.append(f"| {claim} | " + " | ".join(out) + " |")
+    return "\n".join(lines)
 
 
 def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
@@ -315,6 +359,7 @@ def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bo
     root = project_root()
     path = Path(readme) if readme is not None else root / "README.md"
     short, full = v2_blocks(preset, figure_to=root / V2_FIGURE)
-    _rewrite(root / "docs" / "results.md", [(full, FULL_START, FULL_END)])
+    v1 = render_v1_results(reference_table_dir(preset))
+    _rewrite(root / "docs" / "results.md", [(full, FULL_START, FULL_END), (v1, V1_START, V1_END)])
     _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
     return _rewrite(path, [(render_glance(reference_table_dir(preset)), START, END), (short, V2_START, V2_END)])
