@@ -41,6 +41,7 @@ def quick_shift():
     return {s: perceptual_table(gradient_samples(cfg, episodes=6, suite=s), encoders) for s in ("v1", "v2")}
 
 
+@pytest.mark.stage  # flies quick-preset pilots and planners: minutes
 @pytest.mark.parametrize("suite", ["v1", "v2"])
 def test_suite_orders_box_furniture_barrier_tree_on_every_measure(quick_shift, suite):
     """The criterion fixed by the issues: on random encoders (each of three inits) and on network-free pixel
@@ -52,6 +53,7 @@ def test_suite_orders_box_furniture_barrier_tree_on_every_measure(quick_shift, s
     assert gradient_order(suite) == ("box, other layouts", *want[suite])
 
 
+@pytest.mark.stage  # flies quick-preset pilots and planners: minutes
 def test_furniture_v0_room_is_the_shift_v1_removes(quick_shift):
     t = quick_shift["v1"].set_index("setting")
     for m in ("pixel_mmd", "colour_js", "random_mmd"):
@@ -67,6 +69,7 @@ def test_furniture_v0_room_is_the_shift_v1_removes(quick_shift):
 FAST_LAYOUTS, BOX_LAYOUTS = 30, 100
 
 
+@pytest.mark.stage  # flies quick-preset pilots and planners: minutes
 def test_v2_suite_meets_its_criteria_with_nothing_learned():
     """Scenes v2, fixed before any learned method flew them: the blind pilot <= 20 % SR everywhere, the privileged
     Hybrid APF >= 90 %, the local APF <= 70 % (and >= 20 % in box-v2), >= 30 % of box-v2's layouts bend by more
@@ -84,6 +87,7 @@ def test_v2_suite_meets_its_criteria_with_nothing_learned():
     assert (crit.lo <= crit.value).all() and (crit.value <= crit.hi).all()
 
 
+@pytest.mark.stage  # flies quick-preset pilots and planners: minutes
 def test_v1_suite_is_flown_blind_which_v2_was_built_against():
     """The reason v2 exists, measured the same way: in v1's box and tree a pilot that senses nothing reaches more
     than 20 % of the goals (criteria layouts, as above)."""

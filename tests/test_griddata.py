@@ -14,6 +14,7 @@ from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_referen
 from omcrl.pipeline.sweep import record_planners, run_sweep, sweep_stage
 
 
+@pytest.mark.stage  # runs smoke sweeps end to end
 def test_a_grid_is_recorded_resumed_from_its_records_and_rebuilt_without_training(tmp_path, monkeypatch):
     monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-a"))
     cfg = load_config("smoke")
@@ -54,6 +55,7 @@ def test_a_grid_is_recorded_resumed_from_its_records_and_rebuilt_without_trainin
     assert record.has_episodes("PPO", 0)
 
 
+@pytest.mark.stage  # runs smoke sweeps end to end
 def test_tables_rebuild_from_the_records_alone(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
     cfg = load_config("smoke")
@@ -82,6 +84,7 @@ def test_tables_rebuild_from_the_records_alone(tmp_path, monkeypatch, capsys):
     assert "claim ledger:" in capsys.readouterr().out
 
 
+@pytest.mark.stage  # runs smoke sweeps end to end
 def test_a_teachers_weights_travel_so_a_new_machine_trains_its_students_without_it(tmp_path, monkeypatch):
     from omcrl.pipeline.grids import GRIDS, Variant
     from omcrl.runs import CorruptFile
