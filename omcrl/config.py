@@ -143,7 +143,7 @@ class DataConfig:
     look: str = _f(
         "own",
         choices=("own", "randomized"),
-        doc="own: the scene's look; randomized: a random generic look per layout (a deviation, docs/DEVIATIONS.md §2)",
+        doc="own: the scene's look; randomized: a random generic look per layout (a deviation, docs/method.md)",
     )
     policy: str = _f(
         "none",
@@ -219,7 +219,7 @@ class GuidanceConfig:
 
 @dataclass
 class OracleConfig(GuidanceConfig):
-    """The oracle teacher's own guidance (a kit deviation, docs/DEVIATIONS.md §4): its PPO is pulled early towards
+    """The oracle teacher's own guidance (a kit deviation, docs/method.md): its PPO is pulled early towards
     the privileged Hybrid APF through the same decaying KL term a student has towards the oracle. Its PPO budget
     and settings are ``rl``'s; only the guidance is its own."""
 

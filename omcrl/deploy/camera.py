@@ -8,7 +8,7 @@ plain resize does) distorts every angle. :class:`CameraView` instead resamples t
 cameras' intrinsics, so a point in the world lands on the same pixel of the policy's input as in simulation;
 the parts of the simulated view that the real camera does not see (with the defaults, the outer bands: the
 Tello covers the central 80 % × 60 % of an 82.6° square) are filled by replicating the nearest edge pixel.
-``docs/DEVIATIONS.md`` (Deployment) says what that means for a policy and how to train one whose view the Tello
+``docs/deploy.md`` (Camera geometry) says what that means for a policy and how to train one whose view the Tello
 covers whole (``env.fov_deg=55.6``).
 """
 

@@ -5,7 +5,7 @@ Why ``motioncapture`` for the pose: one maintained client (the Crazyflie team's 
 used by Crazyswarm2) for OptiTrack — the paper's system — and Vicon, Qualisys and others, with rigid bodies
 as position + quaternion; ``natnet`` speaks OptiTrack's NatNet only. Its ``optitrack`` backend is itself a NatNet
 client (libmotioncapture's ``MotionCaptureOptitrack``: it queries the server's NatNet version and parses its model
-definitions), so the paper's protocol is covered without OptiTrack's SDK (docs/DEVIATIONS.md, "Pose client").
+definitions), so the paper's protocol is covered without OptiTrack's SDK (docs/deploy.md, "Pose client").
 
 Tello conventions: ``send_rc_control(left_right, forward_backward, up_down, yaw)`` takes integers in
 [−100, 100]; yaw > 0 turns clockwise (seen from above), so ω_z (counter-clockwise) is negated, and left is

@@ -1,7 +1,8 @@
 """Geometry statistics of the scenes: what a layout leaves free to fly, independent of how it looks.
 
 Used to check that look changes (``Disturbance.appearance``, ``data.look``) and scene edits leave the geometry
-alone (docs/generalization.md, "Scene geometry"), and to compare how cluttered the scenes are at flight altitude.
+alone (docs/history/generalization-investigation.md, "Scene geometry"), and to compare how cluttered the
+scenes are at flight altitude.
 Pure geometry from the env's own occupancy grid and planner path, so the numbers are exactly what collisions,
 the planners and SPL use.
 """

@@ -12,7 +12,7 @@ the box scene's generator in a smaller arena (:data:`ROOM`), and the conditions 
 
 Success is reaching 0.5 m of the goal (the paper's real-world rule; ``env.goal_radius = 0.5`` in the room). Every
 method flies the same episodes (start/goal/layout from the evaluation seeds). Plants are not modelled: the room
-has crates only (DEVIATIONS §9).
+has crates only (docs/method.md, "Real-world tests become a simulated room").
 """
 
 from __future__ import annotations

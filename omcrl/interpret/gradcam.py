@@ -6,7 +6,8 @@ is a function of the policy's mean action (:data:`TARGETS`), the state part of t
 frame's own state, and the layer is the encoder's last conv block (after its ReLU).
 
 The kit implements it itself rather than through the ``grad-cam`` package: that package imports torchvision,
-and no torchvision build imports beside the CPU build of torch 2.13 used here (DEVIATIONS §9).
+and no torchvision build imports beside the CPU build of torch 2.13 used here
+(docs/method.md, "Grad-CAM, the kit's own").
 
 :func:`mass_share` turns a map into a number: the share of its mass on obstacle pixels, next to the share of the
 image that obstacles cover (what a uniform map would give).

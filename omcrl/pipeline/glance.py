@@ -47,7 +47,7 @@ GLOSSARY_END = "<!-- metrics: end -->"
 CLAIM_VERDICTS = ("holds", "reversed", "mixed", "undecided", "one seed", "not run")
 # The commit that fixed the claim ledger before any v2 Table I evaluation (omcrl.eval.ledger; docs/results.md).
 LEDGER_COMMIT = "2cdf7b5"
-# What the v1 suite's table measures (docs/generalization.md, "The scene suite, versioned").
+# What the v1 suite's table measures (docs/scenes.md, "The v2 suite").
 V1_CAVEAT = (
     "**v1 suite, superseded**: a pilot that flies straight at the goal and senses nothing succeeds in 37–78 % of "
     "these layouts and box-v0 never asks for a detour, so this table measures goal-seeking under a change of look "

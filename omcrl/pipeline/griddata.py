@@ -43,7 +43,7 @@ from omcrl.eval.table1 import Table1Result, write_table1
 from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
 from omcrl.pipeline.reference import config_suite
-from omcrl.pipeline.released import POINTER, available, read_kept, read_pointer, release
+from omcrl.pipeline.released import POINTER, available, read_kept, release
 from omcrl.runs import ArtifactMismatch, CorruptFile, Run, read_identity, verify_artifact
 from omcrl.utils.io import atomic_write_bytes, bytes_digest
 from omcrl.viz import save_figure
@@ -159,8 +159,7 @@ class GridData:
         """
         src = self.folder(label, seed) / stage
         where = src / WEIGHTS if (src / WEIGHTS).is_file() else src / WEIGHTS_POINTER
-        read_pointer(src / WEIGHTS, f"delete {src} to train that run again")  # a damaged pointer is named first
-        data = read_kept(src / WEIGHTS, "the teacher is trained again")
+        data = read_kept(src / WEIGHTS, f"delete {src} to train that run again", "the teacher is trained again")
         if data is None:
             return None
         want = (read_identity(src) or {}).get("artifact_digest")

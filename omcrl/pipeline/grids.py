@@ -64,12 +64,13 @@ GRIDS: dict[str, tuple[Variant, ...]] = {
 # full budgets, beside the default (the Table I run of ``ours``, so it is found finished). The first three are
 # changes the paper's text allows (Section IV-B: more pilot/random trajectories; the pretraining budget; its d), the
 # fourth one its text supports (VI-C: a lower sampling frequency steadies sequence-based contrastive training);
-# the last two are deviations (docs/DEVIATIONS.md §2, §3). ``*=`` scales the preset's value
+# the last two are deviations (docs/method.md: Randomized looks, Colour jitter). ``*=`` scales the preset's value
 # (:func:`omcrl.pipeline.plan.job_config`).
 REMEDY_VARIANTS: dict[str, Variant] = {
     "remedy-data": Variant("box data x3", "ours", ("data.episodes*=3", "data.file=data/{preset}/box-x3.h5")),
     "remedy-budget": Variant("pretraining x3", "ours", ("pretrain.iterations*=3",)),
-    # Masked top-1 still rises at x3 (docs/generalization.md, remedy 5): is a longer pretraining the fix?
+    # Masked top-1 still rises at x3 (docs/history/generalization-investigation.md, remedy 5): is a longer
+    # pretraining the fix?
     "remedy-budget6": Variant("pretraining x6", "ours", ("pretrain.iterations*=6",)),
     "remedy-d": Variant("paper d", "ours", ("pretrain.feature_dim=384", "pretrain.proj_hidden=384")),
     # Section IV-B's third source, policy data: half the box episodes flown by the seed's oracle, same count.
@@ -106,8 +107,8 @@ GRIDS["remedies"] = (DEFAULT_VARIANT, *REMEDY_VARIANTS.values())
 REMEDY_GRIDS = ("remedies", *REMEDY_VARIANTS)
 
 
-# fp32 against bfloat16 autocast (docs/DEVIATIONS.md, "Precision"): ours with its own oracle and encoder in each
-# precision, and end-to-end PPO, at the preset's budgets (the fp32 arms are the Table I runs).
+# fp32 against bfloat16 autocast (docs/reproducibility.md, "Numeric precision"): ours with its own oracle and
+# encoder in each precision, and end-to-end PPO, at the preset's budgets (the fp32 arms are the Table I runs).
 BF16 = ("rl.precision=bf16", "pretrain.precision=bf16")
 
 

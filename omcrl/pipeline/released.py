@@ -77,12 +77,13 @@ def available(path: str | Path, remedy: str) -> bool:
     return r is not None and r.returncode == 0
 
 
-def read_kept(path: str | Path, remedy: str) -> bytes | None:
+def read_kept(path: str | Path, remedy: str, unavailable: str | None = None) -> bytes | None:
     """The bytes of ``path``: the file in the checkout, or the git blob its pointer names.
 
-    None when it is neither there nor released, and None with a warning naming the blob (ending in ``remedy``) when
-    the blob is not in this repository (a shallow clone, git missing). Raises :class:`omcrl.runs.CorruptFile` when
-    git returns other bytes than the blob's, or the pointer cannot be read.
+    None when it is neither there nor released, and None with a warning naming the blob (ending in ``unavailable``,
+    default ``remedy``) when the blob is not in this repository (a shallow clone, git missing). Raises
+    :class:`omcrl.runs.CorruptFile` (ending in ``remedy``) when git returns other bytes than the blob's, or the
+    pointer cannot be read.
     """
     p = Path(path)
     if p.is_file():
@@ -94,7 +95,8 @@ def read_kept(path: str | Path, remedy: str) -> bytes | None:
     r = _git(p.parent, "cat-file", "blob", blob)
     if r is None or r.returncode != 0:
         warnings.warn(
-            f"{pointer_path(p)}: git blob {blob} is not in this repository (a shallow clone, or git missing); {remedy}",
+            f"{pointer_path(p)}: git blob {blob} is not in this repository (a shallow clone, or git missing); "
+            f"{unavailable or remedy}",
             stacklevel=2,
         )
         return None

@@ -16,7 +16,7 @@ here is a :class:`SceneSpec` in one registry, named as Gymnasium names environme
   bushes, grass and sky.
 
 The v2 suite (the default, :data:`SUITES`) keeps the v1 suite's looks and makes layouts that need sight
-(docs/DEVIATIONS.md, "Scenes v2"): a blind pilot fails, the map planner succeeds, box holds detours.
+(docs/scenes.md, "The v2 suite"): a blind pilot fails, the map planner succeeds, box holds detours.
 
 * ``box-v2`` — box-v0's crates, loose and in walls of 4-8, tees and pockets; 80 % of its episodes have the
   straight start-goal line blocked (:attr:`SceneSpec.line_blocked`), 20 % a clear one.
@@ -492,7 +492,7 @@ _CRATE_GROUPS: dict[str, tuple[tuple[float, float], ...]] = {
     "big_pocket": ((-1.5, -1), (-0.5, -1), (0.5, -1), (1.5, -1), (-1.5, 0), (1.5, 0), (-1.5, 1), (1.5, 1)),
 }
 # Chance of each group per draw: loose crates (small detours a reactive controller can fly round) and walls
-# (detours it cannot), in the proportion that meets the v2 criteria (docs/DEVIATIONS.md, "Scenes v2").
+# (detours it cannot), in the proportion that meets the v2 criteria (docs/scenes.md, "The v2 suite").
 _CRATE_GROUP_P = {
     "single": 0.3,
     "row4": 0.14,
@@ -569,7 +569,7 @@ def gen_furniture_v2(rng: np.random.Generator, arena_half: float, n: int) -> lis
 BOX_V2_GAP = 0.9  # m between crate groups' footprints
 BOX_V2_COUNT, FURNITURE_V2_COUNT, BARRIER_V2_COUNT, TREE_V2_COUNT = 54, 26, 12, 55
 BARRIER_V2_SPACING, BARRIER_V2_DOOR = 1.5, (0.6, 0.8)
-# box-v2 is the training scene: 80 % of its episodes need a detour, 20 % keep a clear line (docs/DEVIATIONS.md).
+# box-v2 is the training scene: 80 % of its episodes need a detour, 20 % keep a clear line (docs/scenes.md).
 BOX_V2_BLOCKED = 0.8
 
 _BOX_ROOM = {"indoor": True, "floor_texture": "tiles:0", "wall_texture": "paint:0"}
@@ -640,7 +640,7 @@ for _spec in (
         paper_scene=None,
         description="furniture-v1's layouts in a room of its own (wood floor, other paint): an unseen room",
     ),
-    # v2: the same looks as the v1 suite, layouts that need sight (docs/DEVIATIONS.md, "Scenes v2").
+    # v2: the same looks as the v1 suite, layouts that need sight (docs/scenes.md, "The v2 suite").
     SceneSpec(
         "box",
         2,
