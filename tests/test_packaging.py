@@ -154,12 +154,12 @@ def _anchors(page) -> set[str]:
 
 
 def test_every_relative_link_in_the_docs_resolves(repo_root):
-    """Links between the README, docs/ and the repository's files (``[text](path)``, ``[text](path#anchor)`` and
-    ``[text](#anchor)``) point at files that exist, and an anchor into a Markdown page at one of its headings; web
-    links are not followed."""
+    """Links between the README, docs/ (the lab notes in docs/history/ too) and the repository's files
+    (``[text](path)``, ``[text](path#anchor)`` and ``[text](#anchor)``) point at files that exist, and an anchor into a
+    Markdown page at one of its headings; web links are not followed."""
     import re
 
-    pages = [repo_root / "README.md", *sorted((repo_root / "docs").glob("*.md"))]
+    pages = [repo_root / "README.md", *sorted((repo_root / "docs").rglob("*.md"))]
     checked, anchored, broken = 0, 0, []
     for page in pages:
         for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
