@@ -17,6 +17,7 @@ each planner in every scene on the same evaluation episodes (cached per checkpoi
 from __future__ import annotations
 
 import math
+import textwrap
 import time
 from collections.abc import Sequence
 from contextlib import nullcontext
@@ -294,8 +295,10 @@ def write_table1(
         f"{n} evaluation layouts per seed and scene). NE m, OS/SR/CR %, SPL 0-1, TTS steps over successful "
         "episodes (– none). "
         "Bold: best non-privileged method (the oracle and the privileged Hybrid APF are references). "
-        "Italics: best learned method.\n\n"
+        "Italics: best learned method."
     )
+    # Wrapped so that the docs that embed this file keep their lines within 120 characters.
+    note = textwrap.fill(note, 120, break_long_words=False, break_on_hyphens=False) + "\n\n"
     sig = compare_sr(episodes, reference, reps=reps) if reference in set(episodes["method"]) else pd.DataFrame()
     vp = vs_paper(table)
     paths = {
