@@ -41,19 +41,20 @@ def _walk(rng: np.random.Generator, n: int) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float = 1.0) -> dict:
-    """Throughputs for one scene and image size.
+def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float = 1.0, renderer: str = "auto") -> dict:
+    """Throughputs for one scene, image size and ``env.renderer`` (``tiny``, ``egl`` or ``auto``).
 
     Raw renders, single-env steps and vector-env steps run in alternating short blocks (``block`` s each) for
     ``seconds`` s in all, and each rate is the median over its blocks: whatever else the machine is doing
-    then weighs on all three alike, so the ratios stay meaningful on a busy machine.
+    then weighs on all three alike, so the ratios stay meaningful on a busy machine. Raw renders use the env's
+    own renderer (TinyRenderer, or the EGL plugin it loaded), so ``step/raw`` is the env's overhead on either.
     """
-    env = make_env(scene, seed=0, image_size=size)
+    env = make_env(scene, seed=0, image_size=size, renderer=renderer)
     env.reset(seed=0)
-    vec = make_vec_env(scene, n_vec, seed=0, image_size=size)
+    vec = make_vec_env(scene, n_vec, seed=0, image_size=size, renderer=renderer)
     vec.reset(seed=0)
     gvec = gym.vector.AsyncVectorEnv(
-        [env_factory(scene, i, {"image_size": size}) for i in range(n_vec)], shared_memory=True
+        [env_factory(scene, i, {"image_size": size, "renderer": renderer}) for i in range(n_vec)], shared_memory=True
     )
     gvec.reset(seed=0)
     acts = _walk(np.random.default_rng(0), 100_000)
@@ -73,7 +74,7 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
                 size,
                 views[n % len(views)],
                 proj,
-                renderer=pb.ER_TINY_RENDERER,
+                renderer=env._pb_renderer,
                 shadow=0,
                 flags=pb.ER_NO_SEGMENTATION_MASK,
                 physicsClientId=cid,
@@ -126,6 +127,7 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
     return {
         "scene": scene,
         "px": size,
+        "renderer": env.renderer,
         "raw_fps": raw_fps,
         "step_sps": step_sps,
         "step_sps_with_resets": wr,
@@ -145,11 +147,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--scenes", default="box", help="comma-separated scenes (default: box)")
     ap.add_argument("--sizes", default="64,128", help="comma-separated image sizes (px)")
     ap.add_argument("--seconds", type=float, default=20.0, help="measuring time per scene and size (s)")
+    ap.add_argument("--renderers", default="auto", help="comma-separated env.renderer values: tiny, egl, auto")
+    ap.add_argument("--vec", type=int, default=2, help="envs of the vector envs (default: 2)")
     args = ap.parse_args(argv)
     seconds = 3.0 if args.quick else args.seconds
     rows = []
     for scene in args.scenes.split(","):
         for size in (int(s) for s in args.sizes.split(",")):
-            rows.append(measure(scene, size, seconds))
+            for renderer in args.renderers.split(","):
+                rows.append(measure(scene, size, seconds, n_vec=args.vec, renderer=renderer))
     write_results("env", rows, args.out)
     return 0
