@@ -163,3 +163,60 @@ def test_specs_list_the_materials_their_generators_use():
     for spec in SCENE_SPECS.values():
         kinds = {t.split(":")[0] for s in range(6) for p in generate_scene(spec.id, s, 8.0) if (t := p.texture)}
         assert kinds == set(spec.materials), spec.id
+
+
+@pytest.mark.parametrize("scene", ["box-v2", "tree-v2", "barrier-v2", "furniture-v2", "box-v0", "tree-v0"])
+def test_batched_placement_gives_the_one_by_one_layouts(scene, monkeypatch):
+    """The placer tests its later candidates in one numpy batch and leaves the generator where the one-by-one
+    search would; every obstacle, and the generator's state after the layout, must be what testing each candidate
+    in turn gives (seeds from three ranges: training, Table I's evaluation, the v2 criteria)."""
+    from omcrl.scenes import registry
+
+    spec = registry.scene_spec(scene)
+    for seed in [*range(12), *range(1_000_000, 1_000_012), *range(7_000_000, 7_000_012)]:
+        got = {}
+        for batched in (True, False):
+            monkeypatch.setattr(registry._Placer, "batched", batched)
+            rng = np.random.default_rng([seed, spec.stream])
+            got[batched] = (spec.generator(rng, 8.0, spec.default_count), rng.random())
+        assert got[True] == got[False], (scene, seed)
+
+
+def test_a_candidate_at_its_bound_is_decided_in_scalar_arithmetic():
+    """A batched candidate whose clearance lies within the tolerance of its bound is decided by the scalar test:
+    one exactly radius + r + gap from a placed disc is refused (``>`` is strict), one 1e-10 m farther is taken
+    although numpy could not tell the two apart safely; and the draws after the accepted one stay undrawn."""
+    from omcrl.scenes import registry
+
+    class Draws:  # a generator that hands out chosen uniforms, with a state the placer can save and restore
+        def __init__(self, values):
+            self.values = list(values)
+            self.bit_generator = self
+
+        state = property(lambda self: list(self.values), lambda self, v: setattr(self, "values", list(v)))
+
+        def random(self, n):
+            out, self.values = self.values[:n], self.values[n:]
+            return np.asarray(out, dtype=float)
+
+        def uniform(self, lo, hi, size):
+            return lo + (hi - lo) * self.random(size)
+
+    a, gap, r = 8.0, 0.5, 1.0
+    lo, hi = -a + r * 0.5, a - r * 0.5
+    bound = r + r + gap
+    at = lambda x: (x - lo) / (hi - lo)  # noqa: E731 - the uniform draw that lands (about) on x
+    x_of = lambda u: lo + (hi - lo) * u  # noqa: E731 - where the placer puts it
+    u_at, u_past = at(bound), at(bound + 1e-10)
+    assert x_of(u_at) == bound and bound < x_of(u_past) < bound + registry._EXACT  # the case is the one meant
+
+    def placer(batch):
+        p = registry._Placer(Draws([at(0.0), at(0.0)] * (registry._ONE_BY_ONE + 1) + batch), a, gap)
+        assert p.place(r, tries=1) == (0.0, 0.0)  # a disc at the centre; the next candidates sit on it first
+        return p
+
+    p = placer([u_at, at(0.0), u_past, at(0.0), at(5.0), at(0.0)])
+    assert p.place(r, tries=registry._ONE_BY_ONE + 3) == (x_of(u_past), 0.0)
+    assert p.rng.values == [at(5.0), at(0.0)]  # the candidate after the accepted one was never drawn
+    p = placer([u_at, at(0.0), u_at, at(0.0)])
+    assert p.place(r, tries=registry._ONE_BY_ONE + 2) is None and p.rng.values == []

@@ -164,34 +164,117 @@ def _rgba(rng: np.random.Generator, lo: float = 0.25, hi: float = 0.95) -> tuple
 
 
 class _Placer:
-    """Rejection sampler for structure footprints (discs) inside the arena with a spacing margin."""
+    """Rejection sampler for structure footprints (discs) inside the arena with a spacing margin.
+
+    A placement draws up to ``tries`` candidates from ``rng`` one after the other and takes the first that fits.
+    After the first few, the remaining candidates are tested all at once in numpy, and the generator is then left
+    exactly where drawing them one by one up to the accepted one would leave it; a test within :data:`_EXACT` of
+    its bound is decided again by the scalar arithmetic (``math``) the layouts were first generated with, so every
+    layout is the same to the bit (numpy's cos, sin and hypot may differ from math's in the last ulp)."""
+
+    # False: every candidate one by one (the reference the batched search must match; ``bench scenes``).
+    batched = True
 
     def __init__(self, rng: np.random.Generator, arena_half: float, gap: float) -> None:
         self.rng, self.a, self.gap = rng, arena_half, gap
         self.discs: list[tuple[float, float, float]] = []
+        self.one_by_one = _ONE_BY_ONE if self.batched else 10**9
+
+    def _draw(self, per_try: int, tries: int) -> tuple[np.ndarray, dict]:
+        """(tries, per_try) uniforms in [0, 1), as ``tries`` rounds of ``per_try`` draws would give them, and the
+        generator's state before them (see :meth:`_consume`)."""
+        state = self.rng.bit_generator.state
+        return self.rng.random(per_try * tries).reshape(tries, per_try), state
+
+    def _consume(self, state: dict, n: int) -> None:
+        """Leave the generator as ``n`` draws from ``state`` leave it (the candidates after the accepted one were
+        never drawn by the one-by-one sampler)."""
+        self.rng.bit_generator.state = state
+        if n:
+            self.rng.random(n)
+
+    def _scalar_ok(self, pts: Sequence[tuple[float, float]], radius: float, bounded: bool) -> bool:
+        if bounded and not all(abs(px) <= self.a and abs(py) <= self.a for px, py in pts):
+            return False
+        return all(math.hypot(px - u, py - v) > radius + r + self.gap for px, py in pts for u, v, r in self.discs)
+
+    def _first_fit(self, pts: np.ndarray, radius: float, bounded: bool, exact: Any) -> int | None:
+        """Index of the first candidate (``pts``: (n, k, 2) m) whose k discs are inside the arena (when ``bounded``)
+        and clear of every placed disc; ``exact(i)`` gives candidate i's points in scalar arithmetic."""
+        possible = np.ones(len(pts), bool)  # not surely refused
+        unsure = np.zeros(len(pts), bool)  # within _EXACT of a bound: decided by _scalar_ok
+        if bounded:
+            inside = (self.a - np.abs(pts).max(axis=2)).min(axis=1)  # m
+            possible &= inside > -_EXACT
+            unsure |= np.abs(inside) <= _EXACT
+        if self.discs:
+            placed = np.asarray(self.discs)  # (m, 3): centre x, y and radius, m
+            dx, dy = pts[..., 0, None] - placed[:, 0], pts[..., 1, None] - placed[:, 1]
+            clear = (dx * dx + dy * dy - (radius + placed[:, 2] + self.gap) ** 2).min(axis=(1, 2))  # m²
+            possible &= clear > -_EXACT
+            unsure |= np.abs(clear) <= _EXACT
+        for i in np.flatnonzero(possible):
+            if not unsure[i] or self._scalar_ok(exact(int(i)), radius, bounded):
+                return int(i)
+        return None
+
+    def _add(self, pts: Sequence[tuple[float, float]], radius: float) -> None:
+        self.discs += [(px, py, radius) for px, py in pts]
 
     def place_group(self, offsets: Sequence[tuple[float, float]], radius: float, tries: int = 60) -> tuple | None:
         """Place a rigid group of discs (``offsets`` m from its centre, each of ``radius`` m) at a random centre
         and yaw, every disc ``gap`` m clear of all placed ones; returns (x, y, yaw) or None."""
-        reach = max(math.hypot(x, y) for x, y in offsets)
-        for _ in range(tries):
-            x, y = self.rng.uniform(-self.a + 0.5, self.a - 0.5, 2)
+        bounded = max(math.hypot(x, y) for x, y in offsets) > 0
+        lo, hi = -self.a + 0.5, self.a - 0.5
+        for _ in range(min(self.one_by_one, tries)):  # most placements fit within a few candidates
+            x, y = self.rng.uniform(lo, hi, 2)
             yaw = float(self.rng.uniform(0, math.pi))
-            pts = [(x + u, y + v) for u, v in (_rot(ox, oy, yaw) for ox, oy in offsets)]
-            if reach > 0 and not all(abs(px) <= self.a and abs(py) <= self.a for px, py in pts):
-                continue
-            if all(math.hypot(px - u, py - v) > radius + r + self.gap for px, py in pts for u, v, r in self.discs):
-                self.discs += [(px, py, radius) for px, py in pts]
+            pts = _group_points(float(x), float(y), yaw, offsets)
+            if self._scalar_ok(pts, radius, bounded):
+                self._add(pts, radius)
                 return float(x), float(y), yaw
-        return None
+        if tries <= self.one_by_one:
+            return None
+        u, state = self._draw(3, tries - self.one_by_one)
+        xs, ys, yaws = lo + (hi - lo) * u[:, 0], lo + (hi - lo) * u[:, 1], math.pi * u[:, 2]
+        off = np.asarray(offsets, dtype=float)  # (k, 2)
+        c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
+        pts = np.stack([xs[:, None] + c * off[:, 0] - s * off[:, 1], ys[:, None] + s * off[:, 0] + c * off[:, 1]], -1)
+        i = self._first_fit(pts, radius, bounded, lambda j: _group_points(xs[j], ys[j], float(yaws[j]), offsets))
+        self._consume(state, 3 * (tries - self.one_by_one if i is None else i + 1))
+        if i is None:
+            return None
+        self._add(_group_points(xs[i], ys[i], float(yaws[i]), offsets), radius)
+        return float(xs[i]), float(ys[i]), float(yaws[i])
 
     def place(self, radius: float, tries: int = 60) -> tuple[float, float] | None:
-        for _ in range(tries):
-            x, y = self.rng.uniform(-self.a + radius * 0.5, self.a - radius * 0.5, 2)
-            if all(math.hypot(x - u, y - v) > radius + r + self.gap for u, v, r in self.discs):
-                self.discs.append((x, y, radius))
+        lo, hi = -self.a + radius * 0.5, self.a - radius * 0.5
+        for _ in range(min(self.one_by_one, tries)):
+            x, y = self.rng.uniform(lo, hi, 2)
+            if self._scalar_ok([(x, y)], radius, False):
+                self._add([(x, y)], radius)
                 return float(x), float(y)
-        return None
+        if tries <= self.one_by_one:
+            return None
+        u, state = self._draw(2, tries - self.one_by_one)
+        xy = lo + (hi - lo) * u  # (n, 2)
+        i = self._first_fit(xy[:, None, :], radius, False, lambda j: [(xy[j, 0], xy[j, 1])])
+        self._consume(state, 2 * (tries - self.one_by_one if i is None else i + 1))
+        if i is None:
+            return None
+        self._add([(xy[i, 0], xy[i, 1])], radius)
+        return float(xy[i, 0]), float(xy[i, 1])
+
+
+def _group_points(x: float, y: float, yaw: float, offsets: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The centres (m) of a group's discs at (x, y) and ``yaw``, in the scalar arithmetic of the first layouts."""
+    return [(x + u, y + v) for u, v in (_rot(ox, oy, yaw) for ox, oy in offsets)]
+
+
+# Candidates a placement tests one by one, as drawn, before it tests the rest in one batch (_Placer).
+_ONE_BY_ONE = 4
+# A clearance or bound within this distance (m) of its limit is decided by scalar arithmetic (see _Placer).
+_EXACT = 1e-9
 
 
 def _rot(x: float, y: float, yaw: float) -> tuple[float, float]:
