@@ -76,13 +76,13 @@ ship() {  # $1: what finished
   summary "$1"
 }
 
-summary() {  # $1: after what; rebuilds and commits the README's and docs/results.md's blocks and the figures
+summary() {  # $1: after what; rebuilds and commits the generated blocks (README, results, generalization) and figures
   # A commit of grid data with the README's block left as it was fails test_summary (the block must match the data),
   # so the block follows each ship. Skipped, with a line, while those files hold edits of someone else's.
   [[ "$grid" == table1 ]] || return 0
-  local docs=(README.md docs/results.md "docs/figures/$preset")
+  local docs=(README.md docs/results.md docs/generalization.md docs/glossary.md "docs/figures/$preset")
   if ! git -C "$root" diff --quiet HEAD -- "${docs[@]}"; then
-    echo "grid_session: README.md/docs/results.md have uncommitted edits: blocks not rebuilt (run: python -m omcrl summary --preset $preset --readme)"
+    echo "grid_session: the generated pages have uncommitted edits: blocks not rebuilt (run: python -m omcrl summary --preset $preset --readme)"
     return 0
   fi
   (cd "$root" && "$py" -m omcrl summary --preset "$preset" --readme) ||

@@ -146,6 +146,39 @@ def test_readme_v2_table_and_verdicts_are_what_the_grid_data_gives(repo_root):
     assert "**tree-v2 (hard)**" in full and "| E1 | ours > npe on SR in tree-v2 |" in full
 
 
+def test_generalizations_transfer_table_is_what_the_grid_data_gives(repo_root):
+    """docs/generalization.md's "what transfers" table is rebuilt from reference/quick/table1-v2/ (summary --readme):
+    a hand-edited cell fails here. Each change is SR(scene) − SR(box-v2) of the same runs."""
+    from omcrl.pipeline.glance import TRANSFER_END, TRANSFER_START, current_block, transfer_block
+
+    block = transfer_block("quick")
+    page = (repo_root / "docs" / "generalization.md").read_text(encoding="utf-8")
+    assert current_block(page, "docs/generalization.md", TRANSFER_START, TRANSFER_END) == block
+    assert "| Ours |" in block and "| Oracle |" in block and "furniture-v2" in block
+    assert max(len(line) for line in block.splitlines() if not line.startswith("|")) <= 120
+
+
+def test_a_transfer_change_is_paired_by_training_seed():
+    """The change from the training scene pairs each run with itself: a method whose every seed loses exactly the
+    same episodes shows that loss with no seed spread, and one that flies every scene alike shows 0 [0, 0]."""
+    import pandas as pd
+
+    from omcrl.pipeline.glance import render_transfer
+
+    rows = []
+    for seed in range(3):
+        for scene, ok in (("box-v2", [1, 1, 1, 1]), ("furniture-v2", [1, 1, 0, 0]), ("tree-v2", [1, 1, 1, 1])):
+            for i, s in enumerate(ok):
+                rows.append({"method": "ours", "scene": scene, "train_seed": seed, "seed": 100 * i + len(scene),
+                             "success": bool(s)})  # fmt: skip
+    md = render_transfer(pd.DataFrame(rows), reps=200)
+    line = next(x for x in md.splitlines() if x.startswith("| Ours |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[1] == "100" and cells[-1] == "3"
+    assert cells[3] == "0 [0, 0]"  # tree-v2: nothing lost
+    assert cells[2].startswith("−50 [")  # furniture-v2: half the layouts lost, by every seed alike
+
+
 def test_the_glossarys_metrics_table_is_the_one_the_tables_print(repo_root):
     """docs/glossary.md's metrics table is omcrl.eval.metrics.GLOSSARY rendered (what Table I, the summary and
     notebook 07 print): a definition edited by hand on the page fails here."""

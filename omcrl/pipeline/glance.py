@@ -23,6 +23,7 @@ import pandas as pd
 from omcrl import planners
 from omcrl.config import load_config, project_root
 from omcrl.eval.metrics import glossary_markdown
+from omcrl.eval.stats import cell_rng, contrast, term
 from omcrl.eval.table1 import Table1Result, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, verdict_counts
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
@@ -43,6 +44,8 @@ V1_START = "<!-- results-v1: start (python -m omcrl summary --preset quick --rea
 V1_END = "<!-- results-v1: end -->"
 GLOSSARY_START = "<!-- metrics: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 GLOSSARY_END = "<!-- metrics: end -->"
+TRANSFER_START = "<!-- transfer-v2: start (python -m omcrl summary --preset quick --readme writes this block) -->"
+TRANSFER_END = "<!-- transfer-v2: end -->"
 # A claim's verdict over its hypotheses (omcrl.eval.verdicts.verdict_counts), in the README's order.
 CLAIM_VERDICTS = ("holds", "reversed", "mixed", "undecided", "one seed", "not run")
 # The commit that fixed the claim ledger before any v2 Table I evaluation (omcrl.eval.ledger; docs/results.md).
@@ -276,6 +279,50 @@ def current_block(text: str, where: str = "README.md", start: str = START, end: 
     return text[i:j].strip("\n")
 
 
+def render_transfer(episodes: pd.DataFrame, reps: int = 2000) -> str:
+    """docs/generalization.md's table of what transfers: for each learned method, its success rate in the training
+    scene and, in every other scene, the change from it in points, mean [95 % CI].
+
+    ``episodes``: Table I's episode rows (``method``, ``scene``, ``train_seed``, ``seed``, ``success``). A change is
+    the contrast SR(scene) − SR(training scene) of the same runs: training seeds are resampled together in both
+    terms (a seed's two SRs come from one policy), the layouts of each scene apart (:func:`omcrl.eval.stats.contrast`).
+    """
+    order = ("training", "easy", "medium", "hard", "stress")
+    scenes = sorted(dict.fromkeys(episodes["scene"]), key=lambda s: order.index(scene_spec(s).difficulty))
+    train, others = scenes[0], scenes[1:]
+    learned = [m for m in TABLE1_METHODS if METHODS[m].learned and m in set(episodes["method"])]
+    head = f"| method | SR in {train} | " + " | ".join(f"{scene_label(s)}" for s in others) + " | seeds |"
+    lines = [
+        _wrap(
+            f"**What transfers** (v2; generated from `reference/quick/table1-v2/`): SR % in {train}, and the change "
+            "in SR points from it in each other scene, mean [95 % CI] with the runs' training seeds resampled "
+            "together in both scenes and each scene's layouts apart. 0 is no loss; a change near minus the training "
+            "SR is no transfer."
+        ),
+        "",
+        head,
+        "|---|" + "---|" * (len(others) + 2),
+    ]
+    for m in learned:
+        e = episodes[episodes["method"] == m]
+        base = e[e["scene"] == train]
+        sr0 = 100.0 * base["success"].astype(float).to_numpy()
+        cells = []
+        for s in others:
+            g = e[e["scene"] == s]
+            est = contrast(
+                [term(g, 100.0 * g["success"].astype(float).to_numpy(), s), term(base, sr0, train, -1.0)],
+                reps,
+                rng=cell_rng(0, "transfer", m, s),
+                bounded=100.0,
+            )
+            cells.append(f"{_signed(est.estimate)} [{_signed(est.lo)}, {_signed(est.hi)}]")
+        lines.append(
+            f"| {METHODS[m].label} | {sr0.mean():.0f} | " + " | ".join(cells) + f" | {base['train_seed'].nunique()} |"
+        )
+    return "\n".join(lines)
+
+
 def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str]:
     """The README's block (:func:`render_v2`) and docs/results.md's (Table I's six metrics per scene, then every
     hypothesis of the ledger) from a rebuild of ``reference/<preset>/table1-v2/`` under a temporary folder; with
@@ -300,6 +347,12 @@ def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tup
             Path(figure_to).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(res.paths["fig5"], figure_to)
         return render_v2(res), full
+
+
+def transfer_block(preset: str = "quick") -> str:
+    """docs/generalization.md's block (:func:`render_transfer`) from the grid data under ``reference/<preset>/``."""
+    cfg = load_config(preset)
+    return render_transfer(GridData(grid_data_dir(cfg, "table1")).episodes())
 
 
 def _progress_md(cfg: Any, seeds: int = 5) -> list[str]:
@@ -362,4 +415,5 @@ def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bo
     v1 = render_v1_results(reference_table_dir(preset))
     _rewrite(root / "docs" / "results.md", [(full, FULL_START, FULL_END), (v1, V1_START, V1_END)])
     _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
+    _rewrite(root / "docs" / "generalization.md", [(transfer_block(preset), TRANSFER_START, TRANSFER_END)])
     return _rewrite(path, [(render_glance(reference_table_dir(preset)), START, END), (short, V2_START, V2_END)])
