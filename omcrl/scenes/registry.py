@@ -180,19 +180,6 @@ class _Placer:
         self.discs: list[tuple[float, float, float]] = []
         self.one_by_one = _ONE_BY_ONE if self.batched else 10**9
 
-    def _draw(self, per_try: int, tries: int) -> tuple[np.ndarray, dict]:
-        """(tries, per_try) uniforms in [0, 1), as ``tries`` rounds of ``per_try`` draws would give them, and the
-        generator's state before them (see :meth:`_consume`)."""
-        state = self.rng.bit_generator.state
-        return self.rng.random(per_try * tries).reshape(tries, per_try), state
-
-    def _consume(self, state: dict, n: int) -> None:
-        """Leave the generator as ``n`` draws from ``state`` leave it (the candidates after the accepted one were
-        never drawn by the one-by-one sampler)."""
-        self.rng.bit_generator.state = state
-        if n:
-            self.rng.random(n)
-
     def _scalar_ok(self, pts: Sequence[tuple[float, float]], radius: float, bounded: bool) -> bool:
         if bounded and not all(abs(px) <= self.a and abs(py) <= self.a for px, py in pts):
             return False
@@ -221,54 +208,64 @@ class _Placer:
     def _add(self, pts: Sequence[tuple[float, float]], radius: float) -> None:
         self.discs += [(px, py, radius) for px, py in pts]
 
+    def _search(self, per_try: int, tries: int, radius: float, bounded: bool, exact: Any, batch: Any) -> Any:
+        """The ``per_try`` uniforms of the first of ``tries`` candidates that fits, its discs added; None if none.
+
+        ``exact(u)`` gives a candidate's disc centres (m) from its uniforms in scalar arithmetic, ``batch(U)`` those
+        of (n, per_try) uniforms as an (n, k, 2) array. The first candidates are drawn and tested one by one; the
+        rest are drawn at once, and the generator is then set back to where the one-by-one search would leave it."""
+        first = min(self.one_by_one, tries)
+        for _ in range(first):  # most placements fit within a few candidates
+            u = self.rng.random(per_try)
+            pts = exact(u)
+            if self._scalar_ok(pts, radius, bounded):
+                self._add(pts, radius)
+                return u
+        if tries <= first:
+            return None
+        state = self.rng.bit_generator.state
+        U = self.rng.random(per_try * (tries - first)).reshape(-1, per_try)
+        i = self._first_fit(batch(U), radius, bounded, lambda j: exact(U[j]))
+        self.rng.bit_generator.state = state  # the candidates after the accepted one were never drawn
+        self.rng.random(per_try * (tries - first if i is None else i + 1))
+        if i is None:
+            return None
+        self._add(exact(U[i]), radius)
+        return U[i]
+
     def place_group(self, offsets: Sequence[tuple[float, float]], radius: float, tries: int = 60) -> tuple | None:
         """Place a rigid group of discs (``offsets`` m from its centre, each of ``radius`` m) at a random centre
         and yaw, every disc ``gap`` m clear of all placed ones; returns (x, y, yaw) or None."""
-        bounded = max(math.hypot(x, y) for x, y in offsets) > 0
         lo, hi = -self.a + 0.5, self.a - 0.5
-        for _ in range(min(self.one_by_one, tries)):  # most placements fit within a few candidates
-            x, y = self.rng.uniform(lo, hi, 2)
-            yaw = float(self.rng.uniform(0, math.pi))
-            pts = _group_points(float(x), float(y), yaw, offsets)
-            if self._scalar_ok(pts, radius, bounded):
-                self._add(pts, radius)
-                return float(x), float(y), yaw
-        if tries <= self.one_by_one:
-            return None
-        u, state = self._draw(3, tries - self.one_by_one)
-        xs, ys, yaws = lo + (hi - lo) * u[:, 0], lo + (hi - lo) * u[:, 1], math.pi * u[:, 2]
         off = np.asarray(offsets, dtype=float)  # (k, 2)
-        c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
-        pts = np.stack([xs[:, None] + c * off[:, 0] - s * off[:, 1], ys[:, None] + s * off[:, 0] + c * off[:, 1]], -1)
-        i = self._first_fit(pts, radius, bounded, lambda j: _group_points(xs[j], ys[j], float(yaws[j]), offsets))
-        self._consume(state, 3 * (tries - self.one_by_one if i is None else i + 1))
-        if i is None:
+
+        def batch(U: np.ndarray) -> np.ndarray:
+            x, y, yaw = lo + (hi - lo) * U[:, :1], lo + (hi - lo) * U[:, 1:2], math.pi * U[:, 2:]
+            c, s = np.cos(yaw), np.sin(yaw)
+            return np.stack([x + c * off[:, 0] - s * off[:, 1], y + s * off[:, 0] + c * off[:, 1]], -1)
+
+        def exact(u: np.ndarray) -> list[tuple[float, float]]:
+            return _group_points(lo + (hi - lo) * u[0], lo + (hi - lo) * u[1], math.pi * u[2], offsets)
+
+        bounded = max(math.hypot(x, y) for x, y in offsets) > 0
+        u = self._search(3, tries, radius, bounded, exact, batch)
+        if u is None:
             return None
-        self._add(_group_points(xs[i], ys[i], float(yaws[i]), offsets), radius)
-        return float(xs[i]), float(ys[i]), float(yaws[i])
+        return float(lo + (hi - lo) * u[0]), float(lo + (hi - lo) * u[1]), float(math.pi * u[2])
 
     def place(self, radius: float, tries: int = 60) -> tuple[float, float] | None:
         lo, hi = -self.a + radius * 0.5, self.a - radius * 0.5
-        for _ in range(min(self.one_by_one, tries)):
-            x, y = self.rng.uniform(lo, hi, 2)
-            if self._scalar_ok([(x, y)], radius, False):
-                self._add([(x, y)], radius)
-                return float(x), float(y)
-        if tries <= self.one_by_one:
-            return None
-        u, state = self._draw(2, tries - self.one_by_one)
-        xy = lo + (hi - lo) * u  # (n, 2)
-        i = self._first_fit(xy[:, None, :], radius, False, lambda j: [(xy[j, 0], xy[j, 1])])
-        self._consume(state, 2 * (tries - self.one_by_one if i is None else i + 1))
-        if i is None:
-            return None
-        self._add([(xy[i, 0], xy[i, 1])], radius)
-        return float(xy[i, 0]), float(xy[i, 1])
+
+        def exact(u: np.ndarray) -> list[tuple[float, float]]:
+            return [(lo + (hi - lo) * u[0], lo + (hi - lo) * u[1])]
+
+        u = self._search(2, tries, radius, False, exact, lambda U: (lo + (hi - lo) * U)[:, None, :])
+        return None if u is None else (float(lo + (hi - lo) * u[0]), float(lo + (hi - lo) * u[1]))
 
 
 def _group_points(x: float, y: float, yaw: float, offsets: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
     """The centres (m) of a group's discs at (x, y) and ``yaw``, in the scalar arithmetic of the first layouts."""
-    return [(x + u, y + v) for u, v in (_rot(ox, oy, yaw) for ox, oy in offsets)]
+    return [(x + u, y + v) for u, v in (_rot(ox, oy, float(yaw)) for ox, oy in offsets)]
 
 
 # Candidates a placement tests one by one, as drawn, before it tests the rest in one batch (_Placer).
