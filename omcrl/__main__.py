@@ -196,6 +196,25 @@ def build_parser() -> argparse.ArgumentParser:
                 action="store_true",
                 help="with --pack: make results/<preset>/tables/ the reference Table I (reference/<preset>/table1/)",
             )
+            sp.add_argument(
+                "--methods",
+                default=None,
+                help="with --pack: only these learned methods (comma-separated) and the runs they were trained "
+                "from: a part of a bundle, merged later with --merge",
+            )
+            sp.add_argument(
+                "--merge",
+                default=None,
+                metavar="DIR",
+                help="instead: merge every bundle folder in DIR (parts packed with --methods) into one bundle at "
+                "--from (default reference/<preset>/bundle)",
+            )
+            sp.add_argument(
+                "--retire",
+                action="store_true",
+                help="instead: move the committed bundle at --from out of the checkout into git history (a pointer "
+                "stays; it still verifies and unpacks from a full clone)",
+            )
         if name == "tables":
             sp.add_argument(
                 "--from-reference",
@@ -301,7 +320,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         elif args.stage == "replay":
             result = func(cfg, log=args.log, out=args.out)
         elif args.stage == "reference":
-            result = func(cfg, pack=args.pack, source=args.source, with_table=args.with_table, exact=args.exact)
+            result = func(
+                cfg,
+                pack=args.pack,
+                source=args.source,
+                with_table=args.with_table,
+                exact=args.exact,
+                methods=_csv(args.methods),
+                merge=args.merge,
+                retire=args.retire,
+            )
         elif args.stage == "summary":
             result = func(cfg, readme=args.readme)
         elif args.stage == "tables":

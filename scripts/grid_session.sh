@@ -2,7 +2,7 @@
 # Run what is left of a grid over seeds, one variant at a time, and commit each finished variant's grid data.
 #
 #   scripts/grid_session.sh [--grid table1] [--seeds 0,1,2,3,4] [--variants oracle,ours,...] [--dir ../omcrl-grid]
-#                           [--backend local|ray] [--set FIELD=VALUE ...]
+#                           [--backend local|ray] [--bundle-seed 2|none] [--set FIELD=VALUE ...]
 #
 # A session is shorter than the grid (about 6 machine-hours a seed at the quick preset), so this is what a session
 # starts first, in the background, with its log on disk:
@@ -19,6 +19,14 @@
 # A teacher's weights (the oracle's final.pt, ~15 MB a seed) are committed with its records; once every evaluation
 # that needs them is recorded, they are released (`sweep --release-teachers`: a pointer to their git blob replaces
 # them, so reference/ stays under its 60 MB) and that is committed too.
+#
+# The reference bundle (reference/<preset>/bundle: every learned method's weights at one seed) needs that seed's runs
+# together, but a session may start on a fresh machine with only what was committed. So each learned variant of the
+# bundle seed (--bundle-seed, default 2 for table1; none: off) is packed on its own as soon as its run finishes
+# (`reference --pack --methods V`: rounded, re-keyed, flown again), into reference/<preset>/bundle-parts/<V>/,
+# committed, and retired to git history (a pointer stays) in the next commit. Once every part is in:
+#
+#   python -m omcrl reference --preset quick --merge reference/quick/bundle-parts --from reference/quick/bundle
 set -euo pipefail
 
 grid=table1
@@ -28,6 +36,7 @@ seeds=0,1,2,3,4
 variants=oracle,ours,ours-noOT,ours-lapf,curl,curl-phi,npe,npe-ot,ppo
 preset=quick
 backend=local
+bundle_seed=default
 sets=()
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 dir="$(dirname "$root")/omcrl-grid"
@@ -39,10 +48,15 @@ while [[ $# -gt 0 ]]; do
     --preset) preset="$2"; shift 2 ;;
     --dir) dir="$2"; shift 2 ;;
     --backend) backend="$2"; shift 2 ;;
+    --bundle-seed) bundle_seed="$2"; shift 2 ;;
     --set) sets+=(--set "$2"); shift 2 ;;  # e.g. --set sweep.storage=/shared/omcrl (an embedded Ray resumes from it)
     *) echo "grid_session: unknown argument $1" >&2; exit 2 ;;
   esac
 done
+if [[ "$bundle_seed" == default ]]; then
+  # Seeds 0 and 1 of the v2 grid were trained on machines since lost, with only their records kept.
+  [[ "$grid" == table1 ]] && bundle_seed=2 || bundle_seed=none
+fi
 py="$root/.venv/bin/python"
 [[ -x "$py" ]] || { echo "grid_session: $py not found; run ./reproduce.sh --test once to make .venv" >&2; exit 2; }
 
@@ -105,6 +119,27 @@ release() {  # $1: after what; commits the teacher weights that nothing left to 
   fi
 }
 
+bundle_part() {  # $1: seed, $2: variant that just finished; packs, commits and retires its bundle part
+  [[ "$1" == "$bundle_seed" ]] || return 0
+  local sub="reference/$preset/bundle-parts/$2"
+  [[ -f "$root/$sub/MANIFEST.json" ]] && return 0
+  echo "grid_session: packing $2 seed $1 as a part of the reference bundle ($sub)"
+  # Packed in the worktree (its staging folder is large), then copied here whole.
+  rm -rf "${dir:?}/$sub"
+  (cd "$dir" && "$py" -m omcrl reference --preset "$preset" --set "seeds=[$1]" "${sets[@]}" --pack --methods "$2" \
+    --from "$dir/$sub") || { echo "grid_session: packing $2 failed (no part; pack it by hand from $dir)"; return 0; }
+  mkdir -p "$root/$sub"
+  cp -a "$dir/$sub/." "$root/$sub"
+  rm -rf "${dir:?}/$sub"
+  git -C "$root" add -- "$sub"
+  git -C "$root" commit -q -m "reference bundle: part $2 (seed $1) packed" -- "$sub"
+  (cd "$root" && "$py" -m omcrl reference --preset "$preset" --retire --from "$sub") ||
+    { echo "grid_session: retiring $sub failed (it stays in the checkout)"; return 0; }
+  git -C "$root" add -A -- "$sub"
+  git -C "$root" commit -q -m "reference bundle: part $2 (seed $1) retired to git history (a pointer stays)" -- "$sub"
+  echo "grid_session: committed and retired the bundle part $2"
+}
+
 release "an earlier session"
 IFS=, read -r -a seed_list <<<"$seeds"
 IFS=, read -r -a variant_list <<<"$variants"
@@ -116,5 +151,6 @@ for seed in "${seed_list[@]}"; do
       --to-reference --variants "$v" "${sets[@]}") || rc=$?
     echo "grid_session: seed $seed $v exit $rc $(date -u +%FT%TZ)"
     ship "seed $seed, $v"
+    if [[ "$rc" == 0 ]]; then bundle_part "$seed" "$v"; fi
   done
 done

@@ -223,3 +223,16 @@ def _reference_round_trip(tmp_path):
         effect = packed.manifest["rounding"]
         assert effect["episodes"] == int(original["method"].map(lambda m: METHODS[m].learned).sum())
         assert 0 <= effect["changed_success"] <= effect["episodes"]
+        # The same bundle packed in parts (a grid packs each method as its run finishes) and merged: file for file
+        # the whole one, the oracle that two parts carry (upstream of its students) stored once.
+        from omcrl.pipeline.reference import merge_bundles
+
+        names = [m for m in TABLE1_METHODS if METHODS[m].learned]
+        parts = [
+            pack_reference(cfg, methods=ms, out=tmp_path / "parts" / ms[0], progress=False).bundle
+            for ms in (names[:2], names[2:])
+        ]
+        merged = merge_bundles(parts, tmp_path / "bundle-merged").manifest
+        assert merged["files"] == files and merged["methods"] == packed.manifest["methods"]
+        assert merged["rounding"]["episodes"] == effect["episodes"]
+        assert merged["rounding"]["changed_success"] == effect["changed_success"]

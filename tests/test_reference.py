@@ -336,3 +336,63 @@ def test_a_retired_bundle_is_read_from_git_history_and_a_copy_without_it_is_told
     pointer.write_text("{not json")
     with pytest.raises(ReferenceError, match="not a readable git pointer"):
         verify_reference(b)
+
+
+def test_bundle_parts_merge_into_one_that_verifies_and_unpacks_and_disagreements_are_named(tmp_path):
+    """merge_bundles: parts packed a few methods at a time make one bundle (a file two parts carry alike is stored
+    once, the methods and rounding effects add up); parts that disagree on a field, hold one method twice or
+    different bytes under one name are refused by name before anything is written."""
+    from omcrl.pipeline.reference import merge_bundles
+
+    shared = {"runs/rl/oracle-o/seed0/metrics.csv": b"step,metric,value\n1,x,1\n"}
+    a_files = {**shared, "eval/oracle/seed0/box-v2-k/episodes.csv": b"a\n1\n"}
+    b_files = {
+        **shared,
+        "runs/rl/ours-u/seed0/metrics.csv": b"step\n2\n",
+        "eval/ours/seed0/box-v2-k/episodes.csv": b"b\n",
+    }
+    effect = {"episodes": 50, "changed_success": 1, "changed_collision": 0, "max_abs_sr_diff_points": 2.0}
+    a = _bundle(tmp_path / "parts" / "oracle", a_files, {"methods": ["oracle"], "rounding": effect})
+    b = _bundle(
+        tmp_path / "parts" / "ours",
+        b_files,
+        {"methods": ["ours"], "rounding": {**effect, "changed_success": 0, "max_abs_sr_diff_points": 0.0}},
+    )
+    res = merge_bundles([b, a], tmp_path / "bundle")
+    manifest, contents = verify_reference(tmp_path / "bundle")
+    assert contents == {**a_files, **b_files} and len(contents) == 4
+    assert manifest["methods"] == ["oracle", "ours"] and [p["name"] for p in manifest["parts"]] == ["oracle", "ours"]
+    assert manifest["rounding"]["episodes"] == 100 and manifest["rounding"]["changed_success"] == 1
+    assert manifest["rounding"]["max_abs_sr_diff_points"] == 2.0 and res.manifest == manifest
+    got = unpack_reference(load_config("smoke", overrides=[f"results_dir={tmp_path / 'results'}"]), res.bundle)
+    assert sorted(got.copied) == sorted(contents)
+
+    before = (tmp_path / "bundle" / MANIFEST).read_bytes()
+    cases = [
+        (_bundle(tmp_path / "v1" / "x", {}, {"methods": ["npe"], "suite": "v1"}), "field 'suite' is 'v1'"),
+        (_bundle(tmp_path / "twice" / "x", {}, {"methods": ["ours"]}), "method 'ours' is in two parts"),
+        (
+            _bundle(tmp_path / "other" / "x", {"runs/rl/oracle-o/seed0/metrics.csv": b"other\n"}, {"methods": []}),
+            "oracle-o/seed0/metrics.csv: differs between",
+        ),
+    ]
+    for extra, match in cases:
+        with pytest.raises(ReferenceError, match=match):
+            merge_bundles([a, b, extra], tmp_path / "bundle")
+    assert (tmp_path / "bundle" / MANIFEST).read_bytes() == before  # the merged bundle there was left alone
+    with pytest.raises(ReferenceError, match="no bundle parts"):
+        merge_bundles([], tmp_path / "bundle")
+
+
+def test_cli_merges_a_folder_of_parts_and_names_an_empty_one(tmp_path, capsys):
+    from omcrl.__main__ import main
+
+    _bundle(tmp_path / "parts" / "oracle", FILES, {"methods": ["oracle"]})
+    out = tmp_path / "merged"
+    assert main(["reference", "--preset", "smoke", "--merge", str(tmp_path / "parts"), "--from", str(out)]) == 0
+    assert verify_reference(out)[1] == FILES
+    (tmp_path / "empty").mkdir()
+    assert main(["reference", "--preset", "smoke", "--merge", str(tmp_path / "empty"), "--from", str(out)]) != 0
+    assert "no bundle folders" in capsys.readouterr().err
+    assert main(["reference", "--preset", "smoke", "--pack", "--methods", "hybrid-apf", "--from", str(out)]) != 0
+    assert "not learned methods" in capsys.readouterr().err

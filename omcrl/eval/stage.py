@@ -127,6 +127,15 @@ def evaluation_identity(
 EPISODES = "episodes.csv"
 
 
+def portable_checkpoint(checkpoint: object) -> object:
+    """A policy file's path as its run folder names it, ``<method>-<key>/seed<k>`` (the key decides the run, the
+    folders above it are this machine's); anything else (a planner's empty path, a bare name) as it is."""
+    if not isinstance(checkpoint, str) or "/" not in checkpoint:
+        return checkpoint
+    p = Path(checkpoint)
+    return f"{p.parent.parent.name}/{p.parent.name}"
+
+
 def _episodes_csv(df: pd.DataFrame) -> str:
     out = df.copy()
     if "trajectory" in out:
@@ -201,6 +210,10 @@ def cached_episodes(
     run.claim(overwrite=True)  # a folder of this key that is not a finished cache of it is made again
     try:
         df = fly()
+        if "checkpoint" in df:
+            # The key holds the policy's digest; its path names this machine's folders, which a cache (copied into
+            # a bundle, or made while packing one) outlives. Flown and read back, the rows say the same.
+            df = df.assign(checkpoint=df["checkpoint"].map(portable_checkpoint))
         run.finish(_episodes_csv(df), EPISODES, rows=len(df))
     finally:
         run.release()

@@ -39,6 +39,7 @@ import matplotlib.pyplot as plt
 import pandas as pd
 
 from omcrl.config import Config, project_root
+from omcrl.eval.stage import portable_checkpoint
 from omcrl.eval.table1 import Table1Result, write_table1
 from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
@@ -78,13 +79,6 @@ def _folder_name(label: str) -> str:
     return name
 
 
-def _portable(checkpoint: object) -> object:
-    if not isinstance(checkpoint, str) or "/" not in checkpoint:
-        return checkpoint
-    p = Path(checkpoint)
-    return f"{p.parent.parent.name}/{p.parent.name}"
-
-
 class GridData:
     """The recorded data of one grid under ``root`` (:func:`grid_data_dir`).
 
@@ -112,7 +106,7 @@ class GridData:
         rows = episodes.drop(columns=["trajectory"], errors="ignore")
         if "checkpoint" in rows:
             # A policy's path names this machine's results folder; its run folder (<method>-<key>/seed<k>) does not.
-            rows = rows.assign(checkpoint=rows["checkpoint"].map(_portable))
+            rows = rows.assign(checkpoint=rows["checkpoint"].map(portable_checkpoint))
         atomic_write_bytes(path, _gz(rows.to_csv(index=False).encode()))
         return path
 

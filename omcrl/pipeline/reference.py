@@ -147,6 +147,34 @@ def _digests_in(obj: Any) -> set[str]:
     return out
 
 
+def _over_limit(size_mb: float, limit_mb: float, entries: dict[str, dict[str, Any]]) -> str:
+    big = sorted(entries, key=lambda f: -entries[f]["bytes"])[:3]
+    return f"the bundle's archive would be {size_mb:.1f} MB, over the limit of {limit_mb:g} MB; largest files: " + (
+        ", ".join(f"{f} ({entries[f]['bytes'] / 1e6:.1f} MB)" for f in big)
+    )
+
+
+def _members_in_order(run_root: Path) -> Iterable[tuple[str, bytes]]:
+    """``(name, content)`` of every file under ``run_root``'s ``runs/`` and ``eval/``, in the order the archive
+    compresses best: xz's 64 MB window stores a repeat once, and a student's final.pt holds its frozen encoder's
+    weights again, so each encoder goes right before the runs trained on it (then the other runs, then the
+    evaluations)."""
+    top = len(run_root.parts)
+    files = [f for f in run_root.rglob("*") if f.is_file() and f.parts[top] in ("runs", "eval")]
+    runs = {f.parent for f in files if f.parts[top] == "runs" and (f.parent / RUN_FILE).is_file()}
+    encoders = {(_run_artifact(d) or (None, ""))[1] for d in runs if (d / "encoder.pt").is_file()}
+
+    def order(f: Path) -> tuple:
+        run = f.parent if f.parent in runs else None
+        if run is None:
+            return ("~", 2, str(f))
+        own = (_run_artifact(run) or (None, ""))[1]
+        ups = sorted(_digests_in((read_identity(run) or {}).get("identity", {})) & encoders)
+        return (own, 0, str(f)) if own in encoders else ((ups or ["~"])[0], 1, str(f))
+
+    return ((f.relative_to(run_root).as_posix(), f.read_bytes()) for f in sorted(files, key=order))
+
+
 def _runs_with_upstream(run_root: Path, roots: list[Path]) -> list[Path]:
     """``roots`` and every run folder under ``run_root/runs`` whose artifact one of them was trained on
     (transitively)."""
@@ -305,6 +333,10 @@ def pack_reference(
     new one is complete.
     """
     seeds = list(cfg.seeds if seeds is None else seeds)
+    wrong = [m for m in methods or () if m not in METHODS or not METHODS[m].learned]
+    if wrong:
+        known = [m for m in METHODS if METHODS[m].learned]
+        raise ReferenceError(f"methods: {wrong} are not learned methods (a bundle holds trained runs); known: {known}")
     methods = [m for m in (methods or TABLE1_METHODS) if METHODS[m].learned]
     root = cfg.run_root
     finals, missing = [], []
@@ -323,7 +355,7 @@ def pack_reference(
     stage = copy.deepcopy(cfg)
     stage.results_dir = str(tmp / "results")
     stage = stage.with_seed(cfg.seed)
-    copied = _copy_runs(root, stage.run_root, _runs_with_upstream(root, finals), rounded)
+    _copy_runs(root, stage.run_root, _runs_with_upstream(root, finals), rounded)
     ev_src = eval_cache_root(cfg)
     rounding: dict[str, Any] = {}
     for s in seeds:
@@ -338,22 +370,7 @@ def pack_reference(
         before, _ = evaluate_grid(cfg, methods, seeds)
         after, _ = evaluate_grid(stage, methods, seeds, progress=progress)
         rounding = _rounding_effect(before, after)
-    top = len(stage.run_root.parts)
-    files = [f for f in stage.run_root.rglob("*") if f.is_file() and f.parts[top] in ("runs", "eval")]
-    # xz's 64 MB window stores a repeat once: a student's final.pt holds its frozen encoder's weights again, so each
-    # encoder goes right before the runs trained on it (then the other runs, then the evaluations).
-    encoders = {(_run_artifact(d) or (None, ""))[1] for d in copied.values() if (d / "encoder.pt").is_file()}
-
-    def order(f: Path) -> tuple:
-        run = f.parent if f.parts[top] == "runs" and (f.parent / "run.json").is_file() else None
-        if run is None:
-            return ("~", 2, str(f))
-        own = (_run_artifact(run) or (None, ""))[1]
-        ups = sorted(_digests_in((read_identity(run) or {}).get("identity", {})) & encoders)
-        return (own, 0, str(f)) if own in encoders else ((ups or ["~"])[0], 1, str(f))
-
-    members = ((f.relative_to(stage.run_root).as_posix(), f.read_bytes()) for f in sorted(files, key=order))
-    entries = write_archive(tmp / ARCHIVE, members)
+    entries = write_archive(tmp / ARCHIVE, _members_in_order(stage.run_root))
     manifest = {
         "format": FORMAT,
         "preset": cfg.preset,
@@ -368,20 +385,103 @@ def pack_reference(
         "archive": {"name": ARCHIVE, "sha256": sha256(tmp / ARCHIVE), "bytes": (tmp / ARCHIVE).stat().st_size},
         "files": entries,
     }
+    return _finish_bundle(tmp, dest, manifest, limit_mb)
+
+
+def _finish_bundle(tmp: Path, dest: Path, manifest: dict[str, Any], limit_mb: float) -> ReferenceResult:
+    """Check the archive ``tmp`` holds against ``limit_mb``, write the manifest beside it and put the folder at
+    ``dest`` (an existing bundle there is replaced only now, when the new one is whole)."""
     size = manifest["archive"]["bytes"] / 1e6
     if size > limit_mb:
-        big = sorted(files, key=lambda f: -f.stat().st_size)[:3]
         shutil.rmtree(tmp)
-        raise ReferenceError(
-            f"the bundle's archive would be {size:.1f} MB, over the limit of {limit_mb:g} MB; largest files: "
-            + ", ".join(f"{f.name} ({f.stat().st_size / 1e6:.1f} MB)" for f in big)
-        )
-    shutil.rmtree(tmp / "results")
+        raise ReferenceError(_over_limit(size, limit_mb, manifest["files"]))
+    shutil.rmtree(tmp / "results", ignore_errors=True)
     atomic_write_text(tmp / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True) + "\n")
     if dest.exists():
         shutil.rmtree(dest)
     tmp.rename(dest)
     return ReferenceResult(dest, manifest)
+
+
+# Fields every part of a merged bundle must agree on: its runs were trained and flown alike.
+_SAME_IN_PARTS = ("format", "preset", "suite", "overrides", "seeds", "rounded")
+
+
+def merge_bundles(parts: Sequence[str | Path], out: str | Path, *, limit_mb: float = LIMIT_MB) -> ReferenceResult:
+    """One bundle at ``out`` from bundles packed a few methods at a time (``pack_reference(methods=...)``).
+
+    A grid outlasts the machine it runs on, and a bundle needs every method's weights at one seed: each method's
+    part is packed (rounded, re-keyed, flown again) as soon as its run finishes, committed and retired to git
+    history (:func:`retire_bundle`), and the parts are merged once the seed is whole. Rounding and re-keying are
+    functions of the weights, so a run that two parts carry (the oracle, upstream of its students) is the same
+    file in both and is stored once. Each part is verified first (a retired one is read from its git blob).
+
+    The manifest is a packed one's, with ``methods`` the parts' together, ``rounding`` summed over them, and
+    ``parts``: each part's folder name, methods, commit, date and rounding.
+
+    Raises ReferenceError, before anything is written, when there are no parts, a part does not verify, parts
+    differ in a field of :data:`_SAME_IN_PARTS` (named, with both values), two parts hold the same method or
+    different content under one file name, or the archive would exceed ``limit_mb``.
+    """
+    if not parts:
+        raise ReferenceError("merge: no bundle parts given")
+    dest = Path(out)
+    read = [(Path(b), *verify_reference(b)) for b in sorted(map(Path, parts))]
+    first_b, first, _ = read[0]
+    files: dict[str, bytes] = {}
+    whence: dict[str, Path] = {}
+    owner: dict[str, Path] = {}
+    for b, m, contents in read:
+        for fld in _SAME_IN_PARTS:
+            if m.get(fld) != first.get(fld):
+                raise ReferenceError(
+                    f"{b / MANIFEST}: field {fld!r} is {m.get(fld)!r}, but {first_b / MANIFEST} has "
+                    f"{first.get(fld)!r}; parts of one bundle must agree"
+                )
+        for meth in m.get("methods", []):
+            if meth in owner:
+                raise ReferenceError(f"method {meth!r} is in two parts: {owner[meth]} and {b}; merge one of them")
+            owner[meth] = b
+        for rel, data in contents.items():
+            if rel in files and files[rel] != data:
+                raise ReferenceError(f"{rel}: differs between {whence[rel]} and {b}; re-pack one of the parts")
+            files.setdefault(rel, data)
+            whence.setdefault(rel, b)
+    tmp = dest.with_name(dest.name + ".packing")
+    shutil.rmtree(tmp, ignore_errors=True)
+    root = tmp / "results"
+    for rel, data in files.items():
+        atomic_write_bytes(root / rel, data)
+    entries = write_archive(tmp / ARCHIVE, _members_in_order(root))
+    effects = [m.get("rounding") or {} for _, m, _ in read]
+    rounding: dict[str, Any] = {}
+    if any(effects):
+        rounding = {
+            **{k: sum(int(e.get(k, 0)) for e in effects) for k in ("episodes", "changed_success", "changed_collision")},
+            "max_abs_sr_diff_points": max(float(e.get("max_abs_sr_diff_points", 0.0)) for e in effects),
+            "sr_diff_points": {k: v for e in effects for k, v in sorted(e.get("sr_diff_points", {}).items())},
+        }
+    order = {m: i for i, m in enumerate(METHODS)}
+    manifest = {
+        **{fld: first[fld] for fld in _SAME_IN_PARTS if fld in first},
+        "methods": sorted(owner, key=lambda m: (order.get(m, len(order)), m)),
+        "commit": code_commit(short=False),
+        "made": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "rounding": rounding,
+        "parts": [
+            {
+                "name": b.name,
+                "methods": m.get("methods", []),
+                "commit": m.get("commit"),
+                "made": m.get("made"),
+                "rounding": m.get("rounding") or {},
+            }
+            for b, m, _ in read
+        ],
+        "archive": {"name": ARCHIVE, "sha256": sha256(tmp / ARCHIVE), "bytes": (tmp / ARCHIVE).stat().st_size},
+        "files": entries,
+    }
+    return _finish_bundle(tmp, dest, manifest, limit_mb)
 
 
 def config_suite(cfg: Config) -> str:
@@ -577,13 +677,34 @@ def promote_table(cfg: Config) -> Path:
 
 
 def reference_stage(
-    cfg: Config, *, pack: bool = False, source: str | None = None, with_table: bool = False, exact: bool = False
+    cfg: Config,
+    *,
+    pack: bool = False,
+    source: str | None = None,
+    with_table: bool = False,
+    exact: bool = False,
+    methods: Sequence[str] | None = None,
+    merge: str | None = None,
+    retire: bool = False,
 ) -> ReferenceResult:
     """CLI stage ``reference``: unpack the bundle (``reference/<preset>/bundle``, or ``source``) into the run root,
-    verified; with ``pack``, make the bundle from the run root's finished runs at ``cfg.seeds`` instead (and with
-    ``with_table`` make its Table I the reference one)."""
+    verified; with ``pack``, make the bundle from the run root's finished runs of ``methods`` (default: every learned
+    Table I method) at ``cfg.seeds`` instead (and with ``with_table`` make its Table I the reference one); with
+    ``merge`` (a folder of bundle parts), merge every bundle in it into ``source`` (:func:`merge_bundles`); with
+    ``retire``, retire the committed bundle ``source`` to git history (:func:`retire_bundle`)."""
+    if sum(map(bool, (pack, merge, retire))) > 1:
+        raise ReferenceError("reference: choose one of --pack, --merge and --retire")
+    dest = Path(source) if source is not None else default_bundle(cfg.preset)
+    if merge is not None:
+        parts = sorted(p.parent for p in Path(merge).glob(f"*/{MANIFEST}"))
+        if not parts:
+            raise ReferenceError(f"{merge}: no bundle folders (each with {MANIFEST}) in it to merge")
+        return merge_bundles(parts, dest)
+    if retire:
+        retire_bundle(dest)
+        return ReferenceResult(dest, read_manifest(dest))
     if pack:
-        res = pack_reference(cfg, out=source, rounded=not exact)
+        res = pack_reference(cfg, methods=methods, out=source, rounded=not exact)
         if with_table:
             promote_table(cfg)
         return res
