@@ -28,6 +28,9 @@
 #
 #   python -m omcrl reference --preset quick --merge reference/quick/bundle-parts --from reference/quick/bundle
 set -euo pipefail
+# The whole script is one compound command, read before any of it runs: a checkout that edits this file (a pull,
+# an edit in place) while a grid runs for hours cannot change what the running loop reads next.
+{
 
 grid=table1
 seeds=0,1,2,3,4
@@ -154,3 +157,5 @@ for seed in "${seed_list[@]}"; do
     if [[ "$rc" == 0 ]]; then bundle_part "$seed" "$v"; fi
   done
 done
+exit
+}
