@@ -149,10 +149,15 @@ IFS=, read -r -a variant_list <<<"$variants"
 for seed in "${seed_list[@]}"; do
   for v in "${variant_list[@]}"; do
     echo "grid_session: seed $seed $v start $(date -u +%FT%TZ)"
-    rc=0
-    (cd "$dir" && "$py" -m omcrl sweep "$grid" --preset "$preset" --seeds "$seed" --backend "$backend" \
-      --to-reference --variants "$v" "${sets[@]}") || rc=$?
-    echo "grid_session: seed $seed $v exit $rc $(date -u +%FT%TZ)"
+    # A failed variant is run once more: a training run resumes from its last checkpoint (seed 2's oracle died once
+    # on a NaN action near 300 k steps and finished from its checkpoint); a second failure is left for a person.
+    for attempt in 1 2; do
+      rc=0
+      (cd "$dir" && "$py" -m omcrl sweep "$grid" --preset "$preset" --seeds "$seed" --backend "$backend" \
+        --to-reference --variants "$v" "${sets[@]}") || rc=$?
+      echo "grid_session: seed $seed $v exit $rc $(date -u +%FT%TZ) (attempt $attempt)"
+      if [[ "$rc" == 0 ]]; then break; fi
+    done
     ship "seed $seed, $v"
     if [[ "$rc" == 0 ]]; then bundle_part "$seed" "$v"; fi
   done
