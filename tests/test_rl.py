@@ -452,3 +452,33 @@ def test_one_update_takes_its_settings_from_the_rl_section():
     assert steps == {1}
     _, w_clipped = update(epochs=2, minibatch=12, max_grad_norm=1e-6)
     assert not torch.equal(w, w_clipped)
+
+
+def test_a_non_finite_action_stops_the_rollout_and_says_whether_the_observations_or_the_policy_gave_it():
+    """A NaN action is caught where the policy made it, before the env sees it, with its cause: a non-finite
+    observation (named by key) or finite observations through a broken policy."""
+    from omcrl.envs import make_vec_env
+    from omcrl.models.actor_critic import ActorCritic
+    from omcrl.models.features import make_oracle_features
+    from omcrl.rl.ppo import NonFiniteLossError
+    from omcrl.rl.rollout import Runner
+
+    cfg = load_config("smoke")
+    env = make_vec_env("box", 2, seed=3, config=cfg.env)
+    try:
+        torch.manual_seed(0)
+        space = env.single_observation_space
+        agent = ActorCritic(make_oracle_features(space, cfg.pretrain.feature_dim, cfg.env.far), 3, cfg.rl.hidden)
+        runner = Runner(env, agent, None, seed=3)
+        runner.collect(4, cfg.rl.horizon, use_guide=False)  # finite: no error
+        key = next(k for k, v in runner.stored.items() if v.is_floating_point())
+        runner.stored[key][1] = float("nan")
+        with pytest.raises(NonFiniteLossError, match=rf"lane\(s\) \[1\], from non-finite observations \({key}\)"):
+            runner.collect(4, cfg.rl.horizon, use_guide=False)
+        runner.stored[key][1] = 0.0
+        with torch.no_grad():
+            next(agent.parameters()).fill_(float("nan"))
+        with pytest.raises(NonFiniteLossError, match=r"from finite observations \(the policy's weights"):
+            runner.collect(4, cfg.rl.horizon, use_guide=False)
+    finally:
+        env.close()

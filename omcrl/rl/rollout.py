@@ -13,7 +13,7 @@ import torch
 
 from omcrl.models.actor_critic import ActorCritic
 from omcrl.rl.guidance import Guide, info_at
-from omcrl.rl.ppo import Rollout
+from omcrl.rl.ppo import NonFiniteLossError, Rollout
 from omcrl.utils.runtime import to_device
 
 # States per call of a batched guide: large enough to amortise reading the oracle's weights, small enough that
@@ -43,6 +43,22 @@ def _stack_final_obs(final_obs: np.ndarray, idx: np.ndarray) -> Any:
     if isinstance(items[0], dict):
         return {k: np.stack([np.asarray(it[k]) for it in items]) for k in items[0]}
     return np.stack([np.asarray(it) for it in items])
+
+
+def _nonfinite_action(action: torch.Tensor, stored: dict[str, torch.Tensor], t: int) -> str:
+    """Why the policy's actions (N, A) hold NaN/inf at rollout step ``t``: the observations it was given (named by
+    key) or, from finite observations, the policy itself (its weights or its input normaliser)."""
+    lanes = [int(i) for i in torch.nonzero(~torch.isfinite(action).all(-1)).flatten()]
+    keys = sorted(k for k, v in stored.items() if v.is_floating_point() and not torch.isfinite(v[lanes]).all())
+    where = (
+        f"from non-finite observations ({', '.join(keys)})"
+        if keys
+        else "from finite observations (the policy's weights or its input normaliser)"
+    )
+    return (
+        f"non-finite action at rollout step {t} in env lane(s) {lanes}, {where}; training stopped, the last good "
+        "checkpoint is kept (a resume starts from it)"
+    )
 
 
 class Runner:
@@ -86,6 +102,8 @@ class Runner:
         host = torch.device("cpu")
         for t in range(length):
             action, logp, value, _, _ = (x.to(host) for x in self.agent.step(self.stored))
+            if not torch.isfinite(action).all():
+                raise NonFiniteLossError(_nonfinite_action(action, self.stored, t))
             if guided and self.guide_batched:
                 pending.append(self.guide.prepare(self.obs))
                 if len(pending) == self.guide_every or t == length - 1:
