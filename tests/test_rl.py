@@ -454,9 +454,9 @@ def test_one_update_takes_its_settings_from_the_rl_section():
     assert not torch.equal(w, w_clipped)
 
 
-def test_a_non_finite_action_stops_the_rollout_and_says_whether_the_observations_or_the_policy_gave_it():
+def test_a_non_finite_action_stops_the_rollout_and_says_whether_the_observations_the_weights_or_an_overflow_gave_it():
     """A NaN action is caught where the policy made it, before the env sees it, with its cause: a non-finite
-    observation (named by key) or finite observations through a broken policy."""
+    observation (named by key), a non-finite weight (named), or an overflow of finite ones (input sizes given)."""
     from omcrl.envs import make_vec_env
     from omcrl.models.actor_critic import ActorCritic
     from omcrl.models.features import make_oracle_features
@@ -476,9 +476,22 @@ def test_a_non_finite_action_stops_the_rollout_and_says_whether_the_observations
         with pytest.raises(NonFiniteLossError, match=rf"lane\(s\) \[1\], from non-finite observations \({key}\)"):
             runner.collect(4, cfg.rl.horizon, use_guide=False)
         runner.stored[key][1] = 0.0
+        # Finite inputs through finite weights can still overflow (a huge weight here; the actor's input LayerNorm
+        # squashes a huge observation): the message gives both sides' largest magnitude.
+        last = agent.actor[-1].weight
+        saved = last.detach().clone()
         with torch.no_grad():
-            next(agent.parameters()).fill_(float("nan"))
-        with pytest.raises(NonFiniteLossError, match=r"from finite observations \(the policy's weights"):
+            last.fill_(3e38)
+        with pytest.raises(
+            NonFiniteLossError, match=r"finite weights \(an overflow; largest \|input\|: .*\|weight\| 3e\+38"
+        ):
+            runner.collect(4, cfg.rl.horizon, use_guide=False)
+        with torch.no_grad():
+            last.copy_(saved)
+        name, param = next(iter(agent.named_parameters()))
+        with torch.no_grad():
+            param.fill_(float("nan"))
+        with pytest.raises(NonFiniteLossError, match=rf"from finite observations \(the policy's weights .*: {name}"):
             runner.collect(4, cfg.rl.horizon, use_guide=False)
     finally:
         env.close()

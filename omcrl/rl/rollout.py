@@ -45,16 +45,30 @@ def _stack_final_obs(final_obs: np.ndarray, idx: np.ndarray) -> Any:
     return np.stack([np.asarray(it) for it in items])
 
 
-def _nonfinite_action(action: torch.Tensor, stored: dict[str, torch.Tensor], t: int) -> str:
+def _nonfinite_action(
+    action: torch.Tensor, stored: dict[str, torch.Tensor], t: int, agent: torch.nn.Module | None = None
+) -> str:
     """Why the policy's actions (N, A) hold NaN/inf at rollout step ``t``: the observations it was given (named by
-    key) or, from finite observations, the policy itself (its weights or its input normaliser)."""
+    key), or, from finite observations, the policy's parameters (named, when ``agent`` is given and some are
+    non-finite) or its forward pass on finite weights (an overflow: the lanes' largest input magnitudes are given)."""
     lanes = [int(i) for i in torch.nonzero(~torch.isfinite(action).all(-1)).flatten()]
     keys = sorted(k for k, v in stored.items() if v.is_floating_point() and not torch.isfinite(v[lanes]).all())
-    where = (
-        f"from non-finite observations ({', '.join(keys)})"
-        if keys
-        else "from finite observations (the policy's weights or its input normaliser)"
-    )
+    if keys:
+        where = f"from non-finite observations ({', '.join(keys)})"
+    else:
+        bad = [n for n, p in agent.named_parameters() if not torch.isfinite(p).all()] if agent is not None else []
+        if bad or agent is None:
+            named = f": {', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''}" if bad else ""
+            where = f"from finite observations (the policy's weights or its input normaliser{named})"
+        else:
+            # Finite inputs through finite weights: an overflow; their sizes say which side was too large.
+            mags = ", ".join(
+                f"{k} {float(v[lanes].abs().max()):.3g}" for k, v in sorted(stored.items()) if v.is_floating_point()
+            )
+            w = max(float(p.detach().abs().max()) for p in agent.parameters())
+            where = (
+                f"from finite observations and finite weights (an overflow; largest |input|: {mags}; |weight| {w:.3g})"
+            )
     return (
         f"non-finite action at rollout step {t} in env lane(s) {lanes}, {where}; training stopped, the last good "
         "checkpoint is kept (a resume starts from it)"
@@ -103,7 +117,7 @@ class Runner:
         for t in range(length):
             action, logp, value, _, _ = (x.to(host) for x in self.agent.step(self.stored))
             if not torch.isfinite(action).all():
-                raise NonFiniteLossError(_nonfinite_action(action, self.stored, t))
+                raise NonFiniteLossError(_nonfinite_action(action, self.stored, t, self.agent))
             if guided and self.guide_batched:
                 pending.append(self.guide.prepare(self.obs))
                 if len(pending) == self.guide_every or t == length - 1:
