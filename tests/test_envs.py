@@ -515,3 +515,38 @@ def test_the_env_keeps_its_drone_in_one_record():
         assert env.unwrapped.pose.tolist() == [after.pos[0], after.pos[1], after.yaw]
     finally:
         env.close()
+
+
+def test_a_camera_right_above_a_floor_tile_corner_renders_finite_depth(monkeypatch):
+    """The pose that gave seed 2's oracle a NaN action: at (-6, -6), a floor tile's corner right below the camera,
+    TinyRenderer's depth holds NaN over that tile. The frame is rendered again a millimetre forward (finite), and a
+    frame without the fault stays the one render from the pose itself."""
+    from dataclasses import replace
+
+    import pybullet as pb
+
+    import omcrl.envs.nav_env as nav
+    from omcrl.config import load_config
+
+    corner = [{"kind": "box", "position": (7.5, 7.5), "size": (0.2, 0.2, 0.2)}]
+    env = nav.NavEnv("box-v2", config=load_config("quick").env, layout=corner)
+    try:
+        env.reset(seed=0, options={"start": (-6.0, -6.0), "goal": (-3.0, -3.0)})
+        env.drone = replace(env.drone, yaw=2.42118196)
+        rgb, depth = env._render_frame()
+        assert np.isfinite(depth).all() and depth.min() > 0.0
+        assert (rgb.reshape(3, -1).max(0) > 0).mean() > 0.99  # no black patch where the tile was lost
+        with monkeypatch.context() as m:  # the pose itself only, as before the fix: the fault is real
+            m.setattr(nav, "RENDER_NUDGES_M", (0.0,))
+            with pytest.raises(RuntimeError, match=r"pose \[-6\.0, -6\.0, 2\.4212\].*non-finite depth"):
+                env._render_frame()
+        env.drone = replace(env.drone, pos=np.array([-5.3, -4.1, env.drone.pos[2]]), yaw=0.7)
+        rgb, depth = env._render_frame()
+        S = env.cfg.image_size
+        *_, rgba, zbuf, _ = pb.getCameraImage(
+            S, S, env.view_matrix(), env._proj, renderer=env._pb_renderer, shadow=0,
+            flags=pb.ER_NO_SEGMENTATION_MASK, physicsClientId=env._client, **env._light(),
+        )  # fmt: skip
+        assert np.array_equal(rgb, np.asarray(rgba, np.uint8).reshape(S, S, 4)[..., :3].transpose(2, 0, 1))
+    finally:
+        env.close()

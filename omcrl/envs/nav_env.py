@@ -62,6 +62,12 @@ from omcrl.utils.quiet import import_quietly
 pb = import_quietly("pybullet")  # without the build-time line PyBullet prints on stderr
 
 _NO_GEOMETRY = Geometry()  # before the first reset: no obstacles
+# Where the camera renders from, in order, m along the optical axis. TinyRenderer divides by a vertex's depth along
+# that axis; a floor-tile corner exactly in the camera's plane (the drone started right above it: box-v2's layout
+# 1137104180 at (-6, -6), yaw 2.4212) gives NaN depth and black pixels over that tile, and a policy given that depth
+# a NaN action (seed 2's oracle died of it at 364,544 steps). A millimetre forward moves the corner out of that
+# plane; a frame without the fault is rendered once, from the pose itself, as before.
+RENDER_NUDGES_M = (0.0, 1e-3, -1e-3)
 
 # Re-exported: the env's public names live here as before the split into appearance, episodes and dynamics.
 __all__ = [
@@ -308,30 +314,39 @@ class NavEnv(SceneLook, gym.Env):
         bodies = [b for v in self._pool.values() for b in v]
         return np.isin(np.asarray(seg, np.int64).reshape(S, S), bodies)
 
-    def view_matrix(self) -> list[float]:
-        """PyBullet view matrix (16 floats) of the forward camera at the current pose (what renders use)."""
+    def view_matrix(self, forward: float = 0.0) -> list[float]:
+        """PyBullet view matrix (16 floats) of the forward camera at the current pose (what renders use), its eye
+        moved ``forward`` m along the optical axis."""
         eye, yaw = self.drone.pos, self.drone.yaw
         cy, sy = math.cos(yaw), math.sin(yaw)
-        return pb.computeViewMatrix(eye.tolist(), [eye[0] + cy, eye[1] + sy, eye[2]], [0.0, 0.0, 1.0])
+        eye = [eye[0] + forward * cy, eye[1] + forward * sy, eye[2]]
+        return pb.computeViewMatrix(eye, [eye[0] + cy, eye[1] + sy, eye[2]], [0.0, 0.0, 1.0])
 
     def _render_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """One camera render (``self.renderer``): RGB (3, H, W) uint8 and linear depth (H, W) float32 in metres."""
         c = self.cfg
-        view = self.view_matrix()
         S = c.image_size
-        _, _, rgba, zbuf, _ = pb.getCameraImage(
-            S,
-            S,
-            view,
-            self._proj,
-            renderer=self._pb_renderer,
-            shadow=0,
-            flags=pb.ER_NO_SEGMENTATION_MASK,
-            physicsClientId=self._client,
-            **self._light(),
-        )
+        for forward in RENDER_NUDGES_M:
+            _, _, rgba, zbuf, _ = pb.getCameraImage(
+                S,
+                S,
+                self.view_matrix(forward),
+                self._proj,
+                renderer=self._pb_renderer,
+                shadow=0,
+                flags=pb.ER_NO_SEGMENTATION_MASK,
+                physicsClientId=self._client,
+                **self._light(),
+            )
+            zbuf = np.asarray(zbuf, np.float32).reshape(S, S)
+            if np.isfinite(zbuf).all():
+                break
+        else:
+            raise RuntimeError(
+                f"{self.scene}: the camera at pose {self.pose.round(4).tolist()} (x m, y m, yaw rad) renders a "
+                f"non-finite depth buffer, also with its eye moved {list(RENDER_NUDGES_M[1:])} m forward"
+            )
         rgba = np.asarray(rgba, np.uint8).reshape(S, S, 4)
-        zbuf = np.asarray(zbuf, np.float32).reshape(S, S)
         depth = c.far * c.near / (c.far - (c.far - c.near) * zbuf)
         rgb = rgba[..., :3]
         d = self.disturbance
