@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Reproduce OMC-RL (Oracle-Guided Masked Contrastive RL) with the omcrl kit.
 #
-#   ./reproduce.sh --test    run the test suite (pytest; slow tests excluded, notebook smoke runs included)
+#   ./reproduce.sh --test    run the test suite (pytest on every core; slow tests excluded, notebook smoke runs included)
 #   ./reproduce.sh --smoke   run the notebook chain with the tiny CI preset (minutes)
 #   ./reproduce.sh --quick   run the notebook chain with the laptop preset (hours on 2 CPU cores; see the README)
 #   ./reproduce.sh --paper   run the notebook chain at the paper's scale (needs a GPU; hours to days)
@@ -139,9 +139,15 @@ PY="$VENV/bin/python"
 
 case "$mode" in
   --test)
-    say "running tests: python -m pytest $*"
+    # Every core (pytest-xdist; each test is single-threaded, tests/conftest.py), a test module per unit of the
+    # schedule (its fixtures built once); -n N, -n 0 or -p no:xdist among the arguments chooses otherwise.
+    par=(-n auto --dist loadfile)
+    for arg in "$@"; do
+      case "$arg" in -n | -n* | --numprocesses* | no:xdist) par=() ;; esac
+    done
+    say "running tests: python -m pytest ${par[*]+"${par[*]} "}$*"
     set +e
-    "$PY" -m pytest "$@"
+    "$PY" -m pytest ${par[@]+"${par[@]}"} "$@"
     rc=$?
     set -e
     say "pytest exit code $rc"

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -36,10 +39,32 @@ STAGE_MODULES = {
 }
 
 
+# Modules that talk to a Tello double on the SDK's fixed UDP ports (djitellopy binds its reply socket to 8889 and
+# listens for state on 8890; notebook 09 of the smoke chain flies one too). ./reproduce.sh --test runs test modules on
+# every core (pytest-xdist, --dist loadfile: a module's fixtures are built once, on one worker), so their tests take a
+# lock on the machine first: two of them, from two workers or two pytest runs, never hold the ports at once.
+TELLO_MODULES = {"test_deploy", "test_flight_safety", "test_tello_timing", "test_notebooks"}
+TELLO_PORTS_LOCK = Path(tempfile.gettempdir()) / "omcrl-tests-tello-ports.lock"
+# Set while a test holds the lock, so the processes it starts (a child pytest, a notebook kernel) do not wait on it.
+TELLO_PORTS_HELD = "OMCRL_TESTS_TELLO_PORTS_HELD"
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         if item.module is not None and item.module.__name__.rsplit(".", 1)[-1] in STAGE_MODULES:
             item.add_marker(pytest.mark.stage)
+
+
+@pytest.fixture(autouse=True)
+def _tello_ports(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Holds the Tello ports' lock through a test of :data:`TELLO_MODULES` (released when the process ends)."""
+    if request.module.__name__.rsplit(".", 1)[-1] not in TELLO_MODULES or os.environ.get(TELLO_PORTS_HELD) == "1":
+        yield
+        return
+    with open(TELLO_PORTS_LOCK, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        monkeypatch.setenv(TELLO_PORTS_HELD, "1")
+        yield
 
 
 def pytest_configure(config: pytest.Config) -> None:
