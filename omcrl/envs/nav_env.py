@@ -63,8 +63,8 @@ pb = import_quietly("pybullet")  # without the build-time line PyBullet prints o
 
 _NO_GEOMETRY = Geometry()  # before the first reset: no obstacles
 # Where the camera renders from, in order, m along the optical axis. TinyRenderer divides by a vertex's depth along
-# that axis; a floor-tile corner exactly in the camera's plane (the drone started right above it: box-v2's layout
-# 1137104180 at (-6, -6), yaw 2.4212) gives NaN depth and black pixels over that tile, and a policy given that depth
+# that axis; a floor-tile corner exactly in the camera's plane (the drone started right above it, at (-6, -6) with yaw
+# 2.4212, in any layout) gives NaN depth and black pixels over that tile, and a policy given that depth
 # a NaN action (seed 2's oracle died of it at 364,544 steps). A millimetre forward moves the corner out of that
 # plane; a frame without the fault is rendered once, from the pose itself, as before.
 RENDER_NUDGES_M = (0.0, 1e-3, -1e-3)
@@ -299,20 +299,10 @@ class NavEnv(SceneLook, gym.Env):
         Renders the view once more with PyBullet's segmentation buffer (the observation renders skip it); for
         analysis such as the Grad-CAM mass on obstacles, not for training.
         """
-        c = self.cfg
-        S = c.image_size
-        *_, seg = pb.getCameraImage(
-            S,
-            S,
-            self.view_matrix(),
-            self._proj,
-            renderer=self._pb_renderer,
-            shadow=0,
-            physicsClientId=self._client,
-            **self._light(),
-        )
+        S = self.cfg.image_size
+        _, _, seg = self._camera_image(S, S, self._proj, segmentation=True)
         bodies = [b for v in self._pool.values() for b in v]
-        return np.isin(np.asarray(seg, np.int64).reshape(S, S), bodies)
+        return np.isin(seg, bodies)
 
     def view_matrix(self, forward: float = 0.0) -> list[float]:
         """PyBullet view matrix (16 floats) of the forward camera at the current pose (what renders use), its eye
@@ -322,23 +312,27 @@ class NavEnv(SceneLook, gym.Env):
         eye = [eye[0] + forward * cy, eye[1] + forward * sy, eye[2]]
         return pb.computeViewMatrix(eye, [eye[0] + cy, eye[1] + sy, eye[2]], [0.0, 0.0, 1.0])
 
-    def _render_frame(self) -> tuple[np.ndarray, np.ndarray]:
-        """One camera render (``self.renderer``): RGB (3, H, W) uint8 and linear depth (H, W) float32 in metres."""
-        c = self.cfg
-        S = c.image_size
+    def _camera_image(
+        self, width: int, height: int, proj: list[float], segmentation: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """One PyBullet render from the camera pose through ``proj``: RGBA (height, width, 4) uint8, the OpenGL
+        z-buffer (height, width) float32 and, with ``segmentation``, body ids (height, width) int64 (else None).
+        Every render of the env goes through here, so a pose TinyRenderer cannot draw is re-rendered
+        (:data:`RENDER_NUDGES_M`) for all of them."""
+        flags = 0 if segmentation else pb.ER_NO_SEGMENTATION_MASK
         for forward in RENDER_NUDGES_M:
-            _, _, rgba, zbuf, _ = pb.getCameraImage(
-                S,
-                S,
+            _, _, rgba, zbuf, seg = pb.getCameraImage(
+                width,
+                height,
                 self.view_matrix(forward),
-                self._proj,
+                proj,
                 renderer=self._pb_renderer,
                 shadow=0,
-                flags=pb.ER_NO_SEGMENTATION_MASK,
+                flags=flags,
                 physicsClientId=self._client,
                 **self._light(),
             )
-            zbuf = np.asarray(zbuf, np.float32).reshape(S, S)
+            zbuf = np.asarray(zbuf, np.float32).reshape(height, width)
             if np.isfinite(zbuf).all():
                 break
         else:
@@ -346,7 +340,14 @@ class NavEnv(SceneLook, gym.Env):
                 f"{self.scene}: the camera at pose {self.pose.round(4).tolist()} (x m, y m, yaw rad) renders a "
                 f"non-finite depth buffer, also with its eye moved {list(RENDER_NUDGES_M[1:])} m forward"
             )
-        rgba = np.asarray(rgba, np.uint8).reshape(S, S, 4)
+        rgba = np.asarray(rgba, np.uint8).reshape(height, width, 4)
+        return rgba, zbuf, np.asarray(seg, np.int64).reshape(height, width) if segmentation else None
+
+    def _render_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """One camera render (``self.renderer``): RGB (3, H, W) uint8 and linear depth (H, W) float32 in metres."""
+        c = self.cfg
+        S = c.image_size
+        rgba, zbuf, _ = self._camera_image(S, S, self._proj)
         depth = c.far * c.near / (c.far - (c.far - c.near) * zbuf)
         rgb = rgba[..., :3]
         d = self.disturbance
@@ -360,18 +361,8 @@ class NavEnv(SceneLook, gym.Env):
         (the deploy tests stream such frames from a simulated Tello)."""
         c = self.cfg
         proj = pb.computeProjectionMatrixFOV(vfov_deg, width / height, c.near, c.far)
-        _, _, rgba, _, _ = pb.getCameraImage(
-            int(width),
-            int(height),
-            self.view_matrix(),
-            proj,
-            renderer=self._pb_renderer,
-            shadow=0,
-            flags=pb.ER_NO_SEGMENTATION_MASK,
-            physicsClientId=self._client,
-            **self._light(),
-        )
-        return np.asarray(rgba, np.uint8).reshape(int(height), int(width), 4)[..., :3].copy()
+        rgba, _, _ = self._camera_image(int(width), int(height), proj)
+        return rgba[..., :3].copy()
 
     def render(self) -> np.ndarray | None:
         """The newest camera frame as (H, W, 3) uint8 with ``render_mode="rgb_array"``; None (and gymnasium's

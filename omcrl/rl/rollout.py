@@ -45,30 +45,23 @@ def _stack_final_obs(final_obs: np.ndarray, idx: np.ndarray) -> Any:
     return np.stack([np.asarray(it) for it in items])
 
 
-def _nonfinite_action(
-    action: torch.Tensor, stored: dict[str, torch.Tensor], t: int, agent: torch.nn.Module | None = None
-) -> str:
+def _nonfinite_action(action: torch.Tensor, stored: dict[str, torch.Tensor], t: int, agent: torch.nn.Module) -> str:
     """Why the policy's actions (N, A) hold NaN/inf at rollout step ``t``: the observations it was given (named by
-    key), or, from finite observations, the policy's parameters (named, when ``agent`` is given and some are
-    non-finite) or its forward pass on finite weights (an overflow: the lanes' largest input magnitudes are given)."""
+    key), else the policy's non-finite parameters (named), else an overflow of finite inputs through finite weights
+    (the lanes' largest input magnitude per key and the largest weight are given)."""
     lanes = [int(i) for i in torch.nonzero(~torch.isfinite(action).all(-1)).flatten()]
-    keys = sorted(k for k, v in stored.items() if v.is_floating_point() and not torch.isfinite(v[lanes]).all())
+    floats = {k: v for k, v in sorted(stored.items()) if v.is_floating_point()}
+    keys = [k for k, v in floats.items() if not torch.isfinite(v[lanes]).all()]
+    bad = [n for n, p in agent.named_parameters() if not torch.isfinite(p).all()]
     if keys:
         where = f"from non-finite observations ({', '.join(keys)})"
+    elif bad:
+        names = ", ".join(bad[:5]) + " ..." * (len(bad) > 5)
+        where = f"from finite observations (the policy's weights are non-finite: {names})"
     else:
-        bad = [n for n, p in agent.named_parameters() if not torch.isfinite(p).all()] if agent is not None else []
-        if bad or agent is None:
-            named = f": {', '.join(bad[:5])}{' ...' if len(bad) > 5 else ''}" if bad else ""
-            where = f"from finite observations (the policy's weights or its input normaliser{named})"
-        else:
-            # Finite inputs through finite weights: an overflow; their sizes say which side was too large.
-            mags = ", ".join(
-                f"{k} {float(v[lanes].abs().max()):.3g}" for k, v in sorted(stored.items()) if v.is_floating_point()
-            )
-            w = max(float(p.detach().abs().max()) for p in agent.parameters())
-            where = (
-                f"from finite observations and finite weights (an overflow; largest |input|: {mags}; |weight| {w:.3g})"
-            )
+        mags = ", ".join(f"{k} {float(v[lanes].abs().max()):.3g}" for k, v in floats.items())
+        w = max(float(p.detach().abs().max()) for p in agent.parameters())
+        where = f"from finite observations and finite weights (an overflow; largest |input|: {mags}; |weight| {w:.3g})"
     return (
         f"non-finite action at rollout step {t} in env lane(s) {lanes}, {where}; training stopped, the last good "
         "checkpoint is kept (a resume starts from it)"
