@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -40,10 +41,12 @@ STAGE_MODULES = {
 
 
 # Modules that talk to a Tello double on the SDK's fixed UDP ports (djitellopy binds its reply socket to 8889 and
-# listens for state on 8890; notebook 09 of the smoke chain flies one too). ./reproduce.sh --test runs test modules on
-# every core (pytest-xdist, --dist loadfile: a module's fixtures are built once, on one worker), so their tests take a
-# lock on the machine first: two of them, from two workers or two pytest runs, never hold the ports at once.
-TELLO_MODULES = {"test_deploy", "test_flight_safety", "test_tello_timing", "test_notebooks"}
+# listens for state on 8890). ./reproduce.sh --test runs test modules on every core (pytest-xdist, --dist loadfile: a
+# module's fixtures are built once, on one worker), so their tests take a lock on the machine first: two of them, from
+# two workers or two pytest runs, never hold the ports at once. The notebook chain flies one too, in notebook 09 only:
+# it takes the same lock around that notebook (fixture `tello_ports`), not for its whole ten notebooks, so the other
+# worker's Tello tests wait seconds for it rather than minutes.
+TELLO_MODULES = {"test_deploy", "test_flight_safety", "test_tello_timing"}
 TELLO_PORTS_LOCK = Path(tempfile.gettempdir()) / "omcrl-tests-tello-ports.lock"
 # Set while a test holds the lock, so the processes it starts (a child pytest, a notebook kernel) do not wait on it.
 TELLO_PORTS_HELD = "OMCRL_TESTS_TELLO_PORTS_HELD"
@@ -55,16 +58,35 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.stage)
 
 
-@pytest.fixture(autouse=True)
-def _tello_ports(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    """Holds the Tello ports' lock through a test of :data:`TELLO_MODULES` (released when the process ends)."""
-    if request.module.__name__.rsplit(".", 1)[-1] not in TELLO_MODULES or os.environ.get(TELLO_PORTS_HELD) == "1":
+@contextlib.contextmanager
+def _hold_tello_ports() -> Iterator[None]:
+    """Holds the Tello ports' lock (waiting for it) until the block ends; a no-op where a parent process holds it."""
+    if os.environ.get(TELLO_PORTS_HELD) == "1":
         yield
         return
     with open(TELLO_PORTS_LOCK, "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        monkeypatch.setenv(TELLO_PORTS_HELD, "1")
+        fcntl.flock(f, fcntl.LOCK_EX)  # released when f closes
+        os.environ[TELLO_PORTS_HELD] = "1"
+        try:
+            yield
+        finally:
+            del os.environ[TELLO_PORTS_HELD]
+
+
+@pytest.fixture(autouse=True)
+def _tello_ports_module(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Holds the Tello ports' lock through each test of :data:`TELLO_MODULES`."""
+    if request.module.__name__.rsplit(".", 1)[-1] not in TELLO_MODULES:
         yield
+        return
+    with _hold_tello_ports():
+        yield
+
+
+@pytest.fixture
+def tello_ports() -> Callable[[], contextlib.AbstractContextManager[None]]:
+    """The Tello ports' lock for part of a test: ``with tello_ports(): ...`` around what flies a Tello double."""
+    return _hold_tello_ports
 
 
 def pytest_configure(config: pytest.Config) -> None:
