@@ -517,6 +517,50 @@ def test_the_env_keeps_its_drone_in_one_record():
         env.close()
 
 
+def _reset_on_a_tile_edge(clearance_m: float | None, conn) -> None:
+    """In a forked child: reset box-v2 at (6, 6) looking along -x (its camera plane holds the floor-tile edge x = 6 m)
+    and send back whether the observation is finite ("finite", "nan" or the error)."""
+    import omcrl.envs.nav_env as nav
+    from omcrl.config import load_config
+
+    if clearance_m is not None:
+        nav.RENDER_PLANE_CLEARANCE_M = clearance_m
+    corner = [{"kind": "box", "position": (-7.5, -7.5), "size": (0.2, 0.2, 0.2)}]
+    env = nav.NavEnv("box-v2", config=load_config("quick").env, layout=corner)
+    try:
+        obs, _ = env.reset(seed=0, options={"start": (6.0, 6.0, math.pi), "goal": (3.0, 3.0)})
+        conn.send("finite" if np.isfinite(obs["depth"]).all() else "nan")
+    except RuntimeError as e:
+        conn.send(f"error: {e}")
+    finally:
+        env.close()
+
+
+def _in_fork(target, *args, timeout_s: float) -> str:
+    """``target(*args, conn)`` in a forked process: what it sent, or "hung" when it did not end in ``timeout_s``."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=target, args=(*args, send))
+    proc.start()
+    proc.join(timeout_s)
+    if proc.is_alive():
+        proc.kill()
+        proc.join()
+        return "hung"
+    return recv.recv() if recv.poll() else f"exit code {proc.exitcode}"
+
+
+def test_a_camera_looking_along_a_floor_tile_edge_is_rendered_and_returns():
+    """At (6, 6) with yaw pi the camera's plane holds a row of floor-tile corners; TinyRenderer drawing from there
+    may never return (measured: 29 of 120 axis-aligned poses within 1e-7 m of a tile edge hung). The env renders
+    such a pose a millimetre forward instead: a finite frame, at once."""
+    assert _in_fork(_reset_on_a_tile_edge, None, timeout_s=120) == "finite"
+    # Without the clearance (as before the fix) the same reset does not come back: the fault is real.
+    assert _in_fork(_reset_on_a_tile_edge, 0.0, timeout_s=10) == "hung"
+
+
 def test_a_camera_right_above_a_floor_tile_corner_renders_finite_depth(monkeypatch):
     """The pose that gave seed 2's oracle a NaN action: at (-6, -6), a floor tile's corner right below the camera,
     TinyRenderer's depth holds NaN over that tile. The frame is rendered again a millimetre forward (finite), and a

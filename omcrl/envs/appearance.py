@@ -161,6 +161,24 @@ def appearance_materials(scene: str, arena_half: float) -> tuple[tuple[tuple, st
     return tuple(looks)
 
 
+def box_edges_xy(prims: list[Primitive]) -> np.ndarray:
+    """Where the vertical edges of the boxes among ``prims`` stand: distinct (x, y) m, shape (N, 2).
+
+    A horizontal camera's plane holds a box corner exactly when it holds that corner's vertical edge, so these
+    points are what :meth:`omcrl.envs.nav_env.NavEnv._camera_image` keeps it clear of.
+    """
+    boxes = [p for p in prims if p.kind == "box"]
+    if not boxes:
+        return np.zeros((0, 2))
+    c = np.array([p.center[:2] for p in boxes])
+    h = np.array([p.size[:2] for p in boxes])
+    yaw = np.array([p.yaw for p in boxes])
+    rot = np.stack([np.stack([np.cos(yaw), -np.sin(yaw)], -1), np.stack([np.sin(yaw), np.cos(yaw)], -1)], -2)
+    signs = np.array([(1, 1), (1, -1), (-1, 1), (-1, -1)], np.float64)
+    corners = c[:, None, :] + np.einsum("bij,bkj->bki", rot, signs[None] * h[:, None, :])
+    return np.unique(corners.reshape(-1, 2), axis=0)
+
+
 class SceneLook:
     """The bodies and looks of a :class:`omcrl.envs.nav_env.NavEnv` (a mixin: it uses the env's PyBullet client,
     config, disturbance and look generator)."""
@@ -201,9 +219,14 @@ class SceneLook:
                 pb.resetBasePositionAndOrientation(free[key].pop(), p.center, orn, physicsClientId=cid)
             else:
                 self._pool.setdefault(key, []).append(self._create(p, rgba, tex))
-        for bodies in free.values():
+        hidden = []
+        for key, bodies in free.items():
             for body in bodies:
                 pb.resetBasePositionAndOrientation(body, (0.0, 0.0, -1000.0), (0, 0, 0, 1), physicsClientId=cid)
+                hidden.append(Primitive(key[0], (0.0, 0.0, -1000.0), key[1]))
+        # Every box the renderer draws, hidden ones too (they stand below the origin, still in the camera's plane
+        # when it passes through it): NavEnv._camera_image keeps that plane off their vertical edges.
+        self._box_edges_xy = box_edges_xy([p for _, p in self._decor_bodies] + list(prims) + hidden)
 
     def _look_scene(self, part: str) -> str:
         """The scene whose ``part`` (``surroundings`` or ``obstacles``) this env renders: its own unless swapped."""

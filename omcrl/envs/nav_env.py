@@ -63,11 +63,20 @@ pb = import_quietly("pybullet")  # without the build-time line PyBullet prints o
 
 _NO_GEOMETRY = Geometry()  # before the first reset: no obstacles
 # Where the camera renders from, in order, m along the optical axis. TinyRenderer divides by a vertex's depth along
-# that axis; a floor-tile corner exactly in the camera's plane (the drone started right above it, at (-6, -6) with yaw
-# 2.4212, in any layout) gives NaN depth and black pixels over that tile, and a policy given that depth
-# a NaN action (seed 2's oracle died of it at 364,544 steps). A millimetre forward moves the corner out of that
-# plane; a frame without the fault is rendered once, from the pose itself, as before.
+# that axis and does not clip what lies in the camera's plane (depth 0):
+# - one box corner there (the drone started right above a floor-tile corner: (-6, -6) at yaw 2.4212, in any layout)
+#   gives NaN depth and black pixels over that tile in ~15 % of yaws, and a policy given that depth a NaN action
+#   (seed 2's oracle died of it at 364,544 steps). The frame is rendered again with the eye a millimetre forward,
+#   which takes the corner out of the plane; a frame without the fault stays the one render from the pose.
+# - the plane along a row of corners (a tile edge: the eye on the line x = 6 m looking along it, yaw 0 or pi, the
+#   kind of pose a user types) makes it NaN or never return: of 120 such poses within 1e-7 m of the line, 29 hung
+#   and 24 gave NaN; none at 1e-6 m. No second try helps a render that never ends, so such a pose is not rendered
+#   from itself at all (RENDER_PLANE_CLEARANCE_M). In flight that needs the yaw within ~2e-6 rad of the edge's
+#   direction and the eye within 1e-5 m of its line at once (roughly 1e-10 a frame, an estimate).
 RENDER_NUDGES_M = (0.0, 1e-3, -1e-3)
+# A camera plane within this of two or more vertical box edges (m) is not rendered from (see above): 100x the
+# largest offset from a tile edge measured to hang (1e-7 m), 10x the smallest measured clean (1e-6 m).
+RENDER_PLANE_CLEARANCE_M = 1e-5
 
 # Re-exported: the env's public names live here as before the split into appearance, episodes and dynamics.
 __all__ = [
@@ -148,6 +157,7 @@ class NavEnv(SceneLook, gym.Env):
         # What each reset decides before touching PyBullet (layout, maps, start/goal): an object the env holds.
         self.episodes = EpisodePlanner(cfg, self.scene, self.layout)
         self._decor_built = False
+        self._box_edges_xy = np.zeros((0, 2))  # where the boxes' vertical edges stand, m (set per layout)
         self._tex_ids: dict[str, int] = {}
         self._pool: dict[tuple, list[int]] = {}
         self.light_switch_step: int | None = None
@@ -321,6 +331,8 @@ class NavEnv(SceneLook, gym.Env):
         (:data:`RENDER_NUDGES_M`) for all of them."""
         flags = 0 if segmentation else pb.ER_NO_SEGMENTATION_MASK
         for forward in RENDER_NUDGES_M:
+            if not self._plane_is_clear(forward):
+                continue
             _, _, rgba, zbuf, seg = pb.getCameraImage(
                 width,
                 height,
@@ -338,10 +350,21 @@ class NavEnv(SceneLook, gym.Env):
         else:
             raise RuntimeError(
                 f"{self.scene}: the camera at pose {self.pose.round(4).tolist()} (x m, y m, yaw rad) renders a "
-                f"non-finite depth buffer, also with its eye moved {list(RENDER_NUDGES_M[1:])} m forward"
+                f"non-finite depth buffer (or its camera plane lies on box edges), also with its eye moved "
+                f"{list(RENDER_NUDGES_M[1:])} m forward"
             )
         rgba = np.asarray(rgba, np.uint8).reshape(height, width, 4)
         return rgba, zbuf, np.asarray(seg, np.int64).reshape(height, width) if segmentation else None
+
+    def _plane_is_clear(self, forward: float) -> bool:
+        """False when the camera's plane, its eye moved ``forward`` m along the optical axis, passes within
+        :data:`RENDER_PLANE_CLEARANCE_M` of two or more vertical box edges (a pose TinyRenderer may never finish)."""
+        edges = self._box_edges_xy
+        if len(edges) < 2:
+            return True
+        axis = np.array([math.cos(self.drone.yaw), math.sin(self.drone.yaw)])
+        depth = (edges - (self.drone.pos[:2] + forward * axis)) @ axis
+        return int(np.count_nonzero(np.abs(depth) < RENDER_PLANE_CLEARANCE_M)) < 2
 
     def _render_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """One camera render (``self.renderer``): RGB (3, H, W) uint8 and linear depth (H, W) float32 in metres."""
