@@ -4,6 +4,7 @@ camera, on a course built to trap a potential field; and the planners as the met
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from omcrl.config import load_config
@@ -98,3 +99,33 @@ def test_the_blind_pilot_flies_the_straight_line_and_senses_nothing():
     env.close()
     assert blocked["collision"] and not blocked["success"]
     assert type(make_planner("blind")) is BlindPilot
+
+
+def test_a_pilot_that_does_not_look_is_evaluated_without_frames_and_flies_the_same_episodes(monkeypatch):
+    """HybridAPF and the blind pilot never read a frame, so evaluate() flies them in an env that renders none:
+    row for row (trajectories too) what the rendering env gives. The pilots that look keep their frames."""
+    import omcrl.envs.nav_env as nav
+    from omcrl.eval.runner import evaluate
+
+    for name in ("hybrid-apf", "blind"):
+        fast = evaluate(make_planner(name), "barrier-v2", 3, 0, seed_offset=2_000_000)
+        framed = evaluate(make_planner(name), "barrier-v2", 3, 0, seed_offset=2_000_000, make_env=nav.make_env)
+        pd.testing.assert_frame_equal(fast, framed)
+    env = make_env("barrier-v2", seed=0, camera=False)
+    obs, _ = env.reset(seed=0)
+    assert not obs["rgb"].any() and not obs["depth"].any()
+    env.close()
+    # Which env each pilot gets from evaluate()'s default: frames for those that look.
+    built, real = {}, nav.make_env
+
+    def noting(name):
+        def make(*args, **kwargs):
+            built[name] = kwargs.get("camera", True)
+            return real(*args, **kwargs)
+
+        return make
+
+    for name in ("hybrid-apf", "blind", "local-apf", "hybrid-apf-perceptive"):
+        monkeypatch.setattr(nav, "make_env", noting(name))
+        evaluate(make_planner(name), "barrier-v2", 1, 0, seed_offset=2_000_000)
+    assert built == {"hybrid-apf": False, "blind": False, "local-apf": True, "hybrid-apf-perceptive": True}

@@ -106,8 +106,13 @@ class NavEnv(SceneLook, gym.Env):
         layout: list[dict] | None = None,
         config: EnvConfig | None = None,
         render_mode: str | None = "rgb_array",
+        camera: bool = True,
         **overrides: Any,
     ) -> None:
+        """``camera=False``: no frame is rendered on reset or step, and ``rgb`` and ``depth`` stay zero (as does
+        :meth:`render`), for a pilot that does not look (:class:`omcrl.planners.HybridAPF`, the blind pilot):
+        its episodes are the same, in a fifth to a third of the time. Not a config field: it changes no
+        episode, so no run identity. The other keywords are described in :func:`make_env`."""
         cfg = EnvConfig(**asdict(config)) if config is not None else EnvConfig()
         # Explicit arguments win over the config; every value is validated like a config field.
         given = {"scene": scene, "image_size": image_size, "frame_stack": frame_stack}
@@ -132,6 +137,7 @@ class NavEnv(SceneLook, gym.Env):
                 f"render_mode: got {render_mode!r}, allowed values are {[None, *self.metadata['render_modes']]}"
             )
         self.render_mode = render_mode
+        self.camera = bool(camera)
         L, S = cfg.frame_stack, cfg.image_size
         self.dt = 1.0 / cfg.control_hz
         self.h_max = cfg.step_penalty_horizon or cfg.max_steps
@@ -191,9 +197,10 @@ class NavEnv(SceneLook, gym.Env):
         self.light_switch_step = self._draw_switch(layout_seed)
         self._d_init = self._d_prev = float(np.linalg.norm(self._goal[:2] - self.drone.pos[:2]))
         self._min_d = self._d_init
-        frame_rgb, frame_depth = self._render_frame()
-        self._rgb[:] = frame_rgb
-        self._depth[:] = frame_depth
+        if self.camera:
+            frame_rgb, frame_depth = self._render_frame()
+            self._rgb[:] = frame_rgb
+            self._depth[:] = frame_depth
         obs = self._obs(plan.geometry.nearest(self.drone.pos)[0])
         # The path is a list, not an array: its length varies, and vector envs can only stack fixed shapes.
         info = {
@@ -229,11 +236,12 @@ class NavEnv(SceneLook, gym.Env):
         self._d_prev = d
         terminated = self._terminated(success, collided, out)
         truncated = self._truncated(terminated)
-        rgb, depth = self._render_frame()
-        self._rgb[:-1] = self._rgb[1:]
-        self._rgb[-1] = rgb
-        self._depth[:-1] = self._depth[1:]
-        self._depth[-1] = depth
+        if self.camera:
+            rgb, depth = self._render_frame()
+            self._rgb[:-1] = self._rgb[1:]
+            self._rgb[-1] = rgb
+            self._depth[:-1] = self._depth[1:]
+            self._depth[-1] = depth
         obs = self._obs(closest)
         info: dict[str, Any] = {"pose": self.pose, "goal": self._goal[:2].copy()}
         if terminated or truncated:

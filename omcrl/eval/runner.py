@@ -60,7 +60,8 @@ def evaluate(
         amortises the encoder's weights over the lanes, but rounds differently from a forward of one
         observation (action means differ by ~1e-8), so rows can depend on ``lanes``; they never depend on
         ``workers``: episodes are grouped into the same chunks and lanes in this process as in a pool.
-    env_kwargs : forwarded to ``make_env`` (``image_size``, ``config``, ``disturbance``, ...).
+    env_kwargs : forwarded to ``make_env`` (``image_size``, ``config``, ``disturbance``, ...). A policy whose
+        ``uses_camera`` is False flies the default env with ``camera=False`` (no frames rendered; the same rows).
 
     Returns
     -------
@@ -78,6 +79,10 @@ def evaluate(
         raise ValueError(f"lanes must be >= 1, got {lanes}")
     if not callable(getattr(policy, "act_batch", None)):
         lanes = 1  # planners keep per-episode state: one env each
+    if make_env is None and not getattr(policy, "uses_camera", True):
+        # A pilot that never reads a frame (HybridAPF, the blind pilot) flies the same episodes without them: the
+        # renders were ~70 % of its time.
+        env_kwargs = {**env_kwargs, "camera": False}
     job = (policy, scene, make_env, env_kwargs, labels, lanes)
     desc = f"eval/{method}/{scene}"
     if isinstance(workers, EvalPool):

@@ -43,6 +43,9 @@ class HybridAPF:
     """
 
     name = "HybridAPF"
+    # Whether act() reads the camera (obs["rgb"] / obs["depth"]): this one plans on the true map and is pushed by
+    # the privileged nearest obstacle, so an evaluation may fly it in an env that renders nothing.
+    uses_camera = False
 
     def __init__(
         self,
@@ -157,6 +160,8 @@ class PerceptiveHybridAPF(HybridAPF):
     height_band : m, obstacle points kept within this height of the flight altitude.
     Others as :class:`HybridAPF`.
     """
+
+    uses_camera = True  # its map is what its depth frames have shown
 
     name = "HybridAPF-perceptive"
 

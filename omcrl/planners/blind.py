@@ -22,6 +22,7 @@ class BlindPilot(LocalAPF):
     """
 
     name = "BlindPilot"
+    uses_camera = False
 
     def act(self, obs: dict, info: dict) -> np.ndarray:
         if ("path" in info and info is not self._reset_info) or len(self.path) == 0:
