@@ -5,7 +5,8 @@ again without flying.
     python scripts/render_fault_audit.py eval [--preset quick]
 
 ``train``: a training lane's starts follow from its env seed alone (``seed * 1000 + lane``, plus 100 per resume:
-``omcrl.rl.train``), so the episode planner replays them; each start exactly above a tile corner is rendered once
+``omcrl.rl.train``; a run trained since 2026-12-05 lists each stretch's seed and first step in run.json's
+``segments``), so the episode planner replays them; each start exactly above a tile corner is rendered once
 from the pose itself, as before the fix, and reported with whether its depth held NaN. ``eval``: the Table I
 evaluation starts of every scene of the preset's suite (the same for every training seed), checked the same way and
 for a camera plane on box edges (``NavEnv._plane_is_clear``).

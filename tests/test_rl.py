@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import gymnasium as gym
@@ -283,6 +284,11 @@ def test_resume_ends_at_same_step_count(tmp_path):
     assert not m.duplicated(["step", "metric"]).any()
     assert m.step.max() == 3072
     assert not (run / "checkpoint.pt").exists()
+    # Where each stretch of training began and the env seed it flew (a resume restarts the envs with its own).
+    segments = json.loads((run / "run.json").read_text())["segments"]
+    assert segments == [{"from_step": 0, "env_seed": 0}, {"from_step": 1024, "env_seed": 100}]
+    (whole,) = (tmp_path / "smoke/runs/rl").glob("full-*/seed0")
+    assert json.loads((whole / "run.json").read_text())["segments"] == [{"from_step": 0, "env_seed": 0}]
 
 
 # ---------------------------------------------------------------- oracle and student on a contract-shaped env

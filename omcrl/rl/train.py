@@ -59,6 +59,7 @@ from omcrl.runs import (
     checkpoint_due,
     keep_going,
     make_run,
+    read_identity,
     read_metrics,
     rng_state,
     set_rng_state,
@@ -233,7 +234,8 @@ def train(
     length, per_update, _, final_step = rollout_geometry(rl)
     resumes = 0 if ckpt is None else ckpt["resumes"] + 1
     # An episode in flight cannot be checkpointed: a resumed run restarts its envs with a seed of its own.
-    env = make_env(cfg.seed * 1000 + 100 * resumes)
+    env_seed = cfg.seed * 1000 + 100 * resumes
+    env = make_env(env_seed)
     try:
         obs_space = env.single_observation_space
         features = build_features(obs_space)
@@ -255,7 +257,11 @@ def train(
             step, update = int(ckpt["step"]), int(ckpt["update"])
             set_rng_state(ckpt["rng"])
         start = step
-        runner = Runner(env, agent, guide, seed=cfg.seed * 1000 + 100 * resumes)
+        # Each stretch of training and the env seed it flew, in run.json: a resumed run's episodes follow from these,
+        # not from its config alone (scripts/render_fault_audit.py replays them).
+        earlier = (read_identity(run.dir) or {}).get("segments", []) if ckpt is not None else []
+        run.record(segments=[*earlier, {"from_step": step, "env_seed": env_seed}])
+        runner = Runner(env, agent, guide, seed=env_seed)
         log = MetricsLog(run.dir, step if ckpt is not None else None)
         bar = Progress(
             final_step, f"{run.stage}/{run.method} seed{cfg.seed}", unit="step", initial=step, enabled=progress
