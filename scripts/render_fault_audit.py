@@ -22,6 +22,7 @@ import numpy as np
 from omcrl.config import load_config
 from omcrl.envs.nav_env import NavEnv, pb
 from omcrl.eval.runner import eval_seeds
+from omcrl.scenes import floor_tile_m
 
 
 def _raw_nan(env: NavEnv, start: np.ndarray) -> bool:
@@ -36,7 +37,7 @@ def _raw_nan(env: NavEnv, start: np.ndarray) -> bool:
 
 
 def _on_corner(scene: str, xy: np.ndarray) -> bool:
-    tile = 6.0 if "tree" not in scene else 7.0  # omcrl.scenes.registry.decor: indoor 6 m tiles, outdoor 7 m
+    tile = floor_tile_m(scene)
     return bool(xy[0] % tile == 0.0 and xy[1] % tile == 0.0)
 
 

@@ -819,6 +819,12 @@ def generate_scene(scene: str, seed: int, arena_half: float, n_obstacles: int = 
     return spec.generator(rng, arena_half, n_obstacles or spec.default_count)
 
 
+def floor_tile_m(scene: str) -> float:
+    """Edge of the square floor tiles of ``scene``'s surroundings, m: few, large tiles (each body costs ~0.2-0.3 ms
+    per reset), 6 m indoors and 7 m outdoors; tile corners lie on the multiples of it."""
+    return 6.0 if scene_spec(scene).indoor else 7.0
+
+
 def decor(scene: str, arena_half: float) -> list[Primitive]:
     """Visual-only surroundings of ``scene``: floor tiles, and room walls + ceiling (indoor) or sky (outdoor).
 
@@ -828,7 +834,7 @@ def decor(scene: str, arena_half: float) -> list[Primitive]:
     spec = scene_spec(scene)
     out = []
     ext = arena_half + (1.0 if spec.indoor else 6.0)
-    tile = 6.0 if spec.indoor else 7.0  # few, large tiles: each body costs ~0.2-0.3 ms per reset
+    tile = floor_tile_m(scene)
     k = math.ceil(ext / tile)
     ftex = spec.floor_texture
     for i in range(-k, k):
