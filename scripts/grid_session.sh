@@ -2,7 +2,7 @@
 # Run what is left of a grid over seeds, one variant at a time, and commit each finished variant's grid data.
 #
 #   scripts/grid_session.sh [--grid table1] [--seeds 0,1,2,3,4] [--variants oracle,ours,...] [--dir ../omcrl-grid]
-#                           [--backend local|ray] [--bundle-seed 2|none] [--set FIELD=VALUE ...]
+#                           [--backend local|ray] [--bundle-seed 2|none] [--by seed|variant] [--set FIELD=VALUE ...]
 #
 # A session is shorter than the grid (about 6 machine-hours a seed at the quick preset), so this is what a session
 # starts first, in the background, with its log on disk:
@@ -27,6 +27,10 @@
 # committed, and retired to git history (a pointer stays) in the next commit. Once every part is in:
 #
 #   python -m omcrl reference --preset quick --merge reference/quick/bundle-parts --from reference/quick/bundle
+#
+# --by sets the loop's order: seed (default: every variant of seed 0, then of seed 1, ...; whole rows of Table I
+# first) or variant (every seed of the first variant, then of the next; a budget ladder's point gets its intervals
+# before a costlier point starts, e.g. --grid ladder-pretrain --by variant --seeds 0,1,2).
 set -euo pipefail
 # The whole script is one compound command, read before any of it runs: a checkout that edits this file (a pull,
 # an edit in place) while a grid runs for hours cannot change what the running loop reads next.
@@ -40,6 +44,7 @@ variants=oracle,ours,ours-noOT,ours-lapf,curl,curl-phi,npe,npe-ot,ppo
 preset=quick
 backend=local
 bundle_seed=default
+by=seed
 sets=()
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 dir="$(dirname "$root")/omcrl-grid"
@@ -52,10 +57,12 @@ while [[ $# -gt 0 ]]; do
     --dir) dir="$2"; shift 2 ;;
     --backend) backend="$2"; shift 2 ;;
     --bundle-seed) bundle_seed="$2"; shift 2 ;;
+    --by) by="$2"; shift 2 ;;
     --set) sets+=(--set "$2"); shift 2 ;;  # e.g. --set sweep.storage=/shared/omcrl (an embedded Ray resumes from it)
     *) echo "grid_session: unknown argument $1" >&2; exit 2 ;;
   esac
 done
+[[ "$by" == seed || "$by" == variant ]] || { echo "grid_session: --by must be seed or variant, got $by" >&2; exit 2; }
 if [[ "$bundle_seed" == default ]]; then
   # Seeds 0 and 1 of the v2 grid were trained on machines since lost, with only their records kept.
   [[ "$grid" == table1 ]] && bundle_seed=2 || bundle_seed=none
@@ -146,21 +153,26 @@ bundle_part() {  # $1: seed, $2: variant that just finished; packs, commits and 
 release "an earlier session"
 IFS=, read -r -a seed_list <<<"$seeds"
 IFS=, read -r -a variant_list <<<"$variants"
-for seed in "${seed_list[@]}"; do
-  for v in "${variant_list[@]}"; do
-    echo "grid_session: seed $seed $v start $(date -u +%FT%TZ)"
-    # A failed variant is run once more: a training run resumes from its last checkpoint (seed 2's oracle died once
-    # on a NaN action near 300 k steps and finished from its checkpoint); a second failure is left for a person.
-    for attempt in 1 2; do
-      rc=0
-      (cd "$dir" && "$py" -m omcrl sweep "$grid" --preset "$preset" --seeds "$seed" --backend "$backend" \
-        --to-reference --variants "$v" "${sets[@]}") || rc=$?
-      echo "grid_session: seed $seed $v exit $rc $(date -u +%FT%TZ) (attempt $attempt)"
-      if [[ "$rc" == 0 ]]; then break; fi
-    done
-    ship "seed $seed, $v"
-    if [[ "$rc" == 0 ]]; then bundle_part "$seed" "$v"; fi
+jobs=()  # "seed<TAB>variant", in the order --by asks (a variant's label may hold spaces, not tabs)
+if [[ "$by" == seed ]]; then
+  for seed in "${seed_list[@]}"; do for v in "${variant_list[@]}"; do jobs+=("$seed"$'\t'"$v"); done; done
+else
+  for v in "${variant_list[@]}"; do for seed in "${seed_list[@]}"; do jobs+=("$seed"$'\t'"$v"); done; done
+fi
+for job in "${jobs[@]}"; do
+  seed="${job%%$'\t'*}" v="${job#*$'\t'}"
+  echo "grid_session: seed $seed $v start $(date -u +%FT%TZ)"
+  # A failed variant is run once more: a training run resumes from its last checkpoint (seed 2's oracle died once
+  # on a NaN action near 300 k steps and finished from its checkpoint); a second failure is left for a person.
+  for attempt in 1 2; do
+    rc=0
+    (cd "$dir" && "$py" -m omcrl sweep "$grid" --preset "$preset" --seeds "$seed" --backend "$backend" \
+      --to-reference --variants "$v" "${sets[@]}") || rc=$?
+    echo "grid_session: seed $seed $v exit $rc $(date -u +%FT%TZ) (attempt $attempt)"
+    if [[ "$rc" == 0 ]]; then break; fi
   done
+  ship "seed $seed, $v"
+  if [[ "$rc" == 0 ]]; then bundle_part "$seed" "$v"; fi
 done
 exit
 }
