@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import itertools
 import json
 import tarfile
 from pathlib import Path
@@ -134,19 +135,24 @@ def test_cli_names_the_problem_in_one_line(tmp_path, capsys):
 
 
 def test_a_bundle_names_its_scene_suite_and_one_from_before_v2_holds_v1_runs(tmp_path):
-    """The runs of a bundle are found under its suite's scenes: the shipped quick bundle holds v1 runs (re-keyed by
-    scripts/rekey_reference.py), so `--from-reference` passes v1's overrides; a manifest from before v2 (no `suite`
-    field) holds v1 runs; a bundle of another suite says so."""
+    """The runs of a bundle are found under its suite's scenes: the shipped quick bundle holds v2 runs (seed 2 of the
+    v2 grid, at quick's budget: no overrides); the retired v1 bundle beside it holds v1 runs (re-keyed by
+    scripts/rekey_reference.py), so `--from-reference` with it passes v1's overrides; a manifest from before v2 (no
+    `suite` field) holds v1 runs; a bundle of another suite says so."""
     from omcrl.pipeline.reference import bundle_overrides, bundle_suite, config_suite
     from omcrl.scenes import suite_overrides
 
-    shipped = json.loads((Path(__file__).parents[1] / "reference" / "quick" / "bundle" / MANIFEST).read_text())
-    assert shipped["suite"] == "v1" and shipped["rekeyed"]["runs"] and bundle_suite(shipped) == "v1"
-    assert bundle_suite({k: v for k, v in shipped.items() if k != "suite"}) == "v1"
+    quick = Path(__file__).parents[1] / "reference" / "quick"
+    shipped = json.loads((quick / "bundle" / MANIFEST).read_text())
+    assert shipped["suite"] == "v2" and bundle_suite(shipped) == "v2" and shipped["seeds"] == [2]
+    assert bundle_overrides("quick") == suite_overrides("v2")
+    v1 = json.loads((quick / "bundle-v1" / MANIFEST).read_text())
+    assert v1["suite"] == "v1" and v1["rekeyed"]["runs"] and bundle_suite(v1) == "v1"
+    assert bundle_suite({k: v for k, v in v1.items() if k != "suite"}) == "v1"
     # It was trained at quick's budget before the v2 budget check tripled it: the manifest says so (the oracle's decay
     # too, since the oracle has its own guidance section: scripts/migrate_runs.py).
     budget = ["rl.total_steps=150000", "rl.alpha_decay_steps=75000", "oracle.alpha_decay_steps=75000"]
-    assert bundle_overrides("quick") == [*suite_overrides("v1"), *budget]
+    assert bundle_overrides("quick", quick / "bundle-v1") == [*suite_overrides("v1"), *budget]
     b = _bundle(tmp_path / "b", FILES, {"suite": "v2"})
     assert bundle_overrides("smoke", b) == suite_overrides("v2")
     with pytest.raises(ReferenceError, match="'suite' is 'v9'"):
@@ -171,9 +177,9 @@ def test_the_shipped_bundle_is_found_by_this_codes_registry(tmp_path, monkeypatc
     # and skipped without their dataset, which a fresh clone does not have.
     no_data = cfg.with_overrides([f"data.file={tmp_path / 'absent.h5'}"])
     frozen = [m for m in res.manifest["methods"] if METHODS[m].features == "frozen"]
-    for m in frozen:
-        enc = pretrain_encoder(encoder_config(no_data, METHODS[m]), progress=False)
-        assert enc.skipped and enc.iterations == 1500, m
+    for s, m in itertools.product(res.manifest["seeds"], frozen):  # the bundle's seeds, not the preset's seed 0
+        enc = pretrain_encoder(encoder_config(no_data.with_seed(int(s)), METHODS[m]), progress=False)
+        assert enc.skipped and enc.iterations == 1500, (s, m)
     # Its evaluations are finished cache runs of this code (scripts/migrate_runs.py): read back, none flown again.
     import omcrl.eval.stage as stage
 
