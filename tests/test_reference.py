@@ -145,16 +145,23 @@ def test_a_bundle_names_its_scene_suite_and_one_from_before_v2_holds_v1_runs(tmp
     quick = Path(__file__).parents[1] / "reference" / "quick"
     shipped = json.loads((quick / "bundle" / MANIFEST).read_text())
     assert shipped["suite"] == "v2" and bundle_suite(shipped) == "v2" and shipped["seeds"] == [2]
-    assert bundle_overrides("quick") == suite_overrides("v2")
+    assert bundle_overrides("quick") == [*suite_overrides("v2"), "seed=2", "seeds=[2]"]
     v1 = json.loads((quick / "bundle-v1" / MANIFEST).read_text())
     assert v1["suite"] == "v1" and v1["rekeyed"]["runs"] and bundle_suite(v1) == "v1"
     assert bundle_suite({k: v for k, v in v1.items() if k != "suite"}) == "v1"
     # It was trained at quick's budget before the v2 budget check tripled it: the manifest says so (the oracle's decay
     # too, since the oracle has its own guidance section: scripts/migrate_runs.py).
     budget = ["rl.total_steps=150000", "rl.alpha_decay_steps=75000", "oracle.alpha_decay_steps=75000"]
-    assert bundle_overrides("quick", quick / "bundle-v1") == [*suite_overrides("v1"), *budget]
+    assert bundle_overrides("quick", quick / "bundle-v1") == [*suite_overrides("v1"), *budget, "seed=0", "seeds=[0]"]
     b = _bundle(tmp_path / "b", FILES, {"suite": "v2"})
-    assert bundle_overrides("smoke", b) == suite_overrides("v2")
+    assert bundle_overrides("smoke", b) == [*suite_overrides("v2"), "seed=0", "seeds=[0]"]
+    # The notebooks fly the bundle's seeds, not the preset's: a bundle of seeds 2 and 4 sets both fields.
+    two = _bundle(tmp_path / "two", FILES, {"suite": "v2", "seeds": [2, 4]})
+    assert bundle_overrides("smoke", two)[-2:] == ["seed=2", "seeds=[2, 4]"]
+    cfg = load_config("smoke", overrides=bundle_overrides("smoke", two))
+    assert (cfg.seed, cfg.seeds) == (2, [2, 4])
+    with pytest.raises(ReferenceError, match="field 'seeds' is \\[\\]"):
+        bundle_overrides("smoke", _bundle(tmp_path / "none", FILES, {"seeds": []}))
     with pytest.raises(ReferenceError, match="'suite' is 'v9'"):
         bundle_suite({"suite": "v9"})
     cfg = load_config("smoke")

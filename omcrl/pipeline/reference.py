@@ -519,11 +519,17 @@ def bundle_suite(manifest: dict[str, Any]) -> str:
 
 
 def bundle_overrides(preset: str, bundle: str | Path | None = None) -> list[str]:
-    """The ``--set`` overrides under which a bundle's runs are found (:func:`omcrl.scenes.suite_overrides` of
-    its suite): ``reproduce.sh --from-reference`` passes them to the notebooks it runs."""
+    """The ``--set`` overrides under which a bundle's runs are found: :func:`omcrl.scenes.suite_overrides` of its
+    suite, the manifest's own overrides, and its training seeds (``seed`` = the first, ``seeds`` = all: the v2
+    bundle holds seed 2, and a preset's default seed 0 would train runs the bundle does not have).
+    ``reproduce.sh --from-reference`` passes them to the notebooks it runs."""
     b = Path(bundle) if bundle is not None else default_bundle(preset)
     m = read_manifest(b, preset)
-    return [*suite_overrides(bundle_suite(m)), *manifest_overrides(m)]
+    seeds = m.get("seeds")
+    if not isinstance(seeds, list) or not seeds or not all(isinstance(v, int) and v >= 0 for v in seeds):
+        raise ReferenceError(f"{b / MANIFEST}: field 'seeds' is {seeds!r}, expected a non-empty list of integers >= 0")
+    seed_sets = [f"seed={seeds[0]}", f"seeds=[{', '.join(map(str, seeds))}]"]
+    return [*suite_overrides(bundle_suite(m)), *manifest_overrides(m), *seed_sets]
 
 
 def manifest_overrides(manifest: dict[str, Any]) -> list[str]:
