@@ -140,8 +140,9 @@ PY="$VENV/bin/python"
 case "$mode" in
   --test)
     # Every core (pytest-xdist; each test is single-threaded, tests/conftest.py), a test module per unit of the
-    # schedule (its fixtures built once); -n N, -n 0 or -p no:xdist among the arguments chooses otherwise.
-    par=(-n auto --dist loadfile)
+    # schedule (its fixtures built once), handed out in collection order (xdist would sort modules by their number of
+    # tests; tests/conftest.py puts the longest first); -n N, -n 0 or -p no:xdist among the arguments chooses otherwise.
+    par=(-n auto --dist loadfile --no-loadscope-reorder)
     for arg in "$@"; do
       case "$arg" in -n | -n* | --numprocesses* | no:xdist) par=() ;; esac
     done
