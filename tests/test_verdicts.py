@@ -9,7 +9,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from omcrl.eval.verdicts import _holm, ledger_verdicts, seeds_to_decide, training_values, verdict_counts
+from omcrl.eval.verdicts import (
+    _detectable,
+    _holm,
+    holm_verdicts,
+    ledger_verdicts,
+    seeds_to_decide,
+    training_values,
+    verdict_counts,
+)
 
 SCENES = ("box-v2", "furniture-v2", "barrier-v2", "tree-v2")
 
@@ -60,10 +68,35 @@ def test_holm_is_monotone_and_never_below_the_raw_p():
 
 
 def test_seeds_to_decide():
-    # d = 10, layout part 4, seed part 9 at 5 seeds: (10/2.8)^2 - 4 = 8.76 -> ceil(45 / 8.76) = 6.
-    assert seeds_to_decide(10.0, 9.0, 4.0, 5) == 6
-    assert math.isinf(seeds_to_decide(1.0, 9.0, 4.0, 5))
+    # d = 10, layout part 4, seed part 9 at 5 seeds. A normal approximation would say 6: (10 / 2.80)^2 - 4 = 8.76,
+    # ceil(45 / 8.76) = 6. The t test the verdicts use has Satterthwaite's degrees of freedom (about 12 at 6 seeds),
+    # so it needs 7: the returned n clears the test's 80 % power and n - 1 does not.
+    n = seeds_to_decide(10.0, 9.0, 4.0, 5)
+    assert n == 7
+    assert _detectable(10.0, 45.0, 4.0, n, math.inf, 0.05) and not _detectable(10.0, 45.0, 4.0, n - 1, math.inf, 0.05)
+    # At a Bonferroni level of 38 rows: more seeds, each the first that clears it.
+    strict = seeds_to_decide(10.0, 9.0, 4.0, 5, alpha=0.05 / 38)
+    assert strict == 24 and not _detectable(10.0, 45.0, 4.0, strict - 1, math.inf, 0.05 / 38)
+    # 50 layouts (49 degrees of freedom in the layout part) never need fewer seeds than infinitely many.
+    assert seeds_to_decide(10.0, 9.0, 4.0, 5, layouts=50) >= n
+    assert math.isinf(seeds_to_decide(1.0, 9.0, 4.0, 5))  # the layout part alone is wider than the effect
     assert math.isnan(seeds_to_decide(0.0, 9.0, 4.0, 5))
+    assert seeds_to_decide(10.0, 0.0, 1.0, 5) == 5  # no seed spread: the seeds it has
+    assert math.isinf(seeds_to_decide(4.0, 0.0, 8.0, 1, layouts=50))  # a planner's row: only layouts would help
+
+
+def test_the_power_line_counts_the_family_a_row_is_judged_in():
+    # 40 rows of one family; the first is significant at 5 % alone (p 0.01) but not after Holm (40 x 0.01). At 3
+    # seeds with all its variance in the seed part and d = 2.58 standard errors, 5 % unadjusted would want 6 seeds;
+    # the family's level (0.05 / 40) wants 13, and the line must say 13: at 6 seeds it would still be undecided.
+    rows = [{"family": "primary", "p": 0.01, "estimate": 2.58, "var_seed": 1.0, "var_layout": 0.0, "seeds": 3}]
+    rows += [{"family": "primary", "p": 0.5, "estimate": 0.1, "var_seed": 1.0, "var_layout": 0.0, "seeds": 3}] * 39
+    rows += [{"family": "secondary", "p": 0.01, "estimate": 2.58, "var_seed": 1.0, "var_layout": 0.0, "seeds": 3}]
+    v = holm_verdicts(pd.DataFrame(rows).assign(_few=False), "family")
+    assert v.loc[0, "verdict"] == "undecided" and seeds_to_decide(2.58, 1.0, 0.0, 3) == 6
+    assert v.loc[0, "seeds_to_decide"] == seeds_to_decide(2.58, 1.0, 0.0, 3, alpha=0.05 / 40) == 13
+    # Alone in its family, the same row is decided at 5 %: nothing to add.
+    assert v.loc[40, "verdict"] == "holds" and math.isnan(v.loc[40, "seeds_to_decide"])
 
 
 def test_training_values_read_the_return_curve(tmp_path):

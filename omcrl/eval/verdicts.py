@@ -13,9 +13,13 @@ could be computed. Verdict: ``holds`` (adjusted p < 0.05, estimate > 0), ``rever
 estimate < 0), ``undecided`` otherwise, ``not run`` when a method or scene has no data, ``one seed`` when a learned
 method of the row has a single training seed (its estimate and interval over layouts are shown, not judged, and
 the row is left out of Holm). For an undecided row the
-*power line* says how many training seeds would decide it at the measured effect and variance components (80 %
-power, 5 % two-sided, before Holm): ``n = v_seed · S / ((|d| / 2.80)² − v_layout)``; when the layout part alone
-is too large, no number of seeds does at these layouts, and the line says so.
+*power line* says how many training seeds would decide it at the measured effect and variance components, under
+the family's multiplicity rule and by the test the verdict uses: 80 % power at the Bonferroni level ``α / m`` of its
+family of ``m`` judged rows (the strictest step of Holm's, so a row with that power is decided whatever the others
+give), two-sided, on the t distribution with the contrast's Satterthwaite degrees of freedom at that many seeds (the
+seed part shrinking as ``1 / n``, the layout part fixed: the same layouts are flown). With 3 seeds and the seed part
+alone, that t has 2 degrees of freedom: a normal approximation would promise decisions the test cannot give. When
+the layout part alone is too wide, no number of seeds does at these layouts, and the line says so.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy import stats as sps
 
 from omcrl.eval.ledger import TRAINING_METRICS, hypotheses
 from omcrl.eval.metrics import episode_values
@@ -36,7 +41,8 @@ from omcrl.scenes import scene_spec
 from omcrl.utils.io import atomic_write_text
 
 ALPHA = 0.05
-Z_POWER = 1.959964 + 0.841621  # two-sided 5 % and 80 % power
+POWER = 0.80
+MAX_SEEDS = 1_000_000  # a power line beyond this says "no number" as the layout-bound case does
 COLUMNS = ["claim", "family", "hypothesis", "metric", "scene", "versus_scene", "a", "b", "estimate", "lo", "hi",
            "p", "p_holm", "verdict", "seeds", "seeds_to_decide", "var_seed", "var_layout"]  # fmt: skip
 
@@ -72,15 +78,49 @@ def _holm(p: np.ndarray) -> np.ndarray:
     return out
 
 
-def seeds_to_decide(estimate: float, var_seed: float, var_layout: float, seeds: int) -> float:
-    """Training seeds at which ``estimate`` would be significant with 80 % power (module docstring); ``inf``
-    when the layout part alone forbids it, NaN when there is no effect to detect."""
+def _detectable(estimate: float, var_seed: float, var_layout: float, n: float, df_layout: float, alpha: float) -> bool:
+    """Whether ``|estimate|`` clears the t test's two-sided level ``alpha`` with 80 % power at ``n`` seeds (the seed
+    part at ``var_seed / n`` per seed, the layout part fixed), with the contrast's Satterthwaite degrees of freedom."""
+    vs = var_seed / n
+    var = vs + var_layout
+    denom = (vs**2 / (n - 1) if vs > 0 else 0.0) + (var_layout**2 / df_layout if var_layout > 0 else 0.0)
+    df = var**2 / denom if denom > 0 else math.inf
+    q = float(sps.t.ppf(1 - alpha / 2, df) + sps.t.ppf(POWER, df))
+    return abs(estimate) >= q * math.sqrt(var)
+
+
+def seeds_to_decide(
+    estimate: float,
+    var_seed: float,
+    var_layout: float,
+    seeds: int,
+    alpha: float = ALPHA,
+    layouts: int | None = None,
+) -> float:
+    """Training seeds at which ``estimate`` would be significant at two-sided level ``alpha`` with 80 % power, by
+    the t test the verdicts use (module docstring; :func:`holm_verdicts` passes its family's Bonferroni level);
+    ``inf`` when the layout part alone forbids it, NaN when there is no effect to detect.
+
+    ``var_seed`` and ``var_layout`` are the estimate's variance parts at ``seeds`` training seeds (squared units of
+    the metric); the seed part shrinks as 1 / seeds, the layout part does not (the ``layouts`` are fixed; ``None``:
+    its degrees of freedom taken as infinite)."""
     if not math.isfinite(estimate) or estimate == 0:
         return math.nan
-    room = (abs(estimate) / Z_POWER) ** 2 - var_layout
-    if room <= 0:
-        return math.inf
-    return float(max(seeds, math.ceil(var_seed * seeds / room))) if var_seed > 0 else float(seeds)
+    df_layout = layouts - 1 if layouts is not None and layouts > 1 else math.inf
+    if not _detectable(estimate, 0.0, var_layout, math.inf, df_layout, alpha):
+        return math.inf  # even infinitely many seeds leave the layout part too wide
+    if var_seed <= 0:
+        return float(seeds)
+    per_seed = var_seed * seeds
+    lo, hi = max(2, seeds), max(2, seeds)
+    while not _detectable(estimate, per_seed, var_layout, hi, df_layout, alpha):
+        lo, hi = hi + 1, hi * 2
+        if hi > MAX_SEEDS:
+            return math.inf
+    while lo < hi:  # the first n that clears it (more seeds never hurt: both the variance and the t quantile fall)
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if _detectable(estimate, per_seed, var_layout, mid, df_layout, alpha) else (mid + 1, hi)
+    return float(lo)
 
 
 def ledger_verdicts(
@@ -118,37 +158,44 @@ def judge(
     rng: np.random.Generator,
     bounded: float | None = None,
 ) -> dict:
-    """One contrast (:func:`omcrl.eval.stats.contrast`) as a row's fields: ``estimate, lo, hi, p, seeds, var_seed,
-    var_layout`` and ``_few``. A missing term (a method not evaluated) gives NaN throughout, 0 seeds. ``learned``
-    says which terms are of a learned method: one of a single training seed shows no seed spread, so its interval
-    is over layouts alone and says nothing about another training run; the row is then reported but not judged
-    (``p`` NaN, ``_few`` True: :func:`holm_verdicts` calls it ``one seed``). ``bounded``: the metric's upper bound
-    (:data:`omcrl.eval.stats.BOUNDED`), so the interval keeps to the values the contrast can take."""
+    """One contrast (:func:`omcrl.eval.stats.contrast`) as a row's fields: ``estimate, lo, hi, p, seeds, layouts,
+    var_seed, var_layout`` and ``_few``. A missing term (a method not evaluated) gives NaN throughout, 0 seeds.
+    ``learned`` says which terms are of a learned method: one of a single training seed shows no seed spread, so its
+    interval is over layouts alone and says nothing about another training run; the row is then reported but not
+    judged (``p`` NaN, ``_few`` True: :func:`holm_verdicts` calls it ``one seed``). ``bounded``: the metric's upper
+    bound (:data:`omcrl.eval.stats.BOUNDED`), so the interval keeps to the values the contrast can take."""
     if any(t is None for t in terms):
-        return {"estimate": math.nan, "lo": math.nan, "hi": math.nan, "p": math.nan, "seeds": 0,
+        return {"estimate": math.nan, "lo": math.nan, "hi": math.nan, "p": math.nan, "seeds": 0, "layouts": 0,
                 "var_seed": math.nan, "var_layout": math.nan, "_few": False}  # fmt: skip
     e = contrast([t for t in terms if t is not None], reps, rng=rng, bounded=bounded)
     n_seeds = len({s for t in terms if t is not None and t.seeds is not None for s in t.seeds}) or 1
     few = any(t is not None and t.seeds is None and is_learned for t, is_learned in zip(terms, learned))
+    n_layouts = min(len(t.layouts) for t in terms if t is not None)  # as contrast() counts them
     return {"estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": math.nan if few else e.p, "seeds": n_seeds,
-            "var_seed": e.var_seed, "var_layout": e.var_layout, "_few": few}  # fmt: skip
+            "layouts": n_layouts, "var_seed": e.var_seed, "var_layout": e.var_layout, "_few": few}  # fmt: skip
 
 
 def holm_verdicts(df: pd.DataFrame, family: str) -> pd.DataFrame:
     """``df`` (rows of :func:`judge`) with ``p_holm`` (Holm–Bonferroni within each value of the column ``family``),
-    ``verdict`` (holds / reversed / undecided at 5 %, one seed, not run) and ``seeds_to_decide`` (undecided rows)."""
+    ``verdict`` (holds / reversed / undecided at 5 %, one seed, not run) and ``seeds_to_decide`` (undecided rows,
+    at the family's Bonferroni level: :func:`seeds_to_decide`)."""
     df = df.copy()
     df["p_holm"] = math.nan
+    level = pd.Series(ALPHA, index=df.index)
     for fam in dict.fromkeys(df[family]) if len(df) else ():
         sel = (df[family] == fam).to_numpy()
-        df.loc[sel, "p_holm"] = _holm(df.loc[sel, "p"].to_numpy(float))
+        p = df.loc[sel, "p"].to_numpy(float)
+        df.loc[sel, "p_holm"] = _holm(p)
+        level[sel] = ALPHA / max(1, int(np.isfinite(p).sum()))
     few = df["_few"].fillna(False).astype(bool) if "_few" in df else pd.Series(False, index=df.index)
     df["verdict"] = [
         "one seed" if f else _verdict(r.estimate, r.p_holm) for f, r in zip(few, df.itertuples(), strict=True)
     ]
     df["seeds_to_decide"] = [
-        seeds_to_decide(r.estimate, r.var_seed, r.var_layout, r.seeds) if r.verdict == "undecided" else math.nan
-        for r in df.itertuples()
+        seeds_to_decide(r.estimate, r.var_seed, r.var_layout, r.seeds, a, getattr(r, "layouts", None))
+        if r.verdict == "undecided"
+        else math.nan
+        for r, a in zip(df.itertuples(), level, strict=True)
     ]
     return df.drop(columns=["_few"], errors="ignore")
 
