@@ -56,8 +56,8 @@ TELLO_PORTS_HELD = "OMCRL_TESTS_TELLO_PORTS_HELD"
 # 356 s, gradient 148, griddata 104, integrity 98, deploy 84, tello_timing 52 of 1,082 s). --dist loadfile hands out
 # modules in collection order only with --no-loadscope-reorder (./reproduce.sh passes it); by default xdist sorts them
 # by their number of tests, which ignores this order. With xdist 3.8's rules (one module per worker, another when
-# <= 2 of its tests are pending) on a full run's durations (2026-12-05, beside a grid run): 955 s on the busier worker
-# in xdist's order, 942 s (both workers) in this one. The suite's length is its total work, not the schedule.
+# <= 2 of its tests are pending) on an idle full run's durations (2026-12-05): 546 s on the busier worker in xdist's
+# order, 534 s in this one; measured in this order, 528 s on each worker. The suite's length is its total work.
 LONGEST_FIRST = (
     "test_notebooks",
     "test_gradient",

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from omcrl.eval.stats import Term, compare_sr, contrast, coverage, term
+from omcrl.eval.stats import Term, compare_sr, contrast, coverage, satterthwaite_df, term
 
 
 @pytest.mark.parametrize(
@@ -50,6 +50,24 @@ def test_pairing_layout_by_layout_narrows_a_difference_of_shared_layouts():
     broken = contrast([Term(ya, tuple(range(5)), lay, "s"), Term(yb, tuple(range(5)), shuffled, "s", -1.0)])
     assert paired.estimate == pytest.approx(broken.estimate)
     assert paired.hi - paired.lo < 0.8 * (broken.hi - broken.lo)
+
+
+def test_satterthwaite_df_of_one_part_is_its_own_and_of_equal_parts_their_sum():
+    assert satterthwaite_df([(2.0, 4)]) == pytest.approx(4)
+    assert satterthwaite_df([(1.0, 4), (1.0, 4)]) == pytest.approx(8)
+    # A dominant part pulls the df towards its own; a part of no variance counts for nothing.
+    assert 4 < satterthwaite_df([(10.0, 4), (0.1, 49)]) < 4.1
+    assert satterthwaite_df([(3.0, 2), (0.0, 0)]) == pytest.approx(2)
+    assert satterthwaite_df([(0.0, 2)]) == np.inf and satterthwaite_df([(1.0, np.inf)]) == np.inf
+
+
+def test_contrast_reports_the_seeds_and_the_fewest_layouts_it_used():
+    rng = np.random.default_rng(5)
+    a = Term(rng.normal(0, 1, (3, 50)), (0, 1, 2), tuple(range(50)), "s")
+    b = Term(rng.normal(0, 1, (3, 40)), (0, 1, 2), tuple(range(40)), "s", -1.0)
+    e = contrast([a, b], reps=200)
+    assert (e.seeds, e.layouts) == (3, 40)
+    assert e.df == pytest.approx(satterthwaite_df([(e.var_seed, 2), (e.var_layout, 39)]))
 
 
 def test_term_lays_out_episodes_by_seed_and_layout_and_a_single_seed_is_fixed():

@@ -78,7 +78,8 @@ class Term:
 @dataclass(frozen=True)
 class Estimate:
     """A contrast's estimate, its 95 % (or ``conf``) interval, two-sided p-value against 0, standard error,
-    degrees of freedom and the seed and layout parts of its variance."""
+    degrees of freedom, the seed and layout parts of its variance, and the training seeds (distinct, over every term)
+    and layouts (the fewest of any term) it was taken over."""
 
     estimate: float
     lo: float
@@ -88,6 +89,8 @@ class Estimate:
     df: float
     var_seed: float
     var_layout: float
+    seeds: int = 0
+    layouts: int = 0
 
 
 def _replicates(terms: Sequence[Term], reps: int, rng: np.random.Generator, factor: str) -> np.ndarray:
@@ -132,6 +135,17 @@ def _point(terms: Sequence[Term]) -> float:
     return total
 
 
+def satterthwaite_df(parts: Sequence[tuple[float, float]]) -> float:
+    """Welch–Satterthwaite degrees of freedom of a sum of independent variance parts.
+
+    ``parts``: ``(variance, degrees of freedom)`` of each part. A part of zero variance adds nothing (its degrees of
+    freedom do not matter); ``inf`` when no part has variance, or when every part's degrees of freedom are infinite.
+    """
+    live = [(v, d) for v, d in parts if v > 0]
+    denom = sum(v**2 / d for v, d in live)
+    return sum(v for v, _ in live) ** 2 / denom if denom > 0 else math.inf
+
+
 def contrast(
     terms: Sequence[Term],
     reps: int = DEFAULT_REPS,
@@ -148,18 +162,18 @@ def contrast(
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     est = _point(terms)
-    if not math.isfinite(est):
-        return Estimate(math.nan, math.nan, math.nan, math.nan, math.nan, math.nan, math.nan, math.nan)
     n_s = len({s for t in terms if t.seeds is not None for s in t.seeds})
     n_l = min(len(t.layouts) for t in terms)
+    if not math.isfinite(est):
+        nan = math.nan
+        return Estimate(nan, nan, nan, nan, nan, nan, nan, nan, n_s, n_l)
     rs, rl = _replicates(terms, reps, rng, "seed"), _replicates(terms, reps, rng, "layout")
     vs = float(np.nanvar(rs)) * n_s / (n_s - 1) if n_s > 1 and np.isfinite(rs).sum() > 1 else 0.0
     vl = float(np.nanvar(rl)) * n_l / (n_l - 1) if n_l > 1 and np.isfinite(rl).sum() > 1 else 0.0
     var = vs + vl
     if var <= 0.0:
-        return Estimate(est, est, est, 0.0 if est != 0 else 1.0, 0.0, math.inf, vs, vl)
-    parts = [(v, n - 1) for v, n in ((vs, n_s), (vl, n_l)) if v > 0]
-    df = var**2 / sum(v**2 / d for v, d in parts)
+        return Estimate(est, est, est, 0.0 if est != 0 else 1.0, 0.0, math.inf, vs, vl, n_s, n_l)
+    df = satterthwaite_df([(vs, n_s - 1), (vl, n_l - 1)])
     t = float(sps.t.ppf(0.5 + conf / 2, df))
     se = math.sqrt(var)
     p = float(2 * sps.t.sf(abs(est) / se, df))
@@ -172,7 +186,7 @@ def contrast(
     elif bounded is not None and len(terms) > 1:
         lo = max(lo, sum(min(0.0, t.coef * bounded) for t in terms))
         hi = min(hi, sum(max(0.0, t.coef * bounded) for t in terms))
-    return Estimate(est, lo, hi, p, se, df, vs, vl)
+    return Estimate(est, lo, hi, p, se, df, vs, vl, n_s, n_l)
 
 
 def _layout_ids(g: pd.DataFrame) -> np.ndarray:

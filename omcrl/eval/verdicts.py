@@ -34,7 +34,7 @@ from scipy import stats as sps
 
 from omcrl.eval.ledger import TRAINING_METRICS, hypotheses
 from omcrl.eval.metrics import episode_values
-from omcrl.eval.stats import BOUNDED, DEFAULT_REPS, Term, cell_rng, contrast, term
+from omcrl.eval.stats import BOUNDED, DEFAULT_REPS, Term, cell_rng, contrast, satterthwaite_df, term
 from omcrl.rl.methods import METHODS
 from omcrl.runs import metric_series
 from omcrl.scenes import scene_spec
@@ -83,8 +83,7 @@ def _detectable(estimate: float, var_seed: float, var_layout: float, n: float, d
     part at ``var_seed / n`` per seed, the layout part fixed), with the contrast's Satterthwaite degrees of freedom."""
     vs = var_seed / n
     var = vs + var_layout
-    denom = (vs**2 / (n - 1) if vs > 0 else 0.0) + (var_layout**2 / df_layout if var_layout > 0 else 0.0)
-    df = var**2 / denom if denom > 0 else math.inf
+    df = satterthwaite_df([(vs, n - 1), (var_layout, df_layout)])
     q = float(sps.t.ppf(1 - alpha / 2, df) + sps.t.ppf(POWER, df))
     return abs(estimate) >= q * math.sqrt(var)
 
@@ -170,11 +169,9 @@ def judge(
         return {"estimate": math.nan, "lo": math.nan, "hi": math.nan, "p": math.nan, "seeds": 0, "layouts": 0,
                 "var_seed": math.nan, "var_layout": math.nan, "_few": False}  # fmt: skip
     e = contrast([t for t in terms if t is not None], reps, rng=rng, bounded=bounded)
-    n_seeds = len({s for t in terms if t is not None and t.seeds is not None for s in t.seeds}) or 1
     few = any(t is not None and t.seeds is None and is_learned for t, is_learned in zip(terms, learned))
-    n_layouts = min(len(t.layouts) for t in terms if t is not None)  # as contrast() counts them
-    return {"estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": math.nan if few else e.p, "seeds": n_seeds,
-            "layouts": n_layouts, "var_seed": e.var_seed, "var_layout": e.var_layout, "_few": few}  # fmt: skip
+    return {"estimate": e.estimate, "lo": e.lo, "hi": e.hi, "p": math.nan if few else e.p, "seeds": e.seeds or 1,
+            "layouts": e.layouts, "var_seed": e.var_seed, "var_layout": e.var_layout, "_few": few}  # fmt: skip
 
 
 def holm_verdicts(df: pd.DataFrame, family: str) -> pd.DataFrame:
