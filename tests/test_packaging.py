@@ -175,3 +175,16 @@ def test_every_relative_link_in_the_docs_resolves(repo_root):
                 if anchor not in _anchors(path):
                     broken.append(f"{page.relative_to(repo_root)} -> {target} (no such heading)")
     assert checked >= 15 and anchored >= 10 and broken == [], broken
+
+
+def test_user_docs_keep_lines_within_120_characters(repo_root):
+    """The README and the user pages of docs/ (not the lab notes in docs/history/) wrap prose at 120 characters.
+    Table rows are exempt (a Markdown row cannot wrap), and so is a line that is one unbreakable token (a long link)."""
+    pages = [repo_root / "README.md", *sorted((repo_root / "docs").glob("*.md"))]
+    long = [
+        f"{page.relative_to(repo_root)}:{i} ({len(line)} characters)"
+        for page in pages
+        for i, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1)
+        if len(line) > 120 and not line.lstrip().startswith("|") and " " in line.strip()
+    ]
+    assert len(pages) >= 10 and long == [], long
