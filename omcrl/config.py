@@ -136,8 +136,10 @@ class DataConfig:
     random_corr: float = _f(0.9, lo=0.0, hi=0.9999, doc="AR(1) correlation of random exploration actions")
     max_steps: int = _f(200, lo=1, hi=100000, doc="cap on steps per collected episode")
     file: str = _f(
-        "data/{preset}/box.h5",
-        doc="HDF5 path; {preset} is substituted (a location: the data's content is fingerprinted instead)",
+        "data/{preset}/box-seed{seed}.h5",
+        doc="HDF5 path; {preset} and {seed} are substituted (a location: the data's content is fingerprinted "
+        "instead). The collection is seeded by the training seed, so each seed has its own file; a path without "
+        "{seed} is shared by every seed and holds the data of the seed that collected it first",
         execution=True,
     )
     look: str = _f(
@@ -351,13 +353,14 @@ class Config:
 
     @property
     def data_path(self) -> Path:
-        """The pretraining data file: ``data.file`` with ``{preset}`` substituted, absolute (see
+        """The pretraining data file: ``data.file`` with ``{preset}`` and ``{seed}`` substituted, absolute (see
         :func:`project_root`)."""
-        path = resolve_path(self.data.file.format(preset=self.preset))
+        path = resolve_path(self.data.file.format(preset=self.preset, seed=self.seed))
         if self.data.look != "own":  # another look is other data: never the same file as the default's
             path = path.with_name(f"{path.stem}-{self.data.look}{path.suffix}")
-        if self.data.policy == "oracle":  # flown partly by this seed's oracle: one file per seed
-            path = path.with_name(f"{path.stem}-oracle-seed{self.seed}{path.suffix}")
+        if self.data.policy == "oracle":  # flown partly by this seed's oracle: one file per seed, whatever the path
+            per_seed = "" if "{seed}" in self.data.file else f"-seed{self.seed}"
+            path = path.with_name(f"{path.stem}-oracle{per_seed}{path.suffix}")
         return path
 
     def with_seed(self, seed: int) -> Config:
@@ -550,10 +553,11 @@ def validate(cfg: Config) -> Config:
     if not str(cfg.results_dir).strip():
         raise ConfigError("config field 'results_dir': got '', expected a folder (default 'results')")
     try:
-        cfg.data.file.format(preset=cfg.preset)
+        cfg.data.file.format(preset=cfg.preset, seed=cfg.seed)
     except (KeyError, IndexError, ValueError) as e:
         raise ConfigError(
-            f"config field 'data.file': got {show(cfg.data.file)}, the only placeholder allowed is {{preset}} ({e!r})"
+            f"config field 'data.file': got {show(cfg.data.file)}, the only placeholders allowed are {{preset}} and "
+            f"{{seed}} ({e!r})"
         ) from None
     if cfg.pretrain.crop_to > cfg.pretrain.crop_from:
         raise ConfigError(

@@ -151,3 +151,27 @@ def test_data_policy_oracle_needs_a_policy_share_and_keeps_default_keys():
     # At its neutral default the new field leaves existing runs' keys alone.
     base = load_config("quick")
     assert "policy" not in pretrain_run(base).identity["data"]
+
+
+def test_each_training_seed_pretrains_on_data_of_its_own():
+    """The collection is seeded by the training seed, so the default data file names it: a file shared by every
+    seed held whichever seed collected it first (the v2 grid's seed 3 pretrained on seed 2's data that way)."""
+    from omcrl.pipeline.plan import sweep_plan
+    from omcrl.pretrain.train import pretrain_run
+
+    cfg = load_config("quick")
+    paths = {cfg.with_seed(k).data_path for k in range(5)}
+    assert len(paths) == 5 and cfg.with_seed(3).data_path.name == "box-seed3.h5"
+    # A location, not identity: the run key is the same whatever the file is called.
+    moved = cfg.with_overrides(["data.file=elsewhere/box.h5"])
+    assert pretrain_run(moved).key == pretrain_run(cfg).key
+    # A path without {seed} is one file for every seed (the user's choice); the oracle's data is per seed anyway.
+    assert moved.with_seed(1).data_path == moved.with_seed(2).data_path
+    oracle = cfg.with_overrides(["data.policy=oracle", "data.mix={pilot: 0.5, random: 0.2, policy: 0.3}"])
+    assert oracle.with_seed(2).data_path.name == "box-seed2-oracle.h5"
+    # A sweep over seeds collects once per seed, the budget ladder too (at each of its scales).
+    for grid in ("table1", "ladder-pretrain"):
+        plan = sweep_plan(cfg, [grid], [0, 1, 2])
+        collect = plan[plan["kind"] == "collect"]
+        per_scale = 1 if grid == "table1" else 2
+        assert len(collect) == 3 * per_scale and collect["id"].is_unique, collect["id"].tolist()

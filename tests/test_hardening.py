@@ -194,7 +194,7 @@ def test_texture_cache_location_errors_and_fallback(tmp_path, monkeypatch):
     [
         ("env.goal_distance=[3,", r"'env.goal_distance=\[3,'.*not valid YAML"),
         ("data.mix={pilot: abc}", r"'data.mix'.*non-negative numbers"),
-        ("data.file=data/{foo}.h5", r"'data.file'.*only placeholder allowed is \{preset\}"),
+        ("data.file=data/{foo}.h5", r"'data.file'.*only placeholders allowed are \{preset\} and \{seed\}"),
         ("eval.scenes=[]", r"'eval.scenes'.*at least one"),
         ("env.goal_reward=.inf", r"'env.goal_reward'.*finite number"),
         ("env.goal_distance=[6,3]", r"'env.goal_distance'.*min <= max"),

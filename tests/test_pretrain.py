@@ -200,6 +200,7 @@ def test_run_outputs_cache_and_artifact(data, tmp_path):
     record = json.loads((r.run_dir / "run.json").read_text())
     assert record["artifact_digest"] == file_digest(r.encoder_path) and record["iterations"] == 6
     assert record["dataset_fingerprint"] == open_dataset(data).fingerprint
+    assert record["dataset"] == str(data)  # the data it was made of, not its last checkpoint (a loop variable did)
     df = pd.read_csv(r.metrics_path)
     assert list(df.columns) == ["step", "metric", "value"]
     assert set(df.metric) >= {"loss", "accuracy", "lr_encoder", "lr_transformer"}

@@ -373,7 +373,7 @@ def test_remedy_grids_run_at_full_budget_beside_the_table1_student():
     assert f"pretrain:{pretrain_run(encoder_config(cfg, 'ours')).dir}" in ids
     assert all(not any(o.startswith(("rl.total_steps", "pretrain.iterations")) for o in j.overrides) for j in jobs)
     (x3,) = [j for j in jobs if j.kind == "collect" and j.overrides]
-    assert x3.id.endswith("box-x3.h5")
+    assert x3.id.endswith("box-x3-seed0.h5")
     assert len(pre) == 2 and sum(j.kind == "train" and j.method == "oracle" for j in jobs) == 1
     # The paper's d changes the oracle's width too: that remedy needs its own oracle.
     d = expand(cfg, "remedy-d", [0])
@@ -384,8 +384,8 @@ def test_remedy_grids_run_at_full_budget_beside_the_table1_student():
     oracles = {j.seed: j.id for j in pol if j.kind == "train" and j.method == "oracle"}
     flown = [j for j in pol if j.kind == "collect" and j.overrides]
     assert len(oracles) == 2 and sorted(j.id.rsplit("/", 1)[1] for j in flown) == [
-        "box-oracle-seed0.h5",
-        "box-oracle-seed1.h5",
+        "box-seed0-oracle.h5",
+        "box-seed1-oracle.h5",
     ]
     for j in flown:
         assert j.deps == (oracles[j.seed],) and order.index(oracles[j.seed]) < order.index(j.id)
@@ -638,7 +638,7 @@ def test_the_budget_ladder_scales_pretraining_data_and_warmup_together_and_rl_wi
     x16 = next(j for j in jobs if j.kind == "pretrain" and "curl" in j.id and any("x16" in o for o in j.overrides))
     cfg = job_config(base, x16.overrides, 0)
     assert cfg.pretrain.iterations == 16 * base.pretrain.iterations
-    assert cfg.data.episodes == 16 * base.data.episodes and cfg.data.file.endswith("box-x16.h5")
+    assert cfg.data.episodes == 16 * base.data.episodes and cfg.data_path.name == "box-x16-seed0.h5"
     assert cfg.pretrain.warmup_steps == 16 * base.pretrain.warmup_steps
     # Every ladder student trains at the preset's RL budget, and its oracle is Table I's (one oracle per seed).
     assert {j.id for j in jobs if j.method == "oracle"} == {j.id for j in expand(base, "table1", [0]) if

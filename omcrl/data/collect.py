@@ -1,8 +1,10 @@
 """Collect trajectory data for upstream pretraining (paper IV-B "Data Collection", V-D).
 
 ``collect_dataset(cfg, policy=None) -> CollectResult`` flies ``cfg.data.episodes`` episodes in ``cfg.data.scene`` with a
-mix of behaviour sources and appends them to the HDF5 file ``cfg.data.file`` (``{preset}`` substituted, a
-relative path is taken from the current directory — the repository root for the CLI and the notebooks).
+mix of behaviour sources and appends them to the HDF5 file ``cfg.data.file`` (``{preset}`` and ``{seed}``
+substituted, a relative path is taken from the current directory — the repository root for the CLI and the
+notebooks). What is flown depends on ``cfg.seed``, so the default path names the seed: every training seed
+pretrains on data of its own.
 
 Sources (proportions ``cfg.data.mix``)
 --------------------------------------
@@ -99,7 +101,7 @@ class CollectResult:
 
 
 def dataset_path(cfg: Config) -> Path:
-    """``cfg.data.file`` with ``{preset}`` substituted (:attr:`omcrl.config.Config.data_path`)."""
+    """``cfg.data.file`` with ``{preset}`` and ``{seed}`` substituted (:attr:`omcrl.config.Config.data_path`)."""
     return cfg.data_path
 
 

@@ -67,7 +67,7 @@ GRIDS: dict[str, tuple[Variant, ...]] = {
 # the last two are deviations (docs/method.md: Randomized looks, Colour jitter). ``*=`` scales the preset's value
 # (:func:`omcrl.pipeline.plan.job_config`).
 REMEDY_VARIANTS: dict[str, Variant] = {
-    "remedy-data": Variant("box data x3", "ours", ("data.episodes*=3", "data.file=data/{preset}/box-x3.h5")),
+    "remedy-data": Variant("box data x3", "ours", ("data.episodes*=3", "data.file=data/{preset}/box-x3-seed{seed}.h5")),
     "remedy-budget": Variant("pretraining x3", "ours", ("pretrain.iterations*=3",)),
     # Masked top-1 still rises at x3 (docs/history/generalization-investigation.md, remedy 5): is a longer
     # pretraining the fix?
@@ -134,9 +134,10 @@ GRIDS["table1"] = tuple(
 
 # The budget ladder (does a verdict move with scale?). Pretraining: the OMC and CURL encoders at x4 and x16 of the
 # preset's pretraining, dataset episodes, iterations and the Transformer's warm-up scaled together (each scale its
-# own dataset file), with the frozen-encoder students at the preset's RL budget; the x1 points are Table I's runs.
+# own dataset file, one per seed as at x1), with the frozen-encoder students at the preset's RL budget; the x1
+# points are Table I's runs.
 def _pretrain_scale(k: int) -> tuple[str, ...]:
-    return (f"data.episodes*={k}", f"data.file=data/{{preset}}/box-x{k}.h5", f"pretrain.iterations*={k}",
+    return (f"data.episodes*={k}", f"data.file=data/{{preset}}/box-x{k}-seed{{seed}}.h5", f"pretrain.iterations*={k}",
             f"pretrain.warmup_steps*={k}")  # fmt: skip
 
 

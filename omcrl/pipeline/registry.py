@@ -71,8 +71,8 @@ STAGE_OUTPUTS: dict[str, str] = {
     "config": "writes nothing; prints the config that --preset, --config and --set give",
     "notebooks": "executed/<notebook>.ipynb, executed/wall_times.json and peak_rss_mb.json, then summary.md; "
     "default: every notebook 00-09 in order (--only / --skip choose)",
-    "collect": "the HDF5 dataset data.file (default data/<preset>/box.h5); default: the box scene, the preset's "
-    "episode count, the scripted pilot (data.policy)",
+    "collect": "the HDF5 dataset data.file (default data/<preset>/box-seed<k>.h5); default: the box scene, the "
+    "preset's episode count, the scripted pilot (data.policy)",
     "pretrain": "runs/pretrain/<variant>-<key>/seed<k>/ (encoder.pt, run.json, metrics.csv, tb/); default: "
     "pretrain.method of the config (omc) at seed 0; a finished run of the same config is skipped",
     "oracle": "runs/rl/oracle-<key>/seed<k>/ (final.pt, run.json, metrics.csv, tb/); default seed 0; a finished "

@@ -95,7 +95,7 @@ def encoder_path(cfg: Config) -> Path:
 
 
 def default_dataset_path(cfg: Config) -> Path:
-    """``cfg.data.file`` with ``{preset}`` substituted (:attr:`omcrl.config.Config.data_path`)."""
+    """``cfg.data.file`` with ``{preset}`` and ``{seed}`` substituted (:attr:`omcrl.config.Config.data_path`)."""
     return cfg.data_path
 
 
@@ -129,7 +129,7 @@ def pretrain_encoder(
     ----------
     cfg : resolved configuration (``cfg.env.frame_stack`` is L; ``cfg.pretrain.crop_from`` must equal the
         dataset's image size).
-    dataset_path : HDF5 trajectory file; default ``cfg.data.file`` with ``{preset}`` substituted.
+    dataset_path : HDF5 trajectory file; default ``cfg.data.file`` with ``{preset}`` and ``{seed}`` substituted.
     progress : show progress (:class:`omcrl.utils.progress.Progress`).
     stop_after : stop after this iteration without finishing (simulates an interruption; for tests).
     """
@@ -244,7 +244,7 @@ def pretrain_encoder(
                 bar.update(1, loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
                 # Checkpoints also at the end: the encoder can be rebuilt from the final one.
                 if it >= p.iterations or checkpoint_due(it - 1, it, p.checkpoint_every):
-                    path = run_rec.save(
+                    ckpt = run_rec.save(
                         {
                             "step": it,
                             **made_of,
@@ -256,7 +256,7 @@ def pretrain_encoder(
                         }
                     )
                     for cb in callbacks:
-                        cb.on_checkpoint(run_rec, it, path)
+                        cb.on_checkpoint(run_rec, it, ckpt)
                 if not keep_going(callbacks, run_rec, it, row) and it < p.iterations:
                     break
         finally:
