@@ -105,7 +105,7 @@ def test_paths_resolve_from_the_repository_root_wherever_the_kernel_runs(repo_ro
     assert outs[0] == outs[1] == outs[2]
     run_root, data = (Path(x) for x in outs[0].split())
     assert run_root == repo_root.resolve() / "results" / "smoke"
-    assert data == repo_root.resolve() / "data" / "smoke" / "box.h5"
+    assert data == repo_root.resolve() / "data" / "smoke" / "box-seed0.h5"
     moved = subprocess.run(
         [sys.executable, "-c", _PATHS],
         cwd=tmp_path,
