@@ -86,6 +86,7 @@ ship() {  # $1: what finished
     mkdir -p "$root/$sub"
     cp -a "$src". "$root/$sub"
     git -C "$root" add -- "$sub"
+    drop_stale_copies "$sub"
     if ! git -C "$root" diff --cached --quiet -- "$sub"; then
       # Name what the commit holds (<variant>/seed<k>), not only what just ran: a variant interrupted by the end of
       # an earlier session may have recorded its pretraining there, and it is shipped with whatever runs next.
@@ -98,6 +99,22 @@ ship() {  # $1: what finished
   done
   release "$1"
   summary "$1"
+}
+
+drop_stale_copies() {  # $1: a folder staged here; unstages the files that come back as they were when removed
+  # A record taken out of this checkout on purpose (a run found wrong) may still lie untracked in the worktree, which
+  # would ship it back byte for byte. A file staged as new whose content is the blob its deletion removed is such a
+  # copy: it is unstaged and deleted in both places, with a line. A record trained again differs and is kept.
+  local f gone
+  while IFS= read -r f; do
+    gone="$(git -C "$root" rev-list -n 1 HEAD -- "$f")"
+    [[ -n "$gone" ]] || continue
+    if [[ "$(git -C "$root" rev-parse -q --verify "$gone^:$f" 2>/dev/null || true)" == "$(git -C "$root" rev-parse ":$f")" ]]; then
+      echo "grid_session: $f is the copy of what ${gone:0:7} removed: not shipped, and removed from the worktree"
+      git -C "$root" rm -q --cached -- "$f"
+      rm -f -- "${root:?}/$f" "${dir:?}/$f"
+    fi
+  done < <(git -C "$root" diff --cached --name-only --diff-filter=A -- "$1")
 }
 
 summary() {  # $1: after what; rebuilds and commits the generated blocks (README, results, generalization) and figures
