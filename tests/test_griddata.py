@@ -37,6 +37,14 @@ def test_a_grid_is_recorded_resumed_from_its_records_and_rebuilt_without_trainin
     times = pd.read_csv(record.root / "jobs.csv")
     assert len(times) == 6 and (times["seconds"] > 0).all() and not times["id"].str.contains(str(tmp_path)).any()
     assert times["id"].str.contains("<results>/smoke/runs/").any()
+    # How each recorded run was trained: its logged training time, its stretches, its machine, what it was made of.
+    acc = record.account()
+    rl, pre = acc[acc["stage"] == "rl"].set_index("label"), acc[acc["stage"] == "pretrain"]
+    assert set(rl.index) == {"Ours_w_o_OT", "PPO"} and (rl["train_s"] > 0).all() and (rl["segments"] == 1).all()
+    assert (
+        len(pre) == 1 and rl.loc["Ours_w_o_OT", "encoder"] == pre["artifact"].iloc[0] and pre["dataset"].notna().all()
+    )
+    assert rl["encoder"].isna()["PPO"] and (rl["cpu"] != "").all()
     # A second machine with the checkout's records only: nothing to run, the same rows read back.
     monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-b"))
     (tmp_path / "machine-b" / "reference").mkdir(parents=True)

@@ -333,6 +333,7 @@ def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tup
         full = "\n".join(
             [
                 *_progress_md(cfg),
+                *_account_md(cfg),
                 "",
                 Path(res.paths["md"]).read_text(encoding="utf-8").strip(),
                 "",
@@ -369,6 +370,57 @@ def _progress_md(cfg: Any, seeds: int = 5) -> list[str]:
     ]
     lines += [f"| {METHODS[m].label} | " + " | ".join("✓" if x else "" for x in p.loc[m]) + " |" for m in p.index]
     return lines
+
+
+def _account_md(cfg: Any) -> list[str]:
+    """Markdown lines: how the grid's recorded runs were trained (:meth:`GridData.account`), what they reused, and
+    the pretraining and evaluation time its ``jobs.csv`` measured."""
+    record = GridData(grid_data_dir(cfg, "table1"))
+    a = record.account()
+    if a.empty:
+        return []
+    rl = a[a["stage"] == "rl"]
+    kind = rl["method"].map(lambda m: METHODS[m].features if m in METHODS else "other")
+    hours = (rl.groupby(kind)["train_s"].sum() / 3600).round(1)
+    text = (
+        f"**How the grid ran** (from its run records): {len(rl)} training runs recorded, "
+        f"{rl['train_s'].sum() / 3600:.1f} machine-hours of RL training (each run's logged rollout and update time: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in hours.items())
+        + ")"
+    )
+    jobs_csv = record.root / "jobs.csv"
+    if jobs_csv.is_file():
+        jobs = pd.read_csv(jobs_csv)
+        done = jobs[jobs["status"] == "done"].groupby("kind")["seconds"].agg(["sum", "size"])
+        names = {"pretrain": "pretraining", "evaluate": "evaluation"}
+        parts = [f"{name} {done.loc[k, 'sum'] / 3600:.1f} h ({int(done.loc[k, 'size'])} jobs)"
+                 for k, name in names.items() if k in done.index]  # fmt: skip
+        if parts:
+            text += "; as the grid's jobs.csv timed them, " + " and ".join(parts)
+    students = rl.dropna(subset=["encoder"])
+    if len(students):
+        sharing = students.groupby("encoder")["label"].agg(lambda x: ", ".join(sorted(set(x)))).value_counts()
+        text += (
+            f". Reused: {students['encoder'].nunique()} encoders serve {len(students)} frozen-encoder students ("
+            + "; ".join(
+                f"{'one serves ' if ',' in labels else 'one for '}{labels} at {n} seed{'s' * (n > 1)}"
+                for labels, n in sharing.items()
+            )
+            + ")"
+        )
+    taught = rl.dropna(subset=["oracle"])
+    if len(taught):
+        text += f", {int((rl['method'] == 'oracle').sum())} oracles teach {len(taught)} students"
+    text += ", and the planners fly once"
+    seg = rl["segments"].dropna()
+    if len(seg):
+        text += (
+            f". Resumed after a stop: {int((seg > 1).sum())} of the {len(seg)} runs that record their stretches of "
+            "training (kept since 2026-12-05)"
+        )
+    cpu = rl["cpu"].replace("", "not recorded").value_counts()
+    text += ". Machines per run (torch's CPU capability): " + ", ".join(f"{k} {n}" for k, n in cpu.items()) + "."
+    return ["", _wrap(text)]
 
 
 def _changes_md(verdicts: pd.DataFrame, preset: str) -> list[str]:

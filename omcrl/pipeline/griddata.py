@@ -45,7 +45,7 @@ from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
 from omcrl.pipeline.reference import config_suite
 from omcrl.pipeline.released import POINTER, available, read_kept, release
-from omcrl.runs import ArtifactMismatch, CorruptFile, Run, read_identity, verify_artifact
+from omcrl.runs import ArtifactMismatch, CorruptFile, Run, read_identity, read_metrics, verify_artifact
 from omcrl.utils.io import atomic_write_bytes, bytes_digest
 from omcrl.viz import save_figure
 from omcrl.viz.compare import curve_window, plot_learning_curves
@@ -230,6 +230,37 @@ class GridData:
             label, seed = p.parent.parent.parent.name, int(p.parent.parent.name.removeprefix("seed"))
             out.setdefault(label, {})[seed] = p
         return out
+
+    def account(self) -> pd.DataFrame:
+        """How the recorded runs were trained: one row per run record (``<label>/seed<k>/<stage>/run.json``).
+
+        Columns: ``label, seed, stage`` (``pretrain`` or ``rl``), ``method, key, artifact`` (the digest of what it
+        wrote), ``encoder, oracle`` (digests of the encoder and teacher it was made of; None where it has none),
+        ``dataset`` (a pretraining's dataset fingerprint), ``segments`` (stretches of RL training: 1, plus one per
+        resume; NaN for runs recorded before runs kept them), ``cpu`` (the ``cpu_capability`` of each machine that
+        trained a part of it, joined; ``""`` where not recorded) and ``train_s`` (seconds of rollout and update an
+        RL run's metrics logged, start-up and evaluation left out; NaN for pretraining). An encoder serving several
+        labels is a row under each.
+        """
+        rows = []
+        for rec in sorted(self.root.glob("*/seed*/*/run.json")):
+            run = read_identity(rec.parent) or {}
+            ident = run.get("identity") or {}
+            stage = rec.parent.name
+            train_s = float("nan")
+            if stage == "rl" and (rec.parent / "metrics.csv.gz").is_file():
+                m = read_metrics(rec.parent / "metrics.csv.gz")
+                train_s = float(m.loc[m["metric"].isin(["rollout_s", "update_s"]), "value"].sum())
+            rows.append({
+                "label": rec.parents[2].name, "seed": int(rec.parents[1].name.removeprefix("seed")), "stage": stage,
+                "method": run.get("method"), "key": run.get("key"), "artifact": run.get("artifact_digest"),
+                "encoder": ident.get("encoder_digest") or None, "oracle": ident.get("oracle_digest") or None,
+                "dataset": run.get("dataset_fingerprint"),
+                "segments": len(run["segments"]) if "segments" in run else float("nan"),
+                "cpu": ",".join(sorted({str(x.get("cpu_capability")) for x in run.get("machines") or []})),
+                "train_s": train_s,
+            })  # fmt: skip
+        return pd.DataFrame(rows)
 
     def progress(self, labels: Iterable[str], seeds: Iterable[int]) -> pd.DataFrame:
         """``(label × seed)`` booleans: which evaluations are recorded (the grid's progress)."""
