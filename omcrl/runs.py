@@ -442,6 +442,12 @@ def read_metrics(path: str | Path) -> Any:
     return df
 
 
+def training_seconds(metrics: Any) -> float:
+    """Seconds of training a PPO run's metrics (:func:`read_metrics`) logged: the sum of its updates' ``rollout_s``
+    and ``update_s`` (start-up and evaluation left out; 0 when none are logged)."""
+    return float(metrics.loc[metrics["metric"].isin(["rollout_s", "update_s"]), "value"].sum())
+
+
 def metric_series(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``{metric: (steps, values)}`` from a tidy metrics file, each sorted by step."""
     df = read_metrics(path)

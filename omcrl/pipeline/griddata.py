@@ -45,7 +45,15 @@ from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
 from omcrl.pipeline.reference import config_suite
 from omcrl.pipeline.released import POINTER, available, read_kept, release
-from omcrl.runs import ArtifactMismatch, CorruptFile, Run, read_identity, read_metrics, verify_artifact
+from omcrl.runs import (
+    ArtifactMismatch,
+    CorruptFile,
+    Run,
+    read_identity,
+    read_metrics,
+    training_seconds,
+    verify_artifact,
+)
 from omcrl.utils.io import atomic_write_bytes, bytes_digest
 from omcrl.viz import save_figure
 from omcrl.viz.compare import curve_window, plot_learning_curves
@@ -249,8 +257,7 @@ class GridData:
             stage = rec.parent.name
             train_s = float("nan")
             if stage == "rl" and (rec.parent / "metrics.csv.gz").is_file():
-                m = read_metrics(rec.parent / "metrics.csv.gz")
-                train_s = float(m.loc[m["metric"].isin(["rollout_s", "update_s"]), "value"].sum())
+                train_s = training_seconds(read_metrics(rec.parent / "metrics.csv.gz"))
             rows.append({
                 "label": rec.parents[2].name, "seed": int(rec.parents[1].name.removeprefix("seed")), "stage": stage,
                 "method": run.get("method"), "key": run.get("key"), "artifact": run.get("artifact_digest"),

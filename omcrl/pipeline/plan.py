@@ -24,7 +24,7 @@ from omcrl.pipeline.notebooks import overrides_from_config
 from omcrl.pretrain.train import pretrain_run
 from omcrl.rl.methods import encoder_config, get_method
 from omcrl.rl.train import oracle_run
-from omcrl.runs import read_identity, read_metrics
+from omcrl.runs import read_identity, read_metrics, training_seconds
 from omcrl.utils.runtime import cpu_count
 
 KINDS = ("collect", "pretrain", "train", "evaluate")
@@ -337,7 +337,7 @@ def recorded_training_times(grid_dir: Path) -> list[dict]:
     for path in sorted(grid_dir.glob("*/seed*/rl/metrics.csv.gz")):
         rec = read_identity(path.parent) or {}
         m = read_metrics(path)
-        seconds = m.loc[m["metric"].isin(["rollout_s", "update_s"]), "value"].sum()
+        seconds = training_seconds(m)
         if seconds <= 0 or rec.get("method") is None:
             continue
         key = f"train:{get_method(rec['method']).features}"
