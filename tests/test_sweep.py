@@ -663,3 +663,26 @@ def test_a_resumed_training_is_timed_against_the_steps_it_trained(tmp_path):
     sweep._record_job_times(cfg, res, path)
     work = pd.read_csv(path).set_index("id")["work"]
     assert work[fresh.id] == cfg.rl.total_steps and work[resumed.id] == cfg.rl.total_steps - 384
+
+
+def test_the_plan_prices_a_machine_to_itself_at_the_upper_quartile_of_measured_rates(tmp_path, monkeypatch):
+    """Jobs that shared the machine ran slower than jobs alone: the median rate prices the first, the upper quartile
+    the second, and the plan says both (a range, not one figure)."""
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    grid = tmp_path / "reference" / "smoke" / "g-v2"
+    grid.mkdir(parents=True)
+    seconds = [10.0, 10.0, 20.0, 20.0, 20.0]
+    rows = [{"id": f"train:{k}", "kind": "train", "method": "ours", "seed": 0, "status": "done", "seconds": s,
+             "rate_key": "train:frozen", "work": 1000} for k, s in enumerate(seconds)]  # fmt: skip
+    pd.DataFrame(rows).to_csv(grid / "jobs.csv", index=False)
+    cfg = load_config("smoke")
+    rates = planning.measured_rates(cfg).set_index("rate_key").loc["train:frozen"]
+    assert rates["rate"] == pytest.approx(50) and rates["rate_fast"] == pytest.approx(100)
+    median = {"collect": 1.0, "pretrain": 1.0, "train:frozen": 50.0, "train:oracle": 50.0, "train:pixel": 50.0,
+              "evaluate": 1.0}  # fmt: skip
+    fast = {k: 2 * v for k, v in median.items()}
+    text = planning.describe_plan(cfg, ["smoke"], [0], median, fast_rates=fast)
+    hours = [float(line.split(": ")[1].split(" machine-hours")[0]) for line in text.splitlines()
+             if "on 1 machine(s)" in line or "upper quartile" in line]  # fmt: skip
+    assert len(hours) == 2 and hours[1] == pytest.approx(hours[0] / 2, rel=0.02)
+    assert "upper quartile" not in planning.describe_plan(cfg, ["smoke"], [0], median)

@@ -300,7 +300,9 @@ def measured_rates(cfg: Config, grids: Sequence[str] | None = None) -> pd.DataFr
     ``jobs.csv`` committed beside each grid's data (``reference/<preset>/<grid>-<suite>/``, so a fresh checkout has
     the rates its grids measured); cached jobs are left out. A training kind that no ``jobs.csv`` measured is rated
     from the recorded runs' own clocks (:func:`recorded_training_times`). Returns one row per ``rate_key``: ``jobs``,
-    ``median_s`` (per job), ``rate`` (median of work / seconds).
+    ``median_s`` (per job), ``rate`` (median of work / seconds) and ``rate_fast`` (its upper quartile: jobs that
+    shared the machine with another ran at a fraction of the rate of one that had it alone, so the median prices a
+    run beside other work and the upper quartile one alone).
     """
     root, shipped = cfg.run_root / "sweeps", project_root() / "reference" / cfg.preset
     files = [root / g / "jobs.csv" for g in grids] if grids else sorted(root.glob("*/jobs.csv"))
@@ -316,9 +318,12 @@ def measured_rates(cfg: Config, grids: Sequence[str] | None = None) -> pd.DataFr
     )
     df = pd.concat([df, own[~own["rate_key"].isin(set(df["rate_key"]))].drop_duplicates("id")])
     if df.empty:
-        return pd.DataFrame(columns=["rate_key", "jobs", "median_s", "rate"])
+        return pd.DataFrame(columns=["rate_key", "jobs", "median_s", "rate", "rate_fast"])
     df = df.assign(rate=df["work"] / df["seconds"])
-    out = df.groupby("rate_key").agg(jobs=("id", "size"), median_s=("seconds", "median"), rate=("rate", "median"))
+    out = df.groupby("rate_key").agg(
+        jobs=("id", "size"), median_s=("seconds", "median"), rate=("rate", "median"),
+        rate_fast=("rate", lambda r: r.quantile(0.75)),
+    )  # fmt: skip
     return out.reset_index()
 
 
@@ -354,11 +359,14 @@ def describe_plan(
     nodes: Sequence[int] = (1, 4, 16),
     recorded: Collection[str] = (),
     only: Collection[str] | None = None,
+    fast_rates: dict[str, float] | None = None,
 ) -> str:
     """A plain-text account of :func:`sweep_plan`: jobs and work per kind, what the main comparison already ran,
     and, with ``rates`` (units/s per rate_key on one machine), :func:`sweep_cost` on each number of ``nodes``.
     ``recorded``: ids of jobs whose results the checkout already keeps (``--to-reference``); they are left out.
-    ``only``: the ids of the jobs to count (``--variants``); None: every job of the grids."""
+    ``only``: the ids of the jobs to count (``--variants``); None: every job of the grids. ``fast_rates``: the
+    same keys at the rate of a machine to itself (:func:`measured_rates`' ``rate_fast``): one more line, the cost
+    on one machine at those rates, so the plan gives a range rather than one figure."""
     plan = sweep_plan(cfg, grids, seeds)
     if only is not None:
         plan = plan[plan["id"].isin(list(only))]
@@ -398,6 +406,12 @@ def describe_plan(
             c = sweep_cost(new, rates, n)
             lines.append(
                 f"  on {n} machine(s): {c['machine_hours']:.1f} machine-hours, {c['wall_hours']:.1f} h wall ({which})"
+            )
+        if fast_rates and set(new["rate_key"]) <= set(fast_rates):
+            c = sweep_cost(new, fast_rates, 1)
+            lines.append(
+                f"  at the upper quartile of the measured rates (a machine to itself): {c['machine_hours']:.1f} "
+                "machine-hours on 1 machine"
             )
     else:
         lines.append(

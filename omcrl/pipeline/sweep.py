@@ -731,6 +731,7 @@ def sweep_stage(
             return "no teacher weights to release (none kept, a student still to record, or not yet committed)"
         return "\n".join(["released teacher weights (now read from git history):", *map(str, released)])
     if plan:
+        fast = None
         if rates is not None:
             r = json.loads(Path(rates).read_text(encoding="utf-8"))
             if not isinstance(r, dict) or not all(isinstance(v, int | float) and v > 0 for v in r.values()):
@@ -738,6 +739,7 @@ def sweep_stage(
         else:
             m = measured_rates(cfg)
             r = dict(zip(m["rate_key"], m["rate"], strict=True)) or None
+            fast = dict(zip(m["rate_key"], m["rate_fast"], strict=True)) or None
         recorded: set[str] = set()
         variants = kw.get("variants")
         only = None if variants is None else {j.id for g in grids for j in only_variants(expand(cfg, g, seeds),
@@ -749,7 +751,7 @@ def sweep_stage(
                 seed = {j.id: j.seed for j in jobs}
                 kept = {j for j, label in teachers.items() if record.has_weights(label, seed[j], "rl")}
                 recorded |= _recorded(jobs, record) | kept
-        return describe_plan(cfg, grids, seeds, r, recorded=recorded, only=only)
+        return describe_plan(cfg, grids, seeds, r, recorded=recorded, only=only, fast_rates=fast)
     out = run_ablations(cfg, grids, seeds, progress=progress, **kw)
     text = "\n".join(repr(v["result"]) for v in out.values())
     bad = {g: v["result"].counts() for g, v in out.items() if set(v["result"].status.values()) & {"failed", "blocked"}}
