@@ -402,10 +402,7 @@ def _account_md(cfg: Any) -> list[str]:
         sharing = students.groupby("encoder")["label"].agg(lambda x: ", ".join(sorted(set(x)))).value_counts()
         text += (
             f". Reused: {students['encoder'].nunique()} encoders serve {len(students)} frozen-encoder students ("
-            + "; ".join(
-                f"{'one serves ' if ',' in labels else 'one for '}{labels} at {n} seed{'s' * (n > 1)}"
-                for labels, n in sharing.items()
-            )
+            + "; ".join(_sharing_words(labels.split(", "), n) for labels, n in sharing.sort_index(key=_shared).items())
             + ")"
         )
     taught = rl.dropna(subset=["oracle"])
@@ -421,6 +418,19 @@ def _account_md(cfg: Any) -> list[str]:
     cpu = rl["cpu"].replace("", "not recorded").value_counts()
     text += ". Machines per run (torch's CPU capability): " + ", ".join(f"{k} {n}" for k, n in cpu.items()) + "."
     return ["", _wrap(text)]
+
+
+def _shared(labels: pd.Index) -> pd.Index:
+    """Sort key: encoders that serve several students first."""
+    return labels.map(lambda x: "," not in x)
+
+
+def _sharing_words(labels: list[str], seeds: int) -> str:
+    """'at each of 4 seeds one encoder serves a, b and c' or 'curl has its own at 4 seeds'."""
+    at = f"{seeds} seed{'s' * (seeds > 1)}"
+    if len(labels) == 1:
+        return f"{labels[0]} has its own at {at}"
+    return f"at each of {at} one encoder serves {', '.join(labels[:-1])} and {labels[-1]}"
 
 
 def _changes_md(verdicts: pd.DataFrame, preset: str) -> list[str]:
