@@ -13,10 +13,12 @@ from omcrl.eval.verdicts import (
     _detectable,
     _holm,
     holm_verdicts,
+    layouts_to_decide,
     ledger_verdicts,
     seeds_to_decide,
     training_values,
     verdict_counts,
+    verdicts_markdown,
 )
 
 SCENES = ("box-v2", "furniture-v2", "barrier-v2", "tree-v2")
@@ -83,6 +85,36 @@ def test_seeds_to_decide():
     assert math.isnan(seeds_to_decide(0.0, 9.0, 4.0, 5))
     assert seeds_to_decide(10.0, 0.0, 1.0, 5) == 5  # no seed spread: the seeds it has
     assert math.isinf(seeds_to_decide(4.0, 0.0, 8.0, 1, layouts=50))  # a planner's row: only layouts would help
+
+
+def test_layouts_to_decide_where_no_number_of_seeds_would():
+    # A paired SR difference of 10 points whose layout part is 72 (SE 8.5 points at 50 layouts): no number of
+    # seeds decides it at a Bonferroni level of 38 rows; with the seed part gone, the layouts that would are the
+    # first n that clear the test (the layout part at 72 * 50 / n, n - 1 degrees of freedom) where n - 1 does not.
+    a = 0.05 / 38
+    assert math.isinf(seeds_to_decide(10.0, 20.0, 72.0, 4, a, layouts=50))
+    n = layouts_to_decide(10.0, 72.0, 50, a)
+    assert 50 < n < math.inf
+    assert _detectable(10.0, 0.0, 3600 / n, math.inf, n - 1, a) and not _detectable(
+        10.0, 0.0, 3600 / (n - 1), math.inf, n - 2, a
+    )
+    # Half the effect wants about four times the layouts; an effect the 50 layouts already resolve wants no more.
+    assert layouts_to_decide(5.0, 72.0, 50, a) / n == pytest.approx(4, rel=0.05)
+    assert layouts_to_decide(40.0, 72.0, 50, a) == 50
+    assert math.isnan(layouts_to_decide(0.0, 72.0, 50, a)) and math.isnan(layouts_to_decide(10.0, 72.0, None, a))
+    assert math.isnan(layouts_to_decide(10.0, 0.0, 50, a))
+
+
+def test_the_power_line_names_the_layouts_a_layout_bound_row_would_need():
+    row = {"claim": "E9", "family": "primary", "hypothesis": "ours > x on SR in tree-v2", "metric": "SR",
+           "scene": "tree-v2", "versus_scene": None, "a": "ours", "b": "x", "estimate": 10.0, "lo": -7.0, "hi": 27.0,
+           "p": 0.2, "seeds": 4, "layouts": 50, "var_seed": 20.0, "var_layout": 72.0, "_few": False}  # fmt: skip
+    decided = dict(row, hypothesis="ours > y on SR in tree-v2", estimate=60.0, lo=40.0, hi=80.0, p=1e-6)
+    df = holm_verdicts(pd.DataFrame([row, decided]), "family")
+    assert df["verdict"].tolist() == ["undecided", "holds"]
+    want = layouts_to_decide(10.0, 72.0, 50, 0.05 / 2)  # the family's Bonferroni level: two rows
+    assert df["layouts_to_decide"].iloc[0] == want and math.isnan(df["layouts_to_decide"].iloc[1])
+    assert f"none at these layouts; ≥ {int(want):,} layouts |" in verdicts_markdown(df)
 
 
 def test_the_power_line_counts_the_family_a_row_is_judged_in():

@@ -19,7 +19,8 @@ family of ``m`` judged rows (the strictest step of Holm's, so a row with that po
 give), two-sided, on the t distribution with the contrast's Satterthwaite degrees of freedom at that many seeds (the
 seed part shrinking as ``1 / n``, the layout part fixed: the same layouts are flown). With 3 seeds and the seed part
 alone, that t has 2 degrees of freedom: a normal approximation would promise decisions the test cannot give. When
-the layout part alone is too wide, no number of seeds does at these layouts, and the line says so.
+the layout part alone is too wide, no number of seeds does at these layouts: the line says so, with the layouts it
+would take if the seed part were gone (a lower bound).
 """
 
 from __future__ import annotations
@@ -44,7 +45,8 @@ ALPHA = 0.05
 POWER = 0.80
 MAX_SEEDS = 1_000_000  # a power line beyond this says "no number" as the layout-bound case does
 COLUMNS = ["claim", "family", "hypothesis", "metric", "scene", "versus_scene", "a", "b", "estimate", "lo", "hi",
-           "p", "p_holm", "verdict", "seeds", "seeds_to_decide", "var_seed", "var_layout"]  # fmt: skip
+           "p", "p_holm", "verdict", "seeds", "seeds_to_decide", "layouts_to_decide", "var_seed",
+           "var_layout"]  # fmt: skip
 
 
 def training_values(runs: Mapping[str, Mapping[int, str | Path]], metric: str) -> dict[str, dict[int, float]]:
@@ -124,6 +126,32 @@ def seeds_to_decide(
     return float(lo)
 
 
+def layouts_to_decide(estimate: float, var_layout: float, layouts: int | None, alpha: float = ALPHA) -> float:
+    """Evaluation layouts at which ``estimate`` would be significant at two-sided level ``alpha`` with 80 % power if
+    the seed part were gone (many training seeds): the layout part shrinks as 1 / layouts. A lower bound, since
+    finite seeds add their part back; for a row whose :func:`seeds_to_decide` is ``inf``, it says how far the
+    layouts fall short. NaN when there is no effect, no layout part or no layout count; ``inf`` beyond
+    ``MAX_SEEDS`` layouts.
+
+    ``var_layout`` is the estimate's layout part at ``layouts`` layouts (squared units of the metric)."""
+    if not math.isfinite(estimate) or estimate == 0 or not layouts or not var_layout > 0:
+        return math.nan
+    per_layout = var_layout * layouts
+
+    def ok(n: int) -> bool:
+        return _detectable(estimate, 0.0, per_layout / n, math.inf, n - 1, alpha)
+
+    lo = hi = max(2, layouts)
+    while not ok(hi):
+        lo, hi = hi + 1, hi * 2
+        if hi > MAX_SEEDS:
+            return math.inf
+    while lo < hi:  # the variance falls as 1/n and the t quantile with it: monotone
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if ok(mid) else (mid + 1, hi)
+    return float(lo)
+
+
 def ledger_verdicts(
     episodes: pd.DataFrame,
     training: Mapping[str, Mapping[int, str | Path]] | None = None,
@@ -176,8 +204,9 @@ def judge(
 
 def holm_verdicts(df: pd.DataFrame, family: str) -> pd.DataFrame:
     """``df`` (rows of :func:`judge`) with ``p_holm`` (Holm–Bonferroni within each value of the column ``family``),
-    ``verdict`` (holds / reversed / undecided at 5 %, one seed, not run) and ``seeds_to_decide`` (undecided rows,
-    at the family's Bonferroni level: :func:`seeds_to_decide`)."""
+    ``verdict`` (holds / reversed / undecided at 5 %, one seed, not run), ``seeds_to_decide`` (undecided rows,
+    at the family's Bonferroni level: :func:`seeds_to_decide`) and, where no number of seeds would do,
+    ``layouts_to_decide`` (:func:`layouts_to_decide`, the same level)."""
     df = df.copy()
     df["p_holm"] = math.nan
     level = pd.Series(ALPHA, index=df.index)
@@ -193,6 +222,12 @@ def holm_verdicts(df: pd.DataFrame, family: str) -> pd.DataFrame:
     df["seeds_to_decide"] = [
         seeds_to_decide(r.estimate, r.var_seed, r.var_layout, r.seeds, a, getattr(r, "layouts", None))
         if r.verdict == "undecided"
+        else math.nan
+        for r, a in zip(df.itertuples(), level, strict=True)
+    ]
+    df["layouts_to_decide"] = [
+        layouts_to_decide(r.estimate, r.var_layout, getattr(r, "layouts", None), a)
+        if r.seeds_to_decide == math.inf
         else math.nan
         for r, a in zip(df.itertuples(), level, strict=True)
     ]
@@ -267,7 +302,7 @@ def verdict_counts(verdicts: pd.DataFrame) -> pd.DataFrame:
 def verdicts_markdown(verdicts: pd.DataFrame) -> str:
     """The verdicts as Markdown: one line per claim (counts and verdict), then every hypothesis with its signed
     estimate (the paper's direction positive), 95 % interval, Holm-adjusted p and, where undecided, the seeds
-    that would decide it."""
+    that would decide it (or, where no number of seeds would, the layouts it would take with many seeds)."""
     c = verdict_counts(verdicts)
     lines = [
         "| claim | family | hypotheses | holds | reversed | undecided | not run | one seed | verdict |",
@@ -288,7 +323,8 @@ def verdicts_markdown(verdicts: pd.DataFrame) -> str:
             cell, p = f"{r.estimate:+.3g} [{r.lo:+.3g}, {r.hi:+.3g}]", f"{r.p_holm:.3g}"
         need = "" if not math.isfinite(r.seeds_to_decide) else f"{int(r.seeds_to_decide)}"
         if r.verdict == "undecided" and r.seeds_to_decide == math.inf:
-            need = "no number at these layouts"
+            more = getattr(r, "layouts_to_decide", math.nan)
+            need = "none at these layouts" + (f"; ≥ {int(more):,} layouts" if math.isfinite(more) else "")
         lines.append(f"| {r.claim} | {r.hypothesis} | {cell} | {p} | {r.verdict} | {need} |")
     return "\n".join(lines) + "\n"
 

@@ -230,11 +230,14 @@ def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
         c = verdict_counts(v)
         n = v["verdict"].value_counts()
         tally = ", ".join(f"{int(n.get(k, 0))} {k}" for k in ("holds", "reversed", "undecided", "one seed", "not run"))
+        bound = int(((v["verdict"] == "undecided") & (v["seeds_to_decide"] == math.inf)).sum())
         lines += [
             "",
             f"The paper's claims as a ledger fixed before any v2 evaluation (commit {LEDGER_COMMIT}; "
             f"`omcrl.eval.ledger`), {len(v)} hypotheses, Holm–Bonferroni within the primary and the secondary "
-            f"family: {tally}. A row of one training seed is shown, not judged.",
+            f"family: {tally}. A row of one training seed is shown, not judged. Of the undecided, {bound} are bound "
+            f"by the {layouts} layouts: at the measured effect no number of training seeds would decide them, more "
+            "layouts would (each row's power line, in docs/results.md).",
             "",
         ]
         by = {v: list(g["claim"]) for v, g in c.groupby("verdict", sort=False)}
