@@ -26,7 +26,7 @@ would take if the seed part were gone (a lower bound).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -113,16 +113,22 @@ def seeds_to_decide(
     if var_seed <= 0:
         return float(seeds)
     per_seed = var_seed * seeds
-    lo, hi = max(2, seeds), max(2, seeds)
-    while not _detectable(estimate, per_seed, var_layout, hi, df_layout, alpha):
+    # The variance falls as 1/n, and the t quantile moves little once the seeds' degrees of freedom pass the
+    # layouts' (49 at 50 layouts), so detectability is monotone in n in practice.
+    return _first_passing(lambda n: _detectable(estimate, per_seed, var_layout, n, df_layout, alpha), seeds)
+
+
+def _first_passing(ok: Callable[[int], bool], start: int) -> float:
+    """The smallest n >= max(2, start) with ``ok(n)``, for a test that stays passed once it passes (doubling, then
+    bisection); ``inf`` when n would pass ``MAX_SEEDS``."""
+    lo = hi = max(2, start)
+    while not ok(hi):
         lo, hi = hi + 1, hi * 2
         if hi > MAX_SEEDS:
             return math.inf
-    # Bisect for the first n that clears it: the variance falls as 1/n, and the t quantile moves little once the
-    # seeds' degrees of freedom pass the layouts' (49 at 50 layouts), so detectability is monotone in n in practice.
     while lo < hi:
         mid = (lo + hi) // 2
-        lo, hi = (lo, mid) if _detectable(estimate, per_seed, var_layout, mid, df_layout, alpha) else (mid + 1, hi)
+        lo, hi = (lo, mid) if ok(mid) else (mid + 1, hi)
     return float(lo)
 
 
@@ -137,19 +143,8 @@ def layouts_to_decide(estimate: float, var_layout: float, layouts: int | None, a
     if not math.isfinite(estimate) or estimate == 0 or not layouts or not var_layout > 0:
         return math.nan
     per_layout = var_layout * layouts
-
-    def ok(n: int) -> bool:
-        return _detectable(estimate, 0.0, per_layout / n, math.inf, n - 1, alpha)
-
-    lo = hi = max(2, layouts)
-    while not ok(hi):
-        lo, hi = hi + 1, hi * 2
-        if hi > MAX_SEEDS:
-            return math.inf
-    while lo < hi:  # the variance falls as 1/n and the t quantile with it: monotone
-        mid = (lo + hi) // 2
-        lo, hi = (lo, mid) if ok(mid) else (mid + 1, hi)
-    return float(lo)
+    # The variance falls as 1/n and the t quantile with it: monotone.
+    return _first_passing(lambda n: _detectable(estimate, 0.0, per_layout / n, math.inf, n - 1, alpha), layouts)
 
 
 def ledger_verdicts(

@@ -405,7 +405,11 @@ def _account_md(cfg: Any) -> list[str]:
         sharing = students.groupby("encoder")["label"].agg(lambda x: ", ".join(sorted(set(x)))).value_counts()
         text += (
             f". Reused: {students['encoder'].nunique()} encoders serve {len(students)} frozen-encoder students ("
-            + "; ".join(_sharing_words(labels.split(", "), n) for labels, n in sharing.sort_index(key=_shared).items())
+            # Encoders that serve several students first.
+            + "; ".join(
+                _sharing_words(labels.split(", "), n)
+                for labels, n in sorted(sharing.items(), key=lambda kv: "," not in kv[0])
+            )
             + ")"
         )
     taught = rl.dropna(subset=["oracle"])
@@ -421,11 +425,6 @@ def _account_md(cfg: Any) -> list[str]:
     cpu = rl["cpu"].replace("", "not recorded").value_counts()
     text += ". Machines per run (torch's CPU capability): " + ", ".join(f"{k} {n}" for k, n in cpu.items()) + "."
     return ["", _wrap(text)]
-
-
-def _shared(labels: pd.Index) -> pd.Index:
-    """Sort key: encoders that serve several students first."""
-    return labels.map(lambda x: "," not in x)
 
 
 def _sharing_words(labels: list[str], seeds: int) -> str:
