@@ -222,6 +222,12 @@ def build_parser() -> argparse.ArgumentParser:
                 help="rebuild Table I, the ledger's verdicts and Fig. 5 from reference/<preset>/table1-<suite>/ "
                 "alone (nothing trained or flown)",
             )
+            sp.add_argument(
+                "--grid",
+                default="table1",
+                help="with --from-reference: the grid of Table I's runs to read (table1-confirm: the same runs in "
+                "200 layouts Table I never flew; its tables go to results/<preset>/tables/table1-confirm/)",
+            )
         if name == "ladder":
             sp.add_argument(
                 "--reports",
@@ -333,7 +339,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         elif args.stage == "summary":
             result = func(cfg, readme=args.readme)
         elif args.stage == "tables":
-            result = func(cfg, from_reference=args.from_reference)
+            result = func(cfg, from_reference=args.from_reference, grid=args.grid)
         elif args.stage == "ladder":
             result = func(cfg, reports=args.reports)
         elif args.stage == "notebooks":

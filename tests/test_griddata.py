@@ -61,6 +61,25 @@ def test_a_grid_is_recorded_resumed_from_its_records_and_rebuilt_without_trainin
     ran = {j.method for j in third.jobs if third.status[j.id] == "done"}
     assert ran == {"ppo"} and third.counts() == {"recorded": 4, "done": 2}
     assert record.has_episodes("PPO", 0)
+    # A grid that flies the same runs in other layouts (Table I's confirmation on fresh layouts): nothing trains,
+    # and its record keeps episodes alone (the runs' records and teachers are the first grid's).
+    from omcrl.pipeline import grids, sweep
+
+    fresh = ("eval.episodes=3", "eval.seed_offset=1000050")
+    monkeypatch.setitem(grids.GRIDS, "smoke-fresh", tuple(grids.Variant(v.label, v.method, fresh)
+                                                          for v in grids.GRIDS["smoke"]))  # fmt: skip
+    monkeypatch.setattr(sweep, "EVAL_ONLY_GRIDS", ("smoke-fresh",))
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-a"))  # the machine that holds both runs
+    confirm = GridData(grid_data_dir(cfg, "smoke-fresh"))
+    fourth = run_sweep(load_config("smoke"), "smoke-fresh", [0], backend="local", progress=False, record=confirm)
+    ran = {(j.kind, fourth.status[j.id]) for j in fourth.jobs}
+    assert ran == {("collect", "skipped"), ("pretrain", "skipped"), ("train", "skipped"), ("evaluate", "done")}
+    files = {p.relative_to(confirm.root).as_posix() for p in confirm.root.rglob("*") if p.is_file()}
+    assert files == {"jobs.csv", "Ours_w_o_OT/seed0/episodes.csv.gz", "PPO/seed0/episodes.csv.gz"}
+    seeds = confirm.episodes().groupby("scene")["eval_seed"].agg(["min", "max", "count"])
+    flown = record.episodes()
+    assert (seeds["min"] == 1000050).all() and (seeds["max"] == 1000052).all()
+    assert seeds["min"].min() > flown["eval_seed"].max()  # layouts the first grid never flew
 
 
 @pytest.mark.stage  # runs smoke sweeps end to end

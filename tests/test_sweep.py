@@ -686,3 +686,18 @@ def test_the_plan_prices_a_machine_to_itself_at_the_upper_quartile_of_measured_r
              if "on 1 machine(s)" in line or "upper quartile" in line]  # fmt: skip
     assert len(hours) == 2 and hours[1] == pytest.approx(hours[0] / 2, rel=0.02)
     assert "upper quartile" not in planning.describe_plan(cfg, ["smoke"], [0], median)
+
+
+def test_table1s_confirmation_grid_reuses_its_training_and_flies_layouts_it_never_flew():
+    from omcrl.config import load_config
+    from omcrl.pipeline.plan import expand, job_config
+
+    base = load_config("quick")
+    table1, confirm = expand(base, "table1", [2]), expand(base, "table1-confirm", [2])
+    upstream = [j.id for j in table1 if j.kind != "evaluate"]
+    assert [j.id for j in confirm if j.kind != "evaluate"] == upstream  # the same runs: nothing new to train
+    assert [j.label for j in confirm if j.kind == "evaluate"] == [j.label for j in table1 if j.kind == "evaluate"]
+    ev = next(j for j in confirm if j.kind == "evaluate")
+    cfg, first = job_config(base, ev.overrides, 2), base.eval
+    assert cfg.eval.episodes == 200 and cfg.eval.seed_offset >= first.seed_offset + first.episodes
+    assert "table1-confirm" in grids.FULL_BUDGET_GRIDS and "table1-confirm" in grids.EVAL_ONLY_GRIDS

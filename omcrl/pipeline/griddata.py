@@ -38,11 +38,12 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import pandas as pd
 
-from omcrl.config import Config, project_root
+from omcrl.config import Config, ConfigError, project_root
 from omcrl.eval.stage import portable_checkpoint
 from omcrl.eval.table1 import Table1Result, write_table1
 from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
+from omcrl.pipeline.grids import TABLE1_GRIDS
 from omcrl.pipeline.reference import config_suite
 from omcrl.pipeline.released import POINTER, available, read_kept, release
 from omcrl.runs import (
@@ -307,7 +308,10 @@ def find_kept_run(grids_dir: str | Path, run: Run, stage: str = "rl") -> tuple[G
 def tables_from_reference(cfg: Config, grid: str = "table1", reps: int = 2000) -> Table1Result:
     """Table I, the claim ledger's verdicts and Fig. 5 from the grid's data in the checkout alone (nothing trained
     or flown): writes ``tables/table1.*`` and ``tables/ledger_verdicts.*`` under ``cfg.run_root`` and
-    ``figures/fig5_training_curves.png``; returns the :class:`omcrl.eval.table1.Table1Result`.
+    ``figures/fig5_training_curves.png``; returns the :class:`omcrl.eval.table1.Table1Result`. Another grid of
+    Table I's runs (``table1-confirm``: other layouts) writes its tables to ``tables/<grid>/``; it records no
+    training, so its ledger judges the evaluation hypotheses alone (the training rows are ``not run``) and it has
+    no Fig. 5.
 
     FileNotFoundError when the grid has no recorded episodes.
     """
@@ -320,7 +324,7 @@ def tables_from_reference(cfg: Config, grid: str = "table1", reps: int = 2000) -
             f"{data.root}: no recorded episodes; run python -m omcrl sweep {grid} --preset {cfg.preset} "
             "--to-reference (or commit its data) first"
         )
-    out = cfg.run_root / "tables"
+    out = cfg.run_root / "tables" if grid == "table1" else cfg.run_root / "tables" / grid
     table, sig, paths = write_table1(episodes, out, os_threshold=cfg.eval.success_threshold_os, reps=reps)
     runs = data.metrics("rl")
     verdicts, vpaths = write_verdicts(episodes, runs, out, config_suite(cfg), reps)
@@ -332,9 +336,16 @@ def tables_from_reference(cfg: Config, grid: str = "table1", reps: int = 2000) -
     return Table1Result(episodes, table, sig, [], paths | vpaths, time.perf_counter() - t0, verdicts)
 
 
-def tables_stage(cfg: Config, *, from_reference: bool = False, progress: bool = True) -> Table1Result:
+def tables_stage(
+    cfg: Config, *, from_reference: bool = False, grid: str = "table1", progress: bool = True
+) -> Table1Result:
     """CLI stage ``tables``: evaluate every finished run and write Table I (:func:`omcrl.eval.table1.tables_stage`),
-    or with ``--from-reference`` rebuild it from the grid data in the checkout (:func:`tables_from_reference`)."""
+    or with ``--from-reference`` rebuild it from the data of ``grid`` in the checkout (:func:`tables_from_reference`).
+    """
+    if grid not in TABLE1_GRIDS:
+        raise ConfigError(f"tables: got grid {grid!r}, expected one of Table I's grids {list(TABLE1_GRIDS)}")
+    if grid != "table1" and not from_reference:
+        raise ConfigError(f"tables: --grid {grid} reads that grid's recorded data; add --from-reference")
     if from_reference:
-        return tables_from_reference(cfg)
+        return tables_from_reference(cfg, grid)
     return evaluate_tables(cfg, progress=progress)

@@ -131,6 +131,20 @@ GRIDS["table1"] = tuple(
     Variant(m, m) for m in ("oracle", "ours", "ours-noOT", "npe", "npe-ot", "ours-lapf", "curl", "curl-phi", "ppo")
 )
 
+# Table I again on fresh layouts: the same training runs (the same jobs, so a machine that holds them trains
+# nothing), flown in 200 layouts of each scene that the grid never flew (evaluation seeds 50-249: disjoint from
+# Table I's 0-49). The grid's ledger verdicts are bound by its 50 layouts in most undecided rows; this is the
+# follow-up those rows' power lines ask for, declared before any of its episodes were flown. It keeps episodes
+# only: the runs' records and the oracle's weights are Table I's.
+CONFIRM_EVAL = ("eval.episodes=200", "eval.seed_offset=1000050")
+GRIDS["table1-confirm"] = tuple(Variant(v.label, v.method, CONFIRM_EVAL) for v in GRIDS["table1"])
+
+
+# Grids that re-fly another grid's runs (their evaluation overrides, which the planners flown beside them take
+# too): they keep episodes, never run records or teachers' weights.
+TABLE1_GRIDS: dict[str, tuple[str, ...]] = {"table1": (), "table1-confirm": CONFIRM_EVAL}
+EVAL_ONLY_GRIDS = ("table1-confirm",)
+
 
 # The budget ladder (does a verdict move with scale?). Pretraining: the OMC and CURL encoders at x4 and x16 of the
 # preset's pretraining, dataset episodes, iterations and the Transformer's warm-up scaled together (each scale its
@@ -153,7 +167,7 @@ GRIDS["ladder-rl"] = tuple(
 
 
 # Grids that keep the preset's budgets instead of the shortened ablation budgets of cfg.sweep.
-FULL_BUDGET_GRIDS = (*REMEDY_GRIDS, "precision", "table1", "ladder-pretrain", "ladder-rl")
+FULL_BUDGET_GRIDS = (*REMEDY_GRIDS, "precision", *TABLE1_GRIDS, "ladder-pretrain", "ladder-rl")
 
 
 def grid_variants(name: str) -> tuple[Variant, ...]:

@@ -37,7 +37,15 @@ from omcrl.eval.ablation import ablation_table, write_ablation, write_precision,
 from omcrl.eval.stage import eval_cache_dir, evaluate_methods
 from omcrl.interpret.encoder_report import write_encoder_report
 from omcrl.pipeline.griddata import GridData, find_kept_run, grid_data_dir
-from omcrl.pipeline.grids import ABLATION_GRIDS, DEFAULT_VARIANT, GRIDS, REMEDY_GRIDS, grid_variants
+from omcrl.pipeline.grids import (
+    ABLATION_GRIDS,
+    DEFAULT_VARIANT,
+    EVAL_ONLY_GRIDS,
+    GRIDS,
+    REMEDY_GRIDS,
+    TABLE1_GRIDS,
+    grid_variants,
+)
 from omcrl.pipeline.plan import (
     Job,
     base_overrides,
@@ -256,12 +264,15 @@ def run_sweep(
         raise ConfigError(f"sweep backend: got {backend!r}, expected 'ray' or 'local'")
     every = expand(cfg, grid, seeds)
     jobs = only_variants(every, variants, grid)
-    targets = _record_targets(jobs) if record is not None else {}
+    # A grid that re-flies another grid's runs keeps their episodes alone (the records are that grid's).
+    keeps_runs = record is not None and grid not in EVAL_ONLY_GRIDS
+    targets = _record_targets(jobs) if keeps_runs else {}
     recorded = _recorded(jobs, record) if record is not None else set()
     # Teachers as the whole grid has them: a teacher's weights are kept under its own variant (the oracle's), which
     # --variants may leave out while a student it guides is run.
     ids = {j.id for j in jobs}
     teachers = {jid: label for jid, label in _teachers(every, _record_targets(every)).items() if jid in ids}
+    teachers = teachers if keeps_runs else {}
     logs_dir = cfg.run_root / "sweeps" / grid / "logs"
     # A grid recorded to the checkout keeps what its encoders learned too (the budget ladder's encoder table).
     base = {"preset": cfg.preset, "overrides": base_overrides(cfg), "encoder_reports": record is not None}
@@ -827,8 +838,8 @@ def run_ablations(
     out: dict[str, dict[str, Any]] = {}
     for g in grids:
         record = GridData(grid_data_dir(cfg, g)) if to_reference else None
-        if record is not None and g == "table1":
-            record_planners(cfg, record)
+        if record is not None and g in TABLE1_GRIDS:
+            record_planners(job_config(cfg, TABLE1_GRIDS[g], cfg.seeds[0]), record)
         res = run_sweep(
             cfg,
             g,
@@ -840,7 +851,7 @@ def run_ablations(
             record=record,
             variants=variants,
         )
-        if g == "table1":
+        if g in TABLE1_GRIDS:
             # Not an ablation: Table I itself comes from `python -m omcrl tables` (which adds the planners and
             # finds these runs and their evaluations cached).
             table, paths = pd.DataFrame(), {}
