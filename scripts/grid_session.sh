@@ -81,7 +81,8 @@ echo "grid_session: worktree $dir at $(git -C "$dir" rev-parse --short HEAD), gr
 
 ship() {  # $1: what finished
   local src sub
-  for src in "$dir"/reference/"$preset"/"$grid"-*/; do
+  # <grid>-<suite> (suites are v0, v1, v2...): table1-* would also take table1-confirm-v2, another grid's folder.
+  for src in "$dir"/reference/"$preset"/"$grid"-v[0-9]*/; do
     sub="${src#"$dir"/}"
     mkdir -p "$root/$sub"
     cp -a "$src". "$root/$sub"
@@ -120,7 +121,7 @@ drop_stale_copies() {  # $1: a folder staged here; unstages the files that come 
 summary() {  # $1: after what; rebuilds and commits the generated blocks (README, results, generalization) and figures
   # A commit of grid data with the README's block left as it was fails test_summary (the block must match the data),
   # so the block follows each ship. Skipped, with a line, while those files hold edits of someone else's.
-  [[ "$grid" == table1 ]] || return 0
+  [[ "$grid" == table1 || "$grid" == table1-confirm ]] || return 0
   local docs=(README.md docs/results.md docs/generalization.md docs/glossary.md "docs/figures/$preset")
   if ! git -C "$root" diff --quiet HEAD -- "${docs[@]}"; then
     echo "grid_session: the generated pages have uncommitted edits: blocks not rebuilt (run: python -m omcrl summary --preset $preset --readme)"
@@ -136,7 +137,7 @@ summary() {  # $1: after what; rebuilds and commits the generated blocks (README
 }
 
 release() {  # $1: after what; commits the teacher weights that nothing left to train needs any more
-  local sub="reference/$preset/$grid-*"  # a git pathspec: the grid's folders of every scene suite
+  local sub="reference/$preset/$grid-v[0-9]*"  # a git pathspec: the grid's folders of every scene suite
   (cd "$root" && "$py" -m omcrl sweep "$grid" --preset "$preset" --release-teachers) ||
     { echo "grid_session: release of teacher weights failed (they stay; the grid goes on)"; return 0; }
   git -C "$root" add -- "$sub"

@@ -146,6 +146,18 @@ def test_readme_v2_table_and_verdicts_are_what_the_grid_data_gives(repo_root):
     assert "**tree-v2 (hard)**" in full and "| E1 | ours > npe on SR in tree-v2 |" in full
 
 
+def test_the_confirmations_block_is_what_its_data_gives(repo_root):
+    """docs/results.md's block on Table I's confirmation on fresh layouts is rebuilt from
+    reference/quick/table1-confirm-v2/ and the grid's verdicts (summary --readme): a hand-edited cell fails here."""
+    from omcrl.pipeline.glance import CONFIRM_END, CONFIRM_START, confirm_block, current_block
+
+    block = confirm_block("quick")
+    page = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
+    assert current_block(page, "docs/results.md", CONFIRM_START, CONFIRM_END) == block
+    assert block.startswith(("**Flown**", "Not flown yet"))
+    assert max(len(line) for line in block.splitlines() if not line.startswith("|")) <= 120
+
+
 def test_generalizations_transfer_table_is_what_the_grid_data_gives(repo_root):
     """docs/generalization.md's "what transfers" table is rebuilt from reference/quick/table1-v2/ (summary --readme):
     a hand-edited cell fails here. Each change is SR(scene) − SR(box-v2) of the same runs."""

@@ -194,3 +194,28 @@ def test_an_interval_keeps_to_the_values_a_contrast_can_take():
     cut = contrast([a, b], 400, rng=np.random.default_rng(0), bounded=100.0)
     assert free.hi > 100.0  # what the cut is for
     assert cut.hi == 100.0 and cut.lo == free.lo and (cut.estimate, cut.p) == (free.estimate, free.p)
+
+
+def test_two_readings_of_the_ledger_are_compared_hypothesis_by_hypothesis():
+    from omcrl.eval.verdicts import compare_readings, readings_markdown
+
+    def reading(verdicts, estimates):
+        n = len(verdicts)
+        return pd.DataFrame({"claim": [f"E{i}" for i in range(n)], "family": "primary",
+                             "hypothesis": [f"h{i}" for i in range(n)], "estimate": estimates,
+                             "lo": [e - 5 for e in estimates], "hi": [e + 5 for e in estimates],
+                             "verdict": verdicts})  # fmt: skip
+
+    first = reading(["holds", "undecided", "reversed", "holds", "undecided", "one seed", "undecided"],
+                    [10, 2, -9, 8, 1, 3, 0])  # fmt: skip
+    second = reading(["holds", "reversed", "undecided", "reversed", "undecided", "holds", "not run"],
+                     [12, -7, -2, -6, 0, 9, float("nan")])  # fmt: skip
+    both = compare_readings(first, second)
+    # The rows of one seed or not run in either reading are left out; the others ordered by agreement.
+    assert list(both["hypothesis"]) == ["h0", "h3", "h1", "h2", "h4"]
+    assert list(both["agreement"]) == ["alike", "opposite", "second only", "first only", "undecided in both"]
+    assert both.loc[0, "estimate_second"] == 12 and both.loc[0, "verdict_first"] == "holds"
+    md = readings_markdown(both)
+    assert md.startswith("Of 5 hypotheses judged in both readings: decided alike 1; decided in opposite directions 1")
+    assert "| E1 | h1 | +2 [-3, +7] | undecided | -7 [-12, -2] | reversed | second only |" in md
+    assert "h4" not in md  # undecided in both: counted, not listed

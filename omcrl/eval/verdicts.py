@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -381,3 +382,71 @@ def changes_from_v1(v1_claims: pd.DataFrame, verdicts: pd.DataFrame) -> pd.DataF
             "changed": (r.verdict != c.verdict) if judged else None,
         })  # fmt: skip
     return pd.DataFrame(rows)
+
+
+JUDGED = ("holds", "reversed", "undecided")
+DECIDED = ("holds", "reversed")
+# How two readings of one hypothesis relate, in the order a reader wants them.
+AGREEMENT = ("alike", "opposite", "second only", "first only", "undecided in both")
+
+
+def compare_readings(first: pd.DataFrame, second: pd.DataFrame) -> pd.DataFrame:
+    """Two readings of the ledger on separate data, hypothesis by hypothesis: the grid's pre-declared verdicts
+    (``first``) and a confirmation's (``second``: other layouts, or other runs).
+
+    Parameters
+    ----------
+    first, second : :func:`ledger_verdicts` rows (``claim``, ``family``, ``hypothesis``, ``estimate``, ``lo``,
+        ``hi``, ``verdict``), each Holm-adjusted within its own families.
+
+    Returns
+    -------
+    One row per hypothesis judged in both (holds / reversed / undecided; a row of one seed or not run in either is
+    left out): the two readings' ``estimate_*``, ``lo_*``, ``hi_*``, ``verdict_*`` (suffixes ``_first`` and
+    ``_second``) and ``agreement``: ``alike`` (decided the same way in both), ``opposite`` (decided both ways),
+    ``second only`` / ``first only`` (decided in one, undecided in the other), ``undecided in both``. Ordered by
+    :data:`AGREEMENT`, then the ledger's order.
+    """
+    cols = ["claim", "family", "hypothesis", "estimate", "lo", "hi", "verdict"]
+    key = ["claim", "family", "hypothesis"]
+    a, b = first[cols].reset_index(names="order"), second[cols]
+    m = a.merge(b, on=key, suffixes=("_first", "_second"))
+    m = m[m["verdict_first"].isin(JUDGED) & m["verdict_second"].isin(JUDGED)].copy()
+
+    def relation(x: str, y: str) -> str:
+        if x in DECIDED and y in DECIDED:
+            return "alike" if x == y else "opposite"
+        if y in DECIDED:
+            return "second only"
+        return "first only" if x in DECIDED else "undecided in both"
+
+    m["agreement"] = [relation(x, y) for x, y in zip(m["verdict_first"], m["verdict_second"], strict=True)]
+    rank = {k: i for i, k in enumerate(AGREEMENT)}
+    m = m.sort_values(["agreement", "order"], key=lambda s: s.map(rank) if s.name == "agreement" else s)
+    return m.drop(columns="order").reset_index(drop=True)
+
+
+def readings_markdown(both: pd.DataFrame, first: str = "grid", second: str = "confirmation") -> str:
+    """:func:`compare_readings` as Markdown: the count of each agreement, then every hypothesis decided in at least
+    one reading with both estimates [95 % CI] and verdicts (rows undecided in both are counted, not listed)."""
+    n = both["agreement"].value_counts()
+    words = {"alike": "decided alike", "opposite": "decided in opposite directions",
+             "second only": f"decided by the {second} only", "first only": f"decided by the {first} only",
+             "undecided in both": "undecided in both"}  # fmt: skip
+    tally = "; ".join(f"{words[k]} {int(n.get(k, 0))}" for k in AGREEMENT)
+    lines = [f"Of {len(both)} hypotheses judged in both readings: {tally}.", ""]
+    shown = both[both["agreement"] != "undecided in both"]
+    if shown.empty:
+        return "\n".join(lines) + "\n"
+
+    def cell(r: Any, s: str) -> str:
+        e, lo, hi = getattr(r, f"estimate_{s}"), getattr(r, f"lo_{s}"), getattr(r, f"hi_{s}")
+        return "–" if not math.isfinite(e) else f"{e:+.3g} [{lo:+.3g}, {hi:+.3g}]"
+
+    lines += [
+        f"| claim | hypothesis | {first} | {first} verdict | {second} | {second} verdict | agreement |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    lines += [f"| {r.claim} | {r.hypothesis} | {cell(r, 'first')} | {r.verdict_first} | {cell(r, 'second')} | "
+              f"{r.verdict_second} | {r.agreement} |" for r in shown.itertuples()]  # fmt: skip
+    return "\n".join(lines) + "\n"

@@ -25,7 +25,7 @@ from omcrl.config import load_config, project_root
 from omcrl.eval.metrics import glossary_markdown
 from omcrl.eval.stats import cell_rng, contrast, term
 from omcrl.eval.table1 import Table1Result, paper_table1, read_table1_csv, table1_frames
-from omcrl.eval.verdicts import changes_from_v1, verdict_counts
+from omcrl.eval.verdicts import changes_from_v1, compare_readings, readings_markdown, verdict_counts
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
 from omcrl.pipeline.records import Table1Record
 from omcrl.pipeline.reference import reference_table_dir
@@ -39,6 +39,10 @@ V2_START = "<!-- results-v2: start (python -m omcrl summary --preset quick --rea
 V2_END = "<!-- results-v2: end -->"
 FULL_START = "<!-- results-v2-full: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 FULL_END = "<!-- results-v2-full: end -->"
+CONFIRM_START = "<!-- results-v2-confirm: start (python -m omcrl summary --preset quick --readme writes this block) -->"
+CONFIRM_END = "<!-- results-v2-confirm: end -->"
+# The training seeds of Table I's confirmation on fresh layouts (declared in docs/results.md before it was flown).
+CONFIRM_SEEDS = (2, 3, 4)
 V2_FIGURE = "docs/figures/quick/v2/fig5_training_curves.png"
 V1_START = "<!-- results-v1: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 V1_END = "<!-- results-v1: end -->"
@@ -201,15 +205,7 @@ def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
     result : the rebuild's Table I (``table``: every metric's aggregates) and ledger verdicts (``verdicts``).
     grid_seeds : the training seeds the grid is to have (the issue's five), to say how far it has come.
     """
-    table = table1_frames(result.table)[0]
-    # Table I's order: the learned methods, its planners, then the local APF and the blind pilot.
-    order = {m: i for i, m in enumerate((*TABLE1_METHODS, *planners.LABELS))}
-    sr = table[table.metric == "SR"].sort_values("method", key=lambda m: m.map(order).fillna(len(order)), kind="stable")
-    seeds = sr.groupby("method", sort=False)["seeds"].max()
-    learned = [m for m in seeds.index if m in METHODS and METHODS[m].learned]
-    counts = sorted({int(seeds[m]) for m in learned}) or [0]
-    layouts = int((sr["episodes"] / sr["seeds"].clip(lower=1)).min())
-    done = f"{counts[0]}" if counts[0] == counts[-1] else f"{counts[0]}–{counts[-1]}"
+    body, layouts, done = _sr_table(result)
     lines = [
         f"**Scenes v2** (navigation that needs sight; trained in box-v2 only, every other scene unseen). Success rate "
         f"% over {layouts} layouts per scene and {done} of the grid's {grid_seeds} training seeds per learned "
@@ -219,11 +215,6 @@ def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
         "`reference/quick/table1-v2/`; all six metrics and every hypothesis: [docs/results.md](docs/results.md).",
         "",
     ]
-    body = wide_table(sr)
-    body[0] = body[0] + " seeds |"
-    body[1] = body[1] + "---|"
-    for i, m in enumerate(dict.fromkeys(sr["method"]), start=2):
-        body[i] = body[i] + f" {int(seeds[m]) if m in learned else 'planner'} |"
     lines += body
     v = result.verdicts
     if v is not None and len(v):
@@ -252,6 +243,27 @@ def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
     if "fig5" in result.paths:
         lines += ["", f"![Fig. 5 on v2: training curves in box-v2, every recorded seed]({V2_FIGURE})"]
     return "\n".join(_wrap(x) for x in lines)
+
+
+def _sr_table(result: Table1Result) -> tuple[list[str], int, str]:
+    """Markdown rows of SR per method and scene (:func:`wide_table`, the paper beside it) with a column of each
+    row's training seeds, in Table I's order; the layouts per scene and seed, and the seeds a learned row has
+    (``"4"``, or ``"3–4"`` while some rows have fewer)."""
+    table = table1_frames(result.table)[0]
+    # Table I's order: the learned methods, its planners, then the local APF and the blind pilot.
+    order = {m: i for i, m in enumerate((*TABLE1_METHODS, *planners.LABELS))}
+    sr = table[table.metric == "SR"].sort_values("method", key=lambda m: m.map(order).fillna(len(order)), kind="stable")
+    seeds = sr.groupby("method", sort=False)["seeds"].max()
+    learned = [m for m in seeds.index if m in METHODS and METHODS[m].learned]
+    counts = sorted({int(seeds[m]) for m in learned}) or [0]
+    layouts = int((sr["episodes"] / sr["seeds"].clip(lower=1)).min())
+    done = f"{counts[0]}" if counts[0] == counts[-1] else f"{counts[0]}–{counts[-1]}"
+    body = wide_table(sr)
+    body[0] = body[0] + " seeds |"
+    body[1] = body[1] + "---|"
+    for i, m in enumerate(dict.fromkeys(sr["method"]), start=2):
+        body[i] = body[i] + f" {int(seeds[m]) if m in learned else 'planner'} |"
+    return body, layouts, done
 
 
 def _wrap(line: str, width: int = 120) -> str:
@@ -330,6 +342,52 @@ def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tup
     """The README's block (:func:`render_v2`) and docs/results.md's (Table I's six metrics per scene, then every
     hypothesis of the ledger) from a rebuild of ``reference/<preset>/table1-v2/`` under a temporary folder; with
     ``figure_to``, Fig. 5 of the rebuild is copied there."""
+    short, full, _ = _v2(preset, figure_to)
+    return short, full
+
+
+def confirm_block(preset: str = "quick", grid_verdicts: pd.DataFrame | None = None) -> str:
+    """docs/results.md's block on Table I's confirmation (grid ``table1-confirm``: the grid's runs in 200 layouts it
+    never flew), rebuilt from ``reference/<preset>/table1-confirm-<suite>/``: which seeds are flown, SR per method and
+    scene, its ledger tally, and each hypothesis beside the grid's reading (:func:`omcrl.eval.verdicts.
+    compare_readings`). ``grid_verdicts``: the grid's verdicts when already at hand (else rebuilt)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
+        data = GridData(grid_data_dir(cfg, "table1-confirm"))
+        if data.episodes().empty:
+            return f"Not flown yet (no episodes under `reference/{preset}/{data.root.name}/`)."
+        res = tables_from_reference(cfg, "table1-confirm")
+        if grid_verdicts is None:
+            grid_verdicts = _v2(preset)[2]
+    learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
+    flown = data.progress(learned, CONFIRM_SEEDS)
+    body, layouts, done = _sr_table(res)
+    v = res.verdicts
+    judged = v[v["verdict"].isin(("holds", "reversed", "undecided"))]
+    n = judged["verdict"].value_counts()
+    tally = ", ".join(f"{int(n.get(k, 0))} {k}" for k in ("holds", "reversed", "undecided"))
+    sizes = judged.groupby("family", sort=False).size()
+    families = " and ".join(f"{k} {int(x)}" for k, x in sizes.items())
+    lines = [
+        f"**Flown**: {int(flown.to_numpy().sum())} of {flown.size} policies (training seeds "
+        f"{', '.join(map(str, CONFIRM_SEEDS))} of the {len(learned)} learned methods); the planners once.",
+        "",
+        f"Success rate % over {layouts} layouts per scene that Table I never flew, {done} training seeds per "
+        "learned method (the column `seeds`), mean [95 % CI], seeds × layouts crossed; the paper's value in "
+        "*italics*.",
+        "",
+        *body,
+        "",
+        f"Its ledger: {len(judged)} evaluation hypotheses judged, Holm–Bonferroni within the families ({families}): "
+        f"{tally}. Beside the grid's reading above (50 layouts):",
+        "",
+        readings_markdown(compare_readings(grid_verdicts, v), "grid", "confirmation").strip(),
+    ]
+    return "\n".join(_wrap(x) for x in lines)
+
+
+def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str, pd.DataFrame]:
+    """:func:`v2_blocks` and the grid's ledger verdicts."""
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         res = tables_from_reference(cfg)
@@ -350,7 +408,7 @@ def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tup
         if figure_to is not None and "fig5" in res.paths:
             Path(figure_to).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(res.paths["fig5"], figure_to)
-        return render_v2(res), full
+        return render_v2(res), full, res.verdicts
 
 
 def transfer_block(preset: str = "quick") -> str:
@@ -475,9 +533,11 @@ def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bo
     table (:func:`omcrl.eval.metrics.glossary_markdown`); True when the README changed."""
     root = project_root()
     path = Path(readme) if readme is not None else root / "README.md"
-    short, full = v2_blocks(preset, figure_to=root / V2_FIGURE)
+    short, full, verdicts = _v2(preset, figure_to=root / V2_FIGURE)
     v1 = render_v1_results(reference_table_dir(preset))
-    _rewrite(root / "docs" / "results.md", [(full, FULL_START, FULL_END), (v1, V1_START, V1_END)])
+    confirm = confirm_block(preset, verdicts)
+    blocks = [(full, FULL_START, FULL_END), (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END)]
+    _rewrite(root / "docs" / "results.md", blocks)
     _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
     _rewrite(root / "docs" / "generalization.md", [(transfer_block(preset), TRANSFER_START, TRANSFER_END)])
     return _rewrite(path, [(render_glance(reference_table_dir(preset)), START, END), (short, V2_START, V2_END)])
