@@ -43,6 +43,7 @@ CONFIRM_START = "<!-- results-v2-confirm: start (python -m omcrl summary --prese
 CONFIRM_END = "<!-- results-v2-confirm: end -->"
 # The training seeds of Table I's confirmation on fresh layouts (declared in docs/results.md before it was flown).
 CONFIRM_SEEDS = (2, 3, 4)
+CONFIRM_ANCHOR = "a-confirmation-on-fresh-layouts-declared-before-it-was-flown"
 V2_FIGURE = "docs/figures/quick/v2/fig5_training_curves.png"
 V1_START = "<!-- results-v1: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 V1_END = "<!-- results-v1: end -->"
@@ -195,7 +196,7 @@ def render_v1_results(table_dir: str | Path) -> str:
     return "\n".join(lines)
 
 
-def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
+def render_v2(result: Table1Result, confirmation: str | None = None, grid_seeds: int = 5) -> str:
     """The markdown block (without the markers) of Table I on the v2 suite from a rebuild of the grid data
     (:func:`omcrl.pipeline.griddata.tables_from_reference`): SR per method and scene with the paper's value, every
     recorded method's training seeds, and one line per claim of the ledger with its verdict.
@@ -203,6 +204,7 @@ def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
     Parameters
     ----------
     result : the rebuild's Table I (``table``: every metric's aggregates) and ledger verdicts (``verdicts``).
+    confirmation : a line on Table I's confirmation on fresh layouts (:func:`_confirm`), after the ledger's.
     grid_seeds : the training seeds the grid is to have (the issue's five), to say how far it has come.
     """
     body, layouts, done = _sr_table(result)
@@ -231,6 +233,8 @@ def render_v2(result: Table1Result, grid_seeds: int = 5) -> str:
             "layouts would (each row's power line, in docs/results.md).",
             "",
         ]
+        if confirmation:
+            lines += [confirmation, ""]
         by = {v: list(g["claim"]) for v, g in c.groupby("verdict", sort=False)}
         lines += [
             "| claims' verdict | claims |",
@@ -346,19 +350,22 @@ def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tup
     return short, full
 
 
-def confirm_block(preset: str = "quick", grid_verdicts: pd.DataFrame | None = None) -> str:
+def confirm_block(preset: str = "quick") -> str:
+    """docs/results.md's block on Table I's confirmation (:func:`_confirm`)."""
+    return _v2(preset)[2]
+
+
+def _confirm(preset: str, grid_verdicts: pd.DataFrame) -> tuple[str, str | None]:
     """docs/results.md's block on Table I's confirmation (grid ``table1-confirm``: the grid's runs in 200 layouts it
-    never flew), rebuilt from ``reference/<preset>/table1-confirm-<suite>/``: which seeds are flown, SR per method and
-    scene, its ledger tally, and each hypothesis beside the grid's reading (:func:`omcrl.eval.verdicts.
-    compare_readings`). ``grid_verdicts``: the grid's verdicts when already at hand (else rebuilt)."""
+    never flew), rebuilt from ``reference/<preset>/table1-confirm-<suite>/``: which policies are flown, SR per method
+    and scene, its ledger tally, and each hypothesis beside the grid's reading ``grid_verdicts``
+    (:func:`omcrl.eval.verdicts.compare_readings`); and the README's line on it (None while nothing is flown)."""
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         data = GridData(grid_data_dir(cfg, "table1-confirm"))
         if data.episodes().empty:
-            return f"Not flown yet (no episodes under `reference/{preset}/{data.root.name}/`)."
+            return f"Not flown yet (no episodes under `reference/{preset}/{data.root.name}/`).", None
         res = tables_from_reference(cfg, "table1-confirm")
-        if grid_verdicts is None:
-            grid_verdicts = _v2(preset)[2]
     learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
     flown = data.progress(learned, CONFIRM_SEEDS)
     body, layouts, done = _sr_table(res)
@@ -368,6 +375,7 @@ def confirm_block(preset: str = "quick", grid_verdicts: pd.DataFrame | None = No
     tally = ", ".join(f"{int(n.get(k, 0))} {k}" for k in ("holds", "reversed", "undecided"))
     sizes = judged.groupby("family", sort=False).size()
     families = " and ".join(f"{k} {int(x)}" for k, x in sizes.items())
+    both = compare_readings(grid_verdicts, v)
     lines = [
         f"**Flown**: {int(flown.to_numpy().sum())} of {flown.size} policies (training seeds "
         f"{', '.join(map(str, CONFIRM_SEEDS))} of the {len(learned)} learned methods); the planners once.",
@@ -381,16 +389,28 @@ def confirm_block(preset: str = "quick", grid_verdicts: pd.DataFrame | None = No
         f"Its ledger: {len(judged)} evaluation hypotheses judged, Holm–Bonferroni within the families ({families}): "
         f"{tally}. Beside the grid's reading above (50 layouts):",
         "",
-        readings_markdown(compare_readings(grid_verdicts, v), "grid", "confirmation").strip(),
+        readings_markdown(both, "grid", "confirmation").strip(),
     ]
-    return "\n".join(_wrap(x) for x in lines)
+    k = both["agreement"].value_counts()
+    line = (
+        f"A confirmation declared before it was flown, the same runs in {layouts} layouts per scene Table I never "
+        f"flew ({int(flown.to_numpy().sum())} of {flown.size} policies flown so far: training seeds "
+        f"{', '.join(map(str, CONFIRM_SEEDS))}): of {len(both)} hypotheses judged in both readings, "
+        f"{int(k.get('alike', 0))} decided alike, {int(k.get('opposite', 0))} in opposite directions, "
+        f"{int(k.get('second only', 0))} by the confirmation only, {int(k.get('first only', 0))} by the grid only "
+        f"([docs/results.md](docs/results.md#{CONFIRM_ANCHOR}))."
+    )
+    if flown.to_numpy().all():
+        line = line.replace(" so far", "")
+    return "\n".join(_wrap(x) for x in lines), line
 
 
-def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str, pd.DataFrame]:
-    """:func:`v2_blocks` and the grid's ledger verdicts."""
+def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str, str]:
+    """The README's v2 block, docs/results.md's and the confirmation's (:func:`v2_blocks`, :func:`_confirm`)."""
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         res = tables_from_reference(cfg)
+        confirm, line = _confirm(preset, res.verdicts)
         full = "\n".join(
             [
                 *_progress_md(cfg),
@@ -408,7 +428,7 @@ def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str
         if figure_to is not None and "fig5" in res.paths:
             Path(figure_to).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(res.paths["fig5"], figure_to)
-        return render_v2(res), full, res.verdicts
+        return render_v2(res, line), full, confirm
 
 
 def transfer_block(preset: str = "quick") -> str:
@@ -533,9 +553,8 @@ def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bo
     table (:func:`omcrl.eval.metrics.glossary_markdown`); True when the README changed."""
     root = project_root()
     path = Path(readme) if readme is not None else root / "README.md"
-    short, full, verdicts = _v2(preset, figure_to=root / V2_FIGURE)
+    short, full, confirm = _v2(preset, figure_to=root / V2_FIGURE)
     v1 = render_v1_results(reference_table_dir(preset))
-    confirm = confirm_block(preset, verdicts)
     blocks = [(full, FULL_START, FULL_END), (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END)]
     _rewrite(root / "docs" / "results.md", blocks)
     _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
