@@ -389,7 +389,7 @@ def _confirm(preset: str, grid_verdicts: pd.DataFrame) -> tuple[str, str | None]
         f"Its ledger: {len(judged)} evaluation hypotheses judged, Holm–Bonferroni within the families ({families}): "
         f"{tally}. Beside the grid's reading above (50 layouts):",
         "",
-        readings_markdown(both, "grid", "confirmation").strip(),
+        *readings_markdown(both, "grid", "confirmation").strip().splitlines(),
     ]
     k = both["agreement"].value_counts()
     line = (
