@@ -2,7 +2,8 @@
 # Run what is left of a grid over seeds, one variant at a time, and commit each finished variant's grid data.
 #
 #   scripts/grid_session.sh [--grid table1] [--seeds 0,1,2,3,4] [--variants oracle,ours,...] [--dir ../omcrl-grid]
-#                           [--backend local|ray] [--bundle-seed 2|none] [--by seed|variant] [--set FIELD=VALUE ...]
+#                           [--backend local|ray] [--bundle-seed 2|none] [--by seed|variant] [--also GRID]
+#                           [--set FIELD=VALUE ...]
 #
 # A session is shorter than the grid (about 6 machine-hours a seed at the quick preset), so this is what a session
 # starts first, in the background, with its log on disk:
@@ -28,6 +29,10 @@
 #
 #   python -m omcrl reference --preset quick --merge reference/quick/bundle-parts --from reference/quick/bundle
 #
+# --also GRID: after each variant of each seed is shipped, GRID's same variant and seed run and are shipped too. It is
+# for a grid that re-flies this grid's runs in other layouts (table1-confirm): a policy's weights live only on the
+# machine that trained it (only the records are committed), so the other grid flies it before a session ends.
+#
 # --by sets the loop's order: seed (default: every variant of seed 0, then of seed 1, ...; whole rows of Table I
 # first) or variant (every seed of the first variant, then of the next; a budget ladder's point gets its intervals
 # before a costlier point starts, e.g. --grid ladder-pretrain --by variant --seeds 0,1,2).
@@ -45,6 +50,7 @@ preset=quick
 backend=local
 bundle_seed=default
 by=seed
+also=""
 sets=()
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 dir="$(dirname "$root")/omcrl-grid"
@@ -58,6 +64,7 @@ while [[ $# -gt 0 ]]; do
     --backend) backend="$2"; shift 2 ;;
     --bundle-seed) bundle_seed="$2"; shift 2 ;;
     --by) by="$2"; shift 2 ;;
+    --also) also="$2"; shift 2 ;;
     --set) sets+=(--set "$2"); shift 2 ;;  # e.g. --set sweep.storage=/shared/omcrl (an embedded Ray resumes from it)
     *) echo "grid_session: unknown argument $1" >&2; exit 2 ;;
   esac
@@ -79,10 +86,10 @@ else
 fi
 echo "grid_session: worktree $dir at $(git -C "$dir" rev-parse --short HEAD), grid $grid, seeds $seeds"
 
-ship() {  # $1: what finished
-  local src sub
+ship() {  # $1: what finished, $2: the grid whose record it is (default: --grid)
+  local src sub g="${2:-$grid}"
   # <grid>-<suite> (suites are v0, v1, v2...): table1-* would also take table1-confirm-v2, another grid's folder.
-  for src in "$dir"/reference/"$preset"/"$grid"-v[0-9]*/; do
+  for src in "$dir"/reference/"$preset"/"$g"-v[0-9]*/; do
     sub="${src#"$dir"/}"
     mkdir -p "$root/$sub"
     cp -a "$src". "$root/$sub"
@@ -94,12 +101,12 @@ ship() {  # $1: what finished
       local held
       held="$(git -C "$root" diff --cached --name-only -- "$sub" | awk -F/ 'NF > 5 {print $4 "/" $5}' | sort -u |
         paste -sd, -)"
-      git -C "$root" commit -q -m "$grid grid: $1 recorded ($sub${held:+: $held})" -- "$sub"
+      git -C "$root" commit -q -m "$g grid: $1 recorded ($sub${held:+: $held})" -- "$sub"
       echo "grid_session: committed $1 ($sub${held:+: $held})"
     fi
   done
-  release "$1"
-  summary "$1"
+  release "$1" "$g"
+  summary "$1" "$g"
 }
 
 drop_stale_copies() {  # $1: a folder staged here; unstages the files that come back as they were when removed
@@ -118,10 +125,10 @@ drop_stale_copies() {  # $1: a folder staged here; unstages the files that come 
   done < <(git -C "$root" diff --cached --name-only --diff-filter=A -- "$1")
 }
 
-summary() {  # $1: after what; rebuilds and commits the generated blocks (README, results, generalization) and figures
+summary() {  # $1: after what, $2: which grid's data; rebuilds and commits the generated blocks and figures
   # A commit of grid data with the README's block left as it was fails test_summary (the block must match the data),
   # so the block follows each ship. Skipped, with a line, while those files hold edits of someone else's.
-  [[ "$grid" == table1 || "$grid" == table1-confirm ]] || return 0
+  [[ "$2" == table1 || "$2" == table1-confirm ]] || return 0
   local docs=(README.md docs/results.md docs/generalization.md docs/glossary.md "docs/figures/$preset")
   if ! git -C "$root" diff --quiet HEAD -- "${docs[@]}"; then
     echo "grid_session: the generated pages have uncommitted edits: blocks not rebuilt (run: python -m omcrl summary --preset $preset --readme)"
@@ -136,13 +143,13 @@ summary() {  # $1: after what; rebuilds and commits the generated blocks (README
   fi
 }
 
-release() {  # $1: after what; commits the teacher weights that nothing left to train needs any more
-  local sub="reference/$preset/$grid-v[0-9]*"  # a git pathspec: the grid's folders of every scene suite
-  (cd "$root" && "$py" -m omcrl sweep "$grid" --preset "$preset" --release-teachers) ||
+release() {  # $1: after what, $2: which grid; commits the teacher weights that nothing left to train needs any more
+  local sub="reference/$preset/$2-v[0-9]*"  # a git pathspec: the grid's folders of every scene suite
+  (cd "$root" && "$py" -m omcrl sweep "$2" --preset "$preset" --release-teachers) ||
     { echo "grid_session: release of teacher weights failed (they stay; the grid goes on)"; return 0; }
   git -C "$root" add -- "$sub"
   if ! git -C "$root" diff --cached --quiet -- "$sub"; then
-    git -C "$root" commit -q -m "$grid grid: teacher weights released after $1 (read from git history)" -- "$sub"
+    git -C "$root" commit -q -m "$2 grid: teacher weights released after $1 (read from git history)" -- "$sub"
     echo "grid_session: committed the release of teacher weights"
   fi
 }
@@ -168,7 +175,7 @@ bundle_part() {  # $1: seed, $2: variant that just finished; packs, commits and 
   echo "grid_session: committed and retired the bundle part $2"
 }
 
-release "an earlier session"
+release "an earlier session" "$grid"
 IFS=, read -r -a seed_list <<<"$seeds"
 IFS=, read -r -a variant_list <<<"$variants"
 jobs=()  # "seed<TAB>variant", in the order --by asks (a variant's label may hold spaces, not tabs)
@@ -191,6 +198,13 @@ for job in "${jobs[@]}"; do
   done
   ship "seed $seed, $v"
   if [[ "$rc" == 0 ]]; then bundle_part "$seed" "$v"; fi
+  if [[ -n "$also" && "$rc" == 0 ]]; then
+    rc_also=0
+    (cd "$dir" && "$py" -m omcrl sweep "$also" --preset "$preset" --seeds "$seed" --backend "$backend" \
+      --to-reference --variants "$v" "${sets[@]}") || rc_also=$?
+    echo "grid_session: $also seed $seed $v exit $rc_also $(date -u +%FT%TZ)"
+    ship "$also: seed $seed, $v" "$also"
+  fi
 done
 exit
 }
