@@ -90,6 +90,7 @@ ship() {  # $1: what finished, $2: the grid whose record it is (default: --grid)
   local src sub g="${2:-$grid}"
   # <grid>-<suite> (suites are v0, v1, v2...): table1-* would also take table1-confirm-v2, another grid's folder.
   for src in "$dir"/reference/"$preset"/"$g"-v[0-9]*/; do
+    [[ -d "$src" ]] || continue  # the pattern itself: the grid recorded nothing yet (its sweep failed early)
     sub="${src#"$dir"/}"
     mkdir -p "$root/$sub"
     cp -a "$src". "$root/$sub"
@@ -147,6 +148,8 @@ release() {  # $1: after what, $2: which grid; commits the teacher weights that 
   local sub="reference/$preset/$2-v[0-9]*"  # a git pathspec: the grid's folders of every scene suite
   (cd "$root" && "$py" -m omcrl sweep "$2" --preset "$preset" --release-teachers) ||
     { echo "grid_session: release of teacher weights failed (they stay; the grid goes on)"; return 0; }
+  # A grid's first session has no folder yet, and git add fails on a pathspec that matches nothing.
+  compgen -G "$root/$sub" >/dev/null || return 0
   git -C "$root" add -- "$sub"
   if ! git -C "$root" diff --cached --quiet -- "$sub"; then
     git -C "$root" commit -q -m "$2 grid: teacher weights released after $1 (read from git history)" -- "$sub"
@@ -203,7 +206,7 @@ for job in "${jobs[@]}"; do
     (cd "$dir" && "$py" -m omcrl sweep "$also" --preset "$preset" --seeds "$seed" --backend "$backend" \
       --to-reference --variants "$v" "${sets[@]}") || rc_also=$?
     echo "grid_session: $also seed $seed $v exit $rc_also $(date -u +%FT%TZ)"
-    ship "$also: seed $seed, $v" "$also"
+    ship "seed $seed, $v" "$also"
   fi
 done
 exit

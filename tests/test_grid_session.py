@@ -1,0 +1,104 @@
+"""scripts/grid_session.sh's git work: what it commits after each variant, with ``--also``.
+
+The script's Python calls go to a stand-in interpreter (``FakePython`` below: it records its arguments, and a
+``sweep --to-reference`` writes one episodes file where the real sweep would), so the test is the script's loop,
+shipping and commits, not the sweeps themselves (tests/test_sweep.py covers those).
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+FAKE_PYTHON = r"""#!/usr/bin/env bash
+# FakePython: stands in for .venv/bin/python in a dry run of grid_session.sh.
+echo "$PWD|$*" >> "$CALLS"
+if [[ "$3" == sweep && " $* " == *" --to-reference "* ]]; then
+  args=("$@")
+  for ((i = 0; i < ${#args[@]}; i++)); do
+    [[ "${args[$i]}" == --seeds ]] && s="${args[$((i + 1))]}"
+    [[ "${args[$i]}" == --variants ]] && v="${args[$((i + 1))]}"
+  done
+  mkdir -p "reference/quick/$4-v2/$v/seed$s"
+  echo "$4 $v $s" > "reference/quick/$4-v2/$v/seed$s/episodes.csv.gz"
+fi
+"""
+
+
+def _git(repo: Path, *args: str) -> str:
+    return subprocess.run(["git", "-C", str(repo), *args], check=True, capture_output=True, text=True).stdout
+
+
+@pytest.fixture
+def checkout(tmp_path: Path) -> Path:
+    """A git checkout holding the script and a stand-in interpreter, with one commit and no grid folder yet (a
+    grid's first session)."""
+    repo = tmp_path / "main"
+    (repo / "scripts").mkdir(parents=True)
+    shutil.copy2(ROOT / "scripts" / "grid_session.sh", repo / "scripts" / "grid_session.sh")
+    # The pages summary --readme rebuilds, which the script stages after a ship.
+    for page in ("README.md", "docs/results.md", "docs/generalization.md", "docs/glossary.md", "docs/figures/quick/a"):
+        (repo / page).parent.mkdir(parents=True, exist_ok=True)
+        (repo / page).write_text("kit\n")
+    (repo / ".gitignore").write_text(".venv/\n")
+    py = repo / ".venv" / "bin" / "python"
+    py.parent.mkdir(parents=True)
+    py.write_text(FAKE_PYTHON)
+    py.chmod(0o755)
+    _git(repo, "init", "-q")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "add", "-A")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "start")
+    return repo
+
+
+def _run(repo: Path, *args: str) -> tuple[subprocess.CompletedProcess, list[str]]:
+    calls = repo.parent / "calls.log"
+    env = {
+        "PATH": "/usr/bin:/bin:/usr/local/bin",
+        "HOME": str(repo.parent),
+        "CALLS": str(calls),
+        "GIT_AUTHOR_NAME": "t",
+        "GIT_AUTHOR_EMAIL": "t@t",
+        "GIT_COMMITTER_NAME": "t",
+        "GIT_COMMITTER_EMAIL": "t@t",
+    }
+    cmd = ["bash", str(repo / "scripts" / "grid_session.sh"), "--dir", str(repo.parent / "wt"), *args]
+    out = subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=120)
+    return out, calls.read_text().splitlines() if calls.exists() else []
+
+
+def test_also_flies_each_variant_in_the_other_grid_and_commits_both(checkout: Path) -> None:
+    out, calls = _run(checkout, "--seeds", "4", "--variants", "npe,ppo", "--also", "table1-confirm",
+                      "--bundle-seed", "none")  # fmt: skip
+    assert out.returncode == 0, out.stdout + out.stderr
+    sweeps = [c.split("|")[1] for c in calls if " sweep " in f" {c.split('|')[1]} " and "--to-reference" in c]
+    # Each variant is trained in table1, then flown in table1-confirm, before the next variant starts.
+    assert [(s.split()[3], s.split()[-1]) for s in sweeps] == [
+        ("table1", "npe"), ("table1-confirm", "npe"), ("table1", "ppo"), ("table1-confirm", "ppo")
+    ]  # fmt: skip
+    log = _git(checkout, "log", "--format=%s").splitlines()
+    assert log[:4] == [
+        "table1-confirm grid: seed 4, ppo recorded (reference/quick/table1-confirm-v2/: ppo/seed4)",
+        "table1 grid: seed 4, ppo recorded (reference/quick/table1-v2/: ppo/seed4)",
+        "table1-confirm grid: seed 4, npe recorded (reference/quick/table1-confirm-v2/: npe/seed4)",
+        "table1 grid: seed 4, npe recorded (reference/quick/table1-v2/: npe/seed4)",
+    ]
+    for grid in ("table1", "table1-confirm"):
+        for v in ("npe", "ppo"):
+            shown = _git(checkout, "show", f"HEAD:reference/quick/{grid}-v2/{v}/seed4/episodes.csv.gz")
+            assert shown.split() == [grid, v, "4"]
+    # The generated pages are rebuilt after both grids' ships (summary --readme), teachers released per grid.
+    assert sum("summary --preset quick --readme" in c for c in calls) == 4
+    assert any("sweep table1-confirm --preset quick --release-teachers" in c for c in calls)
+
+
+def test_without_also_only_the_grid_runs(checkout: Path) -> None:
+    out, calls = _run(checkout, "--seeds", "4", "--variants", "npe", "--bundle-seed", "none")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert not any("table1-confirm" in c for c in calls)
+    assert _git(checkout, "log", "--format=%s").splitlines()[0].startswith("table1 grid: seed 4, npe recorded")
