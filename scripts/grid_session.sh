@@ -107,7 +107,7 @@ ship() {  # $1: what finished, $2: the grid whose record it is (default: --grid)
     fi
   done
   release "$1" "$g"
-  summary "$1" "$g"
+  summary "$1"
 }
 
 drop_stale_copies() {  # $1: a folder staged here; unstages the files that come back as they were when removed
@@ -126,10 +126,10 @@ drop_stale_copies() {  # $1: a folder staged here; unstages the files that come 
   done < <(git -C "$root" diff --cached --name-only --diff-filter=A -- "$1")
 }
 
-summary() {  # $1: after what, $2: which grid's data; rebuilds and commits the generated blocks and figures
+summary() {  # $1: after what; rebuilds and commits the generated blocks and figures
   # A commit of grid data with the README's block left as it was fails test_summary (the block must match the data),
-  # so the block follows each ship. Skipped, with a line, while those files hold edits of someone else's.
-  [[ "$2" == table1 || "$2" == table1-confirm ]] || return 0
+  # so the blocks follow each ship of any grid the pages render (Table I, its confirmation, the ladder; a grid they
+  # do not render leaves them as they are). Skipped, with a line, while those files hold edits of someone else's.
   local docs=(README.md docs/results.md docs/generalization.md docs/glossary.md "docs/figures/$preset")
   if ! git -C "$root" diff --quiet HEAD -- "${docs[@]}"; then
     echo "grid_session: the generated pages have uncommitted edits: blocks not rebuilt (run: python -m omcrl summary --preset $preset --readme)"

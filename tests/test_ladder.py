@@ -11,7 +11,7 @@ import pytest
 
 from omcrl.config import load_config
 from omcrl.pipeline.griddata import GridData, grid_data_dir
-from omcrl.pipeline.ladder import ladder_points, ladder_stage, record_encoder_reports
+from omcrl.pipeline.ladder import ladder_markdown, ladder_points, ladder_stage, record_encoder_reports
 
 SCENES = ("box-v2", "furniture-v2", "barrier-v2", "tree-v2")
 
@@ -84,6 +84,14 @@ def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
     assert "holds" in line and "undecided" in line and line.rstrip("| ").endswith("no")  # stable pretrain: no
     for scene in SCENES:
         assert res.paths[f"ladder_{scene}"].stat().st_size > 5_000
+    # docs/results.md's block: points and their seeds, a decided row beside its budgets, the figures it shows.
+    md = "\n".join(ladder_markdown(res, "figures/x"))
+    assert "| ours | 3/3 | 3/3 | 0/3 |" in md and "| npe | 0/3 | 0/3 |" in md
+    assert "| pretrain | ours | ×4 | 3 |" in md and "| pretrain | ours | ×16 |" not in md
+    line = next(x for x in md.splitlines() if f"| {row} |" in x)
+    assert "undecided" in line and "holds" in line and line.rstrip("| ").endswith("no")
+    assert "- pretrain ×4: " in md and "![ladder, tree-v2](figures/x/ladder_tree-v2.png)" in md
+    assert "| ours | ×4 | 1 | 0.4 |" in md  # the encoder report of seed 0 at x4
 
 
 def test_an_encoder_report_is_written_once_per_encoder_and_travels_with_the_record(tmp_path, monkeypatch):

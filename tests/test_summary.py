@@ -4,6 +4,7 @@ and what it says when a stage has not run."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -157,6 +158,20 @@ def test_the_confirmations_block_is_what_its_data_gives(repo_root):
     assert block.startswith(("**Flown**", "Not flown yet"))
     if block.startswith("**Flown**"):  # its tables stay tables (a table row is never wrapped into prose)
         assert "\n| claim | hypothesis | grid | grid verdict |" in block and "\n| Oracle |" in block
+    assert max(len(line) for line in block.splitlines() if not line.startswith("|")) <= 120
+
+
+def test_the_ladders_block_is_what_its_data_gives(repo_root):
+    """docs/results.md's budget-ladder block is rebuilt from the grids table1, ladder-pretrain and ladder-rl under
+    reference/quick/ (summary --readme): a hand-edited cell fails here, and every figure it shows is in the checkout."""
+    from omcrl.pipeline.glance import LADDER_END, LADDER_START, current_block, ladder_block
+
+    block = ladder_block("quick")
+    page = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
+    assert current_block(page, "docs/results.md", LADDER_START, LADDER_END) == block
+    assert "| pretrain ladder | ×1 | ×4 | ×16 |" in block and "| rl | ours | ×1 | 3 |" in block
+    for image in re.findall(r"\]\((figures/[^)]+\.png)\)", block):
+        assert (repo_root / "docs" / image).is_file(), image
     assert max(len(line) for line in block.splitlines() if not line.startswith("|")) <= 120
 
 

@@ -51,6 +51,10 @@ GLOSSARY_START = "<!-- metrics: start (python -m omcrl summary --preset quick --
 GLOSSARY_END = "<!-- metrics: end -->"
 TRANSFER_START = "<!-- transfer-v2: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 TRANSFER_END = "<!-- transfer-v2: end -->"
+LADDER_START = "<!-- results-ladder: start (python -m omcrl summary --preset quick --readme writes this block) -->"
+LADDER_END = "<!-- results-ladder: end -->"
+# Where the ladder's per-scene figures live, relative to the project root and to docs/results.md.
+LADDER_FIGURES = "docs/figures/quick/v2"
 # A claim's verdict over its hypotheses (omcrl.eval.verdicts.verdict_counts), in the README's order.
 CLAIM_VERDICTS = ("holds", "reversed", "mixed", "undecided", "one seed", "not run")
 # The commit that fixed the claim ledger before any v2 Table I evaluation (omcrl.eval.ledger; docs/results.md).
@@ -437,6 +441,27 @@ def transfer_block(preset: str = "quick") -> str:
     return render_transfer(GridData(grid_data_dir(cfg, "table1")).episodes())
 
 
+def ladder_block(preset: str = "quick", figures_to: str | Path | None = None) -> str:
+    """docs/results.md's block on the budget ladder (:func:`omcrl.pipeline.ladder.ladder_markdown`), rebuilt from
+    the grids ``table1``, ``ladder-pretrain`` and ``ladder-rl`` under ``reference/<preset>/``; with ``figures_to``
+    (a folder), the per-scene figures are copied there."""
+    from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
+        try:
+            res = ladder_stage(cfg)
+        except FileNotFoundError:
+            return f"Not run yet (no ladder point has episodes under `reference/{preset}/`)."
+        if figures_to is not None:
+            Path(figures_to).mkdir(parents=True, exist_ok=True)
+            for name, path in res.paths.items():
+                if name.startswith("ladder_") and path.suffix == ".png":
+                    shutil.copyfile(path, Path(figures_to) / path.name)
+        rel = LADDER_FIGURES.removeprefix("docs/")
+        return "\n".join(_wrap(x) for x in ladder_markdown(res, rel))
+
+
 def _progress_md(cfg: Any, seeds: int = 5) -> list[str]:
     """Markdown lines: which learned methods' training seeds the grid has recorded (✓) and which are to come."""
     record = GridData(grid_data_dir(cfg, "table1"))
@@ -549,13 +574,16 @@ def _rewrite(path: Path, blocks: list[tuple[str, str, str]]) -> bool:
 
 def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bool:
     """Rewrite the README's blocks (v2 from ``reference/<preset>/table1-v2/``, v1 from ``reference/<preset>/table1``),
-    docs/results.md's v2 block and the v2 Fig. 5 beside them (:data:`V2_FIGURE`), and docs/glossary.md's metrics
+    docs/results.md's v2 block and the v2 Fig. 5 beside them (:data:`V2_FIGURE`), its ladder block and figures
+    (:func:`ladder_block`, :data:`LADDER_FIGURES`), and docs/glossary.md's metrics
     table (:func:`omcrl.eval.metrics.glossary_markdown`); True when the README changed."""
     root = project_root()
     path = Path(readme) if readme is not None else root / "README.md"
     short, full, confirm = _v2(preset, figure_to=root / V2_FIGURE)
     v1 = render_v1_results(reference_table_dir(preset))
-    blocks = [(full, FULL_START, FULL_END), (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END)]
+    ladder = ladder_block(preset, figures_to=root / LADDER_FIGURES)
+    blocks = [(full, FULL_START, FULL_END), (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END),
+              (ladder, LADDER_START, LADDER_END)]  # fmt: skip
     _rewrite(root / "docs" / "results.md", blocks)
     _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
     _rewrite(root / "docs" / "generalization.md", [(transfer_block(preset), TRANSFER_START, TRANSFER_END)])

@@ -294,3 +294,87 @@ def ladder_stage(
         paths[f"ladder_{scene}"] = save_figure(fig, cfg.run_root / "figures", f"ladder_{scene}")
         plt.close(fig)
     return LadderResult(table, encoders, long, paths, time.perf_counter() - t0)
+
+
+def _cell(mean: float, lo: float, hi: float) -> str:
+    if not math.isfinite(mean):
+        return "–"
+    text = f"{mean:.0f}"
+    if math.isfinite(lo) and math.isfinite(hi) and (f"{lo:.0f}", f"{hi:.0f}") != (text, text):
+        text += f" [{lo:.0f}, {hi:.0f}]"
+    return text
+
+
+def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequence[int] = LADDER_SEEDS) -> list[str]:
+    """Markdown lines of the ladder for docs/results.md: which points have which seeds, SR per point and scene
+    (mean [95 % CI], seeds × layouts), the encoders per pretraining point, the verdicts' tally per point and every
+    hypothesis that some point decides or whose verdict moves; with ``figures`` (a folder relative to the page),
+    the per-scene figures :func:`ladder_stage` wrote, as images under that folder."""
+    points = ladder_points()
+    t = res.table
+    which = ", ".join(map(str, seeds))
+    lines = [f"**Points recorded** (training seeds of {which} with episodes; ×1 is Table I's run):", ""]
+    for axis in LADDERS:
+        p = points[points["axis"] == axis]
+        scales = sorted(p["scale"].unique())
+        lines += [f"| {axis} ladder | " + " | ".join(f"×{s:g}" for s in scales) + " |", "|---|" + "---|" * len(scales)]
+        for method in dict.fromkeys(p["method"]):
+            cells = []
+            for s in scales:
+                got = t[(t["axis"] == axis) & (t["method"] == method) & (t["scale"] == s)]
+                cells.append(f"{int(got['seeds'].max())}/{len(seeds)}" if len(got) else f"0/{len(seeds)}")
+            lines.append(f"| {method} | " + " | ".join(cells) + " |")
+        lines.append("")
+    scenes = list(dict.fromkeys(t["scene"]))
+    lines += [
+        "Success rate % per point, mean [95 % CI] over the point's seeds × Table I's 50 layouts (the planners have no "
+        "budget and are in Table I):",
+        "",
+        "| ladder | method | budget | seeds | " + " | ".join(scenes) + " |",
+        "|---|---|---|---|" + "---|" * len(scenes),
+    ]
+    for (axis, method, scale), g in t.groupby(["axis", "method", "scale"], sort=False):
+        by = g.set_index("scene")
+        cells = [_cell(by.at[s, "SR"], by.at[s, "SR_lo"], by.at[s, "SR_hi"]) if s in by.index else "" for s in scenes]
+        lines.append(f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | " + " | ".join(cells) + " |")
+    if len(res.encoders):
+        enc = res.encoders
+        cols = [c for c in enc.columns if c not in ("method", "scale", "seeds")]
+        lines += [
+            "",
+            "Encoders per pretraining point (mean over the seeds reported): `top1` the masked objective's top-1 at the "
+            "end of pretraining, `R2 <scene>` the linear probe's R² of the privileged state from the frozen features, "
+            "`MMD <scene>` the features' shift from the training scene (MMD², 0 = none):",
+            "",
+            "| method | budget | seeds | " + " | ".join(cols) + " |",
+            "|---|---|---|" + "---|" * len(cols),
+        ]
+        for row in enc.to_dict("records"):
+            vals = [f"{row[c]:.3g}" if isinstance(row[c], float) and math.isfinite(row[c]) else "" for c in cols]
+            lines.append(f"| {row['method']} | ×{row['scale']:g} | {int(row['seeds'])} | " + " | ".join(vals) + " |")
+    v = res.verdicts
+    if len(v):
+        lines += ["", "The claim ledger judged at each point (Holm within each family, over the rows it judges):", ""]
+        for (axis, scale), g in v.groupby(["axis", "scale"], sort=False):
+            n = g["verdict"].value_counts()
+            tally = ", ".join(f"{int(n.get(k, 0))} {k}" for k in ("holds", "reversed", "undecided"))
+            one = int(n.get("one seed", 0))
+            lines.append(f"- {axis} ×{scale:g}: {len(g)} hypotheses, {tally}" + (f", {one} one seed" if one else ""))
+        wide = verdicts_wide(v)
+        point_cols = [c for c in wide.columns if " ×" in c]
+        decided = wide[point_cols].apply(lambda col: col.str.startswith(("holds", "reversed"))).any(axis=1)
+        moved = (wide[[c for c in wide.columns if c.startswith("stable ")]] == "no").any(axis=1)
+        shown = wide[decided | moved]
+        lines += [
+            "",
+            f"The {len(shown)} hypotheses that some point decides or whose verdict moves with budget (`stable`: the "
+            f"same verdict at every budget that judged it); the other {len(wide) - len(shown)} are undecided wherever "
+            "judged:",
+            "",
+        ]
+        if len(shown):
+            lines += to_markdown(shown.set_index("claim"), "claim").strip().splitlines()
+    if figures is not None:
+        lines += ["", "SR against budget, one figure per scene (log axis; the intervals as in the table):", ""]
+        lines += [f"![ladder, {s}]({figures}/ladder_{s}.png)" for s in scenes]
+    return lines
