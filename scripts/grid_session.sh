@@ -14,8 +14,8 @@
 # After each variant of each seed, the worktree's reference/<preset>/<grid>-<suite>/ is copied into this checkout
 # and committed alone (`git commit -- <that folder>`: nothing else staged here is committed with it). A variant whose
 # episodes are already recorded there is not trained again, so a session that ends midway loses only the variant in
-# flight. The README's and docs/results.md's blocks (rendered by this checkout's code) are rebuilt and committed after
-# each ship of table1 (`summary --readme`), unless those files hold uncommitted edits.
+# flight. The README's and docs/results.md's blocks (rendered by this checkout's code: Table I, its confirmation, the
+# budget ladder) are rebuilt and committed after each ship (`summary --readme`), unless they hold uncommitted edits.
 #
 # A teacher's weights (the oracle's final.pt, ~15 MB a seed) are committed with its records; once every evaluation
 # that needs them is recorded, they are released (`sweep --release-teachers`: a pointer to their git blob replaces
