@@ -27,6 +27,7 @@ from omcrl.eval.stats import cell_rng, contrast, term
 from omcrl.eval.table1 import Table1Result, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, compare_readings, readings_markdown, verdict_counts
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
+from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
 from omcrl.pipeline.records import Table1Record
 from omcrl.pipeline.reference import reference_table_dir
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
@@ -445,8 +446,6 @@ def ladder_block(preset: str = "quick", figures_to: str | Path | None = None) ->
     """docs/results.md's block on the budget ladder (:func:`omcrl.pipeline.ladder.ladder_markdown`), rebuilt from
     the grids ``table1``, ``ladder-pretrain`` and ``ladder-rl`` under ``reference/<preset>/``; with ``figures_to``
     (a folder), the per-scene figures are copied there."""
-    from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
-
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         try:

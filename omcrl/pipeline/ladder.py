@@ -43,6 +43,7 @@ from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.pipeline.grids import GRIDS
 from omcrl.pipeline.reference import config_suite
 from omcrl.planners import PLANNERS
+from omcrl.rl.train import rollout_geometry
 from omcrl.runs import read_identity
 from omcrl.utils.io import atomic_write_bytes, atomic_write_text
 from omcrl.viz import save_figure
@@ -86,7 +87,7 @@ def budgets(cfg: Config) -> dict[str, str]:
     """``{axis: what its ×1 is at cfg}``, for the figure's axis labels."""
     return {
         "pretrain": f"{cfg.pretrain.iterations:,} iterations on {cfg.data.episodes:,} episodes",
-        "rl": f"{cfg.rl.total_steps:,} env steps",
+        "rl": f"{rollout_geometry(cfg.rl)[3]:,} env steps",  # what a run makes: whole updates, not total_steps
     }
 
 
