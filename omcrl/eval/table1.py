@@ -137,6 +137,21 @@ def paper_table1() -> pd.DataFrame:
     return pd.read_csv(PAPER_TABLE1, comment="#")
 
 
+def ci_text(mean: float, lo: float, hi: float, digits: int = 0) -> str:
+    """``mean [lo, hi]`` at ``digits`` decimals; the interval left out where it is not finite or, at that precision,
+    collapses onto the mean (a planner flown once, a cell at 100 %); ``–`` for a mean that is not finite."""
+
+    def num(x: float) -> str:
+        return f"{x:.{digits}f}"
+
+    if not math.isfinite(mean):
+        return "–"
+    text = num(mean)
+    if math.isfinite(lo) and math.isfinite(hi) and (num(lo), num(hi)) != (text, text):
+        text += f" [{num(lo)}, {num(hi)}]"
+    return text
+
+
 def _fmt(mean: float, lo: float, hi: float, metric: str) -> str:
     if not math.isfinite(mean):
         return "–"

@@ -24,7 +24,7 @@ from omcrl import planners
 from omcrl.config import load_config, project_root
 from omcrl.eval.metrics import glossary_markdown
 from omcrl.eval.stats import cell_rng, contrast, term
-from omcrl.eval.table1 import Table1Result, paper_table1, read_table1_csv, table1_frames
+from omcrl.eval.table1 import Table1Result, ci_text, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, compare_readings, readings_markdown, verdict_counts
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
 from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
@@ -103,10 +103,6 @@ def wide_table(rows: pd.DataFrame, with_paper: bool = True, digits: int = 0) -> 
     metric = str(rows["metric"].iloc[0]) if len(rows) else "SR"
     paper = paper_table1().set_index(["method", "scene"])[metric]
     cell = {(r.method, r.scene): r for r in rows.itertuples()}
-
-    def num(x: float) -> str:
-        return "–" if not math.isfinite(x) else f"{x:.{digits}f}"
-
     lines = ["| method | " + " | ".join(scene_label(s) for s in scenes) + " |", "|---|" + "---|" * len(scenes)]
     for m in methods:
         out = []
@@ -115,9 +111,7 @@ def wide_table(rows: pd.DataFrame, with_paper: bool = True, digits: int = 0) -> 
             if r is None:
                 out.append("")
                 continue
-            text = num(r.mean)
-            if math.isfinite(r.lo) and math.isfinite(r.hi) and (num(r.lo), num(r.hi)) != (text, text):
-                text += f" [{num(r.lo)}, {num(r.hi)}]"
+            text = ci_text(r.mean, r.lo, r.hi, digits)
             psc = scene_spec(s).paper_scene
             if with_paper and psc is not None and (m, psc) in paper.index and pd.notna(paper[(m, psc)]):
                 text += f" *{paper[(m, psc)]:g}*"

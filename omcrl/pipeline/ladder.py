@@ -36,6 +36,7 @@ import pandas as pd
 from omcrl.config import Config
 from omcrl.eval.stage import to_markdown
 from omcrl.eval.stats import DEFAULT_REPS, aggregate
+from omcrl.eval.table1 import ci_text
 from omcrl.eval.verdicts import ledger_verdicts
 from omcrl.interpret.encoder_report import REPORT, read_report, suite_settings, write_encoder_report
 from omcrl.interpret.transfer import setting_samples
@@ -297,15 +298,6 @@ def ladder_stage(
     return LadderResult(table, encoders, long, paths, time.perf_counter() - t0)
 
 
-def _cell(mean: float, lo: float, hi: float) -> str:
-    if not math.isfinite(mean):
-        return "–"
-    text = f"{mean:.0f}"
-    if math.isfinite(lo) and math.isfinite(hi) and (f"{lo:.0f}", f"{hi:.0f}") != (text, text):
-        text += f" [{lo:.0f}, {hi:.0f}]"
-    return text
-
-
 def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequence[int] = LADDER_SEEDS) -> list[str]:
     """Markdown lines of the ladder for docs/results.md: which points have which seeds, SR per point and scene
     (mean [95 % CI], seeds × layouts), the encoders per pretraining point, the verdicts' tally per point and every
@@ -336,7 +328,7 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
     ]
     for (axis, method, scale), g in t.groupby(["axis", "method", "scale"], sort=False):
         by = g.set_index("scene")
-        cells = [_cell(by.at[s, "SR"], by.at[s, "SR_lo"], by.at[s, "SR_hi"]) if s in by.index else "" for s in scenes]
+        cells = [ci_text(by.at[s, "SR"], by.at[s, "SR_lo"], by.at[s, "SR_hi"]) if s in by.index else "" for s in scenes]
         lines.append(f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | " + " | ".join(cells) + " |")
     if len(res.encoders):
         enc = res.encoders
