@@ -11,7 +11,14 @@ import pytest
 
 from omcrl.config import load_config
 from omcrl.pipeline.griddata import GridData, grid_data_dir
-from omcrl.pipeline.ladder import ladder_markdown, ladder_points, ladder_stage, record_encoder_reports
+from omcrl.pipeline.ladder import (
+    ladder_episodes,
+    ladder_markdown,
+    ladder_points,
+    ladder_stage,
+    record_encoder_reports,
+    scale_effects,
+)
 
 SCENES = ("box-v2", "furniture-v2", "barrier-v2", "tree-v2")
 
@@ -92,6 +99,21 @@ def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
     assert "undecided" in line and "holds" in line and line.rstrip("| ").endswith("no")
     assert "- pretrain ×4: " in md and "![ladder, tree-v2](figures/x/ladder_tree-v2.png)" in md
     assert "| ours | ×4 | 1 | 0.4 |" in md  # the encoder report of seed 0 at x4
+    # The direct test of a change with budget: ours rose from 50 % to 90 %, curl fell to 10 %, paired with x1.
+    eff = res.effects.set_index(["axis", "method", "scale", "scene"])
+    for scene in ("barrier-v2", "tree-v2"):  # (with three seeds a 40-point move is not resolved in every scene)
+        assert eff.loc[("pretrain", "ours", 4.0, scene), "verdict"] == "up"
+        assert eff.loc[("pretrain", "curl", 4.0, scene), "verdict"] == "down"
+    assert eff.loc[("pretrain", "ours", 4.0, "box-v2"), "seeds"] == 3 and ("rl", "ours", 3.0, "box-v2") not in eff.index
+    d = eff.loc[("pretrain", "ours", 4.0, "tree-v2")]
+    assert d["lo"] < d["diff"] < d["hi"] and 25 < d["diff"] < 55
+    assert "SR change from ×1" in md and "| pretrain | ours | ×4 | 3 | +" in md and "↑" in md and "↓" in md
+    assert "of 1 hypotheses judged at two or more budgets" not in md and "pretrain ladder: of " in md
+    assert res.paths["ladder_scale.md"].read_text().count("| pretrain |") == 2
+    # A point of one training seed is compared with x1's same seed and shown, not judged.
+    ep = ladder_episodes(cfg)
+    one = scale_effects(ep[(ep["scale"] == 1.0) | (ep["train_seed"] == 0)], reps=100)
+    assert set(one["verdict"]) == {"one seed"} and set(one["seeds"]) == {1}
 
 
 def test_an_encoder_report_is_written_once_per_encoder_and_travels_with_the_record(tmp_path, monkeypatch):

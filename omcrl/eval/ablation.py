@@ -191,12 +191,12 @@ def remedy_verdicts(
     Returns
     -------
     (checks, summary). ``checks``: one row per variant and scene, ``label, scene, seeds, SR, SR_lo, SR_hi``
-    (% with the two-stage bootstrap 95 % CI) and, for the remedies, ``diff, diff_lo, diff_hi`` (variant −
-    reference in percentage points) and ``change`` (``better`` / ``worse`` where the CI excludes 0, else
-    ``unresolved``). ``summary``: one row per variant, its lowest SR over the unseen scenes (every scene but
-    box), ``target``: ``met`` (every unseen SR ≥ target), ``met within CI`` (every upper bound ≥ target),
-    or ``not met``, and ``seeds meeting it``: ``k/n``, the training seeds whose own SR reaches the target in
-    every unseen scene (with two or three seeds a wide CI can reach the target while no single seed does).
+    (% with the 95 % CI of :func:`omcrl.eval.stats.aggregate`: seeds and layouts crossed) and, for the remedies,
+    ``diff, diff_lo, diff_hi`` (variant − reference in percentage points) and ``change`` (``better`` / ``worse`` where
+    the CI excludes 0, else ``unresolved``). ``summary``: one row per variant, its lowest SR over the unseen scenes
+    (every scene but box), ``target``: ``met`` (every unseen SR ≥ target), ``met within CI`` (every upper bound ≥
+    target), or ``not met``, and ``seeds meeting it``: ``k/n``, the training seeds whose own SR reaches the target
+    in every unseen scene (with two or three seeds a wide CI can reach the target while no single seed does).
     """
 
     ep = episodes.drop(columns=["method"], errors="ignore").rename(columns={"label": "method"})
@@ -277,8 +277,8 @@ def precision_table(episodes: pd.DataFrame, reps: int = 2000) -> pd.DataFrame:
     """bf16 against fp32 per method and scene, from the ``precision`` sweep (labels ``<method> fp32|bf16``).
 
     Returns one row per method and scene: ``method, scene, seeds, SR_fp32, SR_bf16`` (%) and ``diff, lo, hi``
-    (bf16 − fp32 in percentage points, 95 % two-stage bootstrap CI of the difference), ``resolved`` (the CI
-    excludes 0).
+    (bf16 − fp32 in percentage points, 95 % CI of the paired difference, :func:`omcrl.eval.stats.compare_sr`),
+    ``resolved`` (the CI excludes 0).
     """
 
     ep = episodes.drop(columns=["method"], errors="ignore").rename(columns={"label": "method"})
@@ -308,8 +308,8 @@ def write_precision(
     paths = {"csv": d / "precision.csv", "md": d / "precision.md"}
     atomic_write_text(paths["csv"], table.to_csv(index=False))
     lines = [
-        "bf16 − fp32 success rate (pp) per method and scene, 95 % two-stage bootstrap CI over the training seeds "
-        "and evaluation episodes; resolved where the CI excludes 0.",
+        "bf16 − fp32 success rate (pp) per method and scene, 95 % CI of the paired difference (training seeds and "
+        "layouts crossed); resolved where the CI excludes 0.",
         "",
         "| method | scene | seeds | SR fp32 % | SR bf16 % | bf16 − fp32 pp [95 % CI] | resolved |",
         "|---|---|---|---|---|---|---|",

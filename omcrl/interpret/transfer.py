@@ -142,7 +142,7 @@ def appearance_table(
     cfg: Config, seeds: Sequence[int] | None = None, method: str = "ours", *, progress: bool = False
 ) -> pd.DataFrame:
     """SR/CR/NE of ``method`` for every (layout, look, part) of :data:`SWAPS`, over ``seeds`` (default
-    ``cfg.seeds``), on Table I's evaluation episodes, with 95 % two-stage bootstrap CIs."""
+    ``cfg.seeds``), on Table I's evaluation episodes, with 95 % CIs (seeds and layouts crossed)."""
 
     frames = []
     seeds = list(seeds if seeds is not None else cfg.seeds)
@@ -256,7 +256,7 @@ DETOUR_BINS: tuple[float, ...] = (1.0, 1.02, 1.1, 1.3, float("inf"))
 def by_detour(
     episodes: pd.DataFrame, detour: pd.Series, bins: Sequence[float] = DETOUR_BINS, reps: int = 2000
 ) -> pd.DataFrame:
-    """SR and CR per (method, scene, detour bin), with 95 % two-stage bootstrap CIs.
+    """SR and CR per (method, scene, detour bin), with 95 % CIs (seeds and layouts crossed).
 
     Parameters
     ----------

@@ -34,10 +34,11 @@ import matplotlib.pyplot as plt
 import pandas as pd
 
 from omcrl.config import Config
+from omcrl.eval.metrics import episode_values
 from omcrl.eval.stage import to_markdown
-from omcrl.eval.stats import DEFAULT_REPS, aggregate
+from omcrl.eval.stats import BOUNDED, DEFAULT_REPS, aggregate, cell_rng, term
 from omcrl.eval.table1 import ci_text
-from omcrl.eval.verdicts import ledger_verdicts
+from omcrl.eval.verdicts import holm_verdicts, judge, ledger_verdicts
 from omcrl.interpret.encoder_report import REPORT, read_report, suite_settings, write_encoder_report
 from omcrl.interpret.transfer import setting_samples
 from omcrl.pipeline.griddata import GridData, grid_data_dir
@@ -117,6 +118,51 @@ def ladder_table(episodes: pd.DataFrame, reps: int = DEFAULT_REPS) -> pd.DataFra
         return pd.DataFrame(columns=["axis", "method", "scale", "scene", "seeds", "episodes"])
     out = aggregate(episodes, ("axis", "method", "scale", "scene"), reps=reps).reset_index()
     return out.sort_values(["axis", "method", "scale"], kind="stable", ignore_index=True)
+
+
+def scale_effects(episodes: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 0) -> pd.DataFrame:
+    """Does SR move with budget? Per ladder, method, point above ×1 and scene: SR at ×k minus SR at ×1.
+
+    The two are paired as Table I's contrasts are (:func:`omcrl.eval.stats.contrast`): the same layouts, and the
+    ×1 runs taken at the training seeds the ×k point has, each seed's two runs resampled together. Holm–Bonferroni
+    over every (method, point, scene) of a ladder (:func:`omcrl.eval.verdicts.holm_verdicts`, one family per ladder).
+    This is the direct test of a change with scale; a ledger verdict that differs between budgets may also differ
+    because each point's Holm family holds the rows that point judges.
+
+    Parameters
+    ----------
+    episodes : :func:`ladder_episodes` (``axis, method, scale, scene, train_seed, seed``, the metrics' columns).
+
+    Returns
+    -------
+    DataFrame ``axis, method, scale, scene, seeds, diff, lo, hi, p, p_holm, verdict``: ``diff`` in percentage
+    points with its 95 % CI; ``verdict`` ``up`` / ``down`` (Holm-adjusted p < 0.05, by its sign), ``no change
+    resolved``, or ``one seed`` (a point of one training seed: shown, not judged).
+    """
+    cols = ["axis", "method", "scale", "scene", "seeds", "diff", "lo", "hi", "p", "p_holm", "verdict"]
+    if episodes.empty:
+        return pd.DataFrame(columns=cols)
+    values = episode_values(episodes)
+    rows = []
+    for (axis, method), g in episodes.groupby(["axis", "method"], sort=False):
+        base = g[g["scale"] == 1.0]
+        for scale in sorted(s for s in g["scale"].unique() if s != 1.0):
+            top = g[g["scale"] == scale]
+            for scene in dict.fromkeys(top["scene"]):
+                hi_ = top[top["scene"] == scene]
+                lo_ = base[(base["scene"] == scene) & base["train_seed"].isin(set(hi_["train_seed"]))]
+                terms = [
+                    term(hi_, values.loc[hi_.index, "SR"].to_numpy(), scene, 1.0) if len(hi_) else None,
+                    term(lo_, values.loc[lo_.index, "SR"].to_numpy(), scene, -1.0) if len(lo_) else None,
+                ]
+                rng = cell_rng(seed, "scale", axis, method, scale, scene)
+                rows.append({"axis": axis, "method": method, "scale": scale, "scene": scene,
+                             **judge(terms, [True, True], reps, rng, BOUNDED["SR"])})  # fmt: skip
+    if not rows:
+        return pd.DataFrame(columns=cols)
+    out = holm_verdicts(pd.DataFrame(rows), "axis").rename(columns={"estimate": "diff"})
+    out["verdict"] = out["verdict"].replace({"holds": "up", "reversed": "down", "undecided": "no change resolved"})
+    return out[cols]
 
 
 def encoder_rows(cfg: Config, seeds: Sequence[int] = LADDER_SEEDS) -> pd.DataFrame:
@@ -247,6 +293,7 @@ class LadderResult:
     table: pd.DataFrame
     encoders: pd.DataFrame
     verdicts: pd.DataFrame
+    effects: pd.DataFrame = field(default_factory=pd.DataFrame)
     paths: dict[str, Path] = field(default_factory=dict)
     seconds: float = 0.0
 
@@ -276,6 +323,7 @@ def ladder_stage(
     encoders = encoder_table(encoder_rows(cfg, seeds), reference)
     long = verdicts_by_budget(cfg, episodes, seeds, reps)
     wide = verdicts_wide(long)
+    effects = scale_effects(episodes, reps)
     out = cfg.run_root / "tables"
     out.mkdir(parents=True, exist_ok=True)
     cols = ["axis", "method", "scale", "scene", "seeds", *(c for m in SHOWN for c in (m, f"{m}_lo", f"{m}_hi"))]
@@ -285,6 +333,7 @@ def ladder_stage(
         ("ladder_table", shown, to_markdown(shown.round(1).set_index("axis"), "axis")),
         ("ladder_encoders", encoders, to_markdown(encoders.round(3).set_index("method"), "method")),
         ("ladder_verdicts", long, to_markdown(wide.set_index("claim"), "claim") if len(wide) else "(none)\n"),
+        ("ladder_scale", effects, "\n".join(_effects_md(effects)) + "\n"),
     ):
         paths[f"{name}.csv"], paths[f"{name}.md"] = out / f"{name}.csv", out / f"{name}.md"
         atomic_write_text(paths[f"{name}.csv"], df.to_csv(index=False))
@@ -295,7 +344,59 @@ def ladder_stage(
         fig = plot_ladder(table, scene, budgets(cfg), scales)
         paths[f"ladder_{scene}"] = save_figure(fig, cfg.run_root / "figures", f"ladder_{scene}")
         plt.close(fig)
-    return LadderResult(table, encoders, long, paths, time.perf_counter() - t0)
+    return LadderResult(table, encoders, long, effects, paths, time.perf_counter() - t0)
+
+
+def _effects_md(effects: pd.DataFrame) -> list[str]:
+    """Markdown lines of :func:`scale_effects`: one row per ladder, method and point, one cell per scene."""
+    if effects.empty:
+        return ["(no point above ×1 recorded yet)"]
+    scenes = list(dict.fromkeys(effects["scene"]))
+    lines = [
+        "| ladder | method | budget | seeds | " + " | ".join(scenes) + " |",
+        "|---|---|---|---|" + "---|" * len(scenes),
+    ]
+    mark = {"up": " ↑", "down": " ↓"}
+    for (axis, method, scale), g in effects.groupby(["axis", "method", "scale"], sort=False):
+        by = g.set_index("scene")
+        cells = [
+            f"{by.at[s, 'diff']:+.0f} [{by.at[s, 'lo']:+.0f}, {by.at[s, 'hi']:+.0f}]{mark.get(by.at[s, 'verdict'], '')}"
+            if s in by.index and math.isfinite(by.at[s, "diff"])
+            else ""
+            for s in scenes
+        ]
+        lines.append(f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | " + " | ".join(cells) + " |")
+    n = effects["verdict"].value_counts()
+    lines += [
+        "",
+        f"{int(n.get('up', 0))} up, {int(n.get('down', 0))} down, {int(n.get('no change resolved', 0))} with no change "
+        f"resolved" + (f", {int(n.get('one seed', 0))} of one seed (not judged)" if n.get("one seed", 0) else "") + ".",
+    ]
+    return lines
+
+
+def _stability_line(wide: pd.DataFrame) -> str:
+    """One sentence per ladder: of the hypotheses two or more of its budgets judged, how many keep their verdict,
+    and how many of those that change go between holds and reversed (a flip) rather than to or from undecided."""
+    out = []
+    for axis in LADDERS:
+        col = f"stable {axis}"
+        if col not in wide:
+            continue
+        judged = wide[wide[col].isin(["yes", "no"])]
+        if judged.empty:
+            continue
+        points = [c for c in wide.columns if c.startswith(f"{axis} ×")]
+        moved = judged[judged[col] == "no"]
+        flips = sum(
+            {"holds", "reversed"} <= {str(x).split(" ")[0] for x in r[points] if x} for _, r in moved.iterrows()
+        )
+        kept = len(judged) - len(moved)
+        out.append(
+            f"{axis} ladder: of {len(judged)} hypotheses judged at two or more budgets, {kept} keep their verdict and "
+            f"{len(moved)} change ({flips} between holds and reversed, the rest to or from undecided)."
+        )
+    return " ".join(out)
 
 
 def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequence[int] = LADDER_SEEDS) -> list[str]:
@@ -354,6 +455,9 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
             one = int(n.get("one seed", 0))
             lines.append(f"- {axis} ×{scale:g}: {len(g)} hypotheses, {tally}" + (f", {one} one seed" if one else ""))
         wide = verdicts_wide(v)
+        stability = _stability_line(wide)
+        if stability:
+            lines += ["", stability]
         point_cols = [c for c in wide.columns if " ×" in c]
         decided = wide[point_cols].apply(lambda col: col.str.startswith(("holds", "reversed"))).any(axis=1)
         moved = (wide[[c for c in wide.columns if c.startswith("stable ")]] == "no").any(axis=1)
@@ -367,6 +471,15 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
         ]
         if len(shown):
             lines += to_markdown(shown.set_index("claim"), "claim").strip().splitlines()
+    if len(res.effects):
+        lines += [
+            "",
+            "SR change from ×1, percentage points, mean [95 % CI] (the same seeds and layouts at both budgets; ↑ / ↓: "
+            "resolved after Holm over the ladder's cells). A ledger verdict above may also move because each point's "
+            "Holm family holds the rows that point judges; this table is the direct test of a change with budget:",
+            "",
+            *_effects_md(res.effects),
+        ]
     if figures is not None:
         lines += ["", "SR against budget, one figure per scene (log axis; the intervals as in the table):", ""]
         lines += [f"![ladder, {s}]({figures}/ladder_{s}.png)" for s in scenes]

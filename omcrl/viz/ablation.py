@@ -92,8 +92,8 @@ UNIT_LABEL = {"NE": "NE (m)", "SR": "SR (%)", "SPL": "SPL (0–1)", "CR": "CR (%
 
 
 def plot_bars(table: pd.DataFrame, metric: str = "SR", title: str = "") -> plt.Figure:
-    """Fig. 9: ``metric`` per scene (groups) and variant (bars) with 95 % CIs (two-stage bootstrap over training
-    seeds and evaluation episodes)."""
+    """Fig. 9: ``metric`` per scene (groups) and variant (bars) with 95 % CIs (training seeds and layouts
+    crossed, :func:`omcrl.eval.stats.aggregate`)."""
     scenes, variants = _scenes(table), _variants(table)
     fig, ax = plt.subplots(figsize=(1.5 + 1.6 * len(scenes), 3.4))
     w = 0.8 / len(variants)
