@@ -33,6 +33,9 @@
 # for a grid that re-flies this grid's runs in other layouts (table1-confirm): a policy's weights live only on the
 # machine that trained it (only the records are committed), so the other grid flies it before a session ends.
 #
+# --variants: labels of the grid's variants, in the order to run them (default: Table I's teacher-first order for
+# table1 and table1-confirm, every variant of any other grid in its order, e.g. --grid decay runs linear, exp, fixed).
+#
 # --by sets the loop's order: seed (default: every variant of seed 0, then of seed 1, ...; whole rows of Table I
 # first) or variant (every seed of the first variant, then of the next; a budget ladder's point gets its intervals
 # before a costlier point starts, e.g. --grid ladder-pretrain --by variant --seeds 0,1,2).
@@ -45,7 +48,8 @@ grid=table1
 seeds=0,1,2,3,4
 # Teacher first (its students need it), then the frozen-encoder students (about 31 min each), then the pixel
 # runs (about 70 min each), so that what a session finishes is as many whole rows as it can be.
-variants=oracle,ours,ours-noOT,ours-lapf,curl,curl-phi,npe,npe-ot,ppo
+table1_variants=oracle,ours,ours-noOT,ours-lapf,curl,curl-phi,npe,npe-ot,ppo
+variants=""  # default: Table I's order above for table1 and table1-confirm, every variant of any other grid
 preset=quick
 backend=local
 bundle_seed=default
@@ -76,6 +80,14 @@ if [[ "$bundle_seed" == default ]]; then
 fi
 py="$root/.venv/bin/python"
 [[ -x "$py" ]] || { echo "grid_session: $py not found; run ./reproduce.sh --test once to make .venv" >&2; exit 2; }
+if [[ -z "$variants" ]]; then
+  if [[ "$grid" == table1 || "$grid" == table1-confirm ]]; then
+    variants="$table1_variants"
+  else  # the grid's labels, in its order (an unknown grid fails here, naming the known ones)
+    variants="$("$py" -c 'import sys; from omcrl.pipeline.grids import grid_variants
+print(",".join(v.label for v in grid_variants(sys.argv[1])))' "$grid")" || exit 2
+  fi
+fi
 
 if [[ ! -d "$dir" ]]; then
   git -C "$root" worktree add --detach "$dir" HEAD >/dev/null

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -19,6 +20,8 @@ ROOT = Path(__file__).resolve().parents[1]
 FAKE_PYTHON = r"""#!/usr/bin/env bash
 # FakePython: stands in for .venv/bin/python in a dry run of grid_session.sh.
 echo "$PWD|$*" >> "$CALLS"
+# The script asks the kit for a grid's variant labels (no --variants): the real interpreter answers that.
+if [[ "$1" == -c ]]; then exec "$REAL_PYTHON" "$@"; fi
 if [[ "$3" == sweep && " $* " == *" --to-reference "* ]]; then
   args=("$@")
   for ((i = 0; i < ${#args[@]}; i++)); do
@@ -64,7 +67,7 @@ def checkout(tmp_path: Path) -> Path:
 
 def _run(repo: Path, *args: str) -> tuple[subprocess.CompletedProcess, list[str]]:
     calls = repo.parent / "calls.log"
-    env = {**os.environ, **IDENTITY, "CALLS": str(calls)}
+    env = {**os.environ, **IDENTITY, "CALLS": str(calls), "REAL_PYTHON": sys.executable, "PYTHONPATH": str(ROOT)}
     cmd = ["bash", str(repo / "scripts" / "grid_session.sh"), "--dir", str(repo.parent / "wt"), *args]
     out = subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=120)
     return out, calls.read_text().splitlines() if calls.exists() else []
@@ -100,3 +103,15 @@ def test_without_also_only_the_grid_runs(checkout: Path) -> None:
     assert out.returncode == 0, out.stdout + out.stderr
     assert not any("table1-confirm" in c for c in calls)
     assert _git(checkout, "log", "--format=%s").splitlines()[0].startswith("table1 grid: seed 4, npe recorded")
+
+
+def test_without_variants_an_ablation_grid_runs_all_its_variants_in_order(checkout: Path) -> None:
+    from omcrl.pipeline.grids import GRIDS
+
+    out, calls = _run(checkout, "--grid", "decay", "--seeds", "0")
+    assert out.returncode == 0, out.stdout + out.stderr
+    sweeps = [c.split("|", 1)[1] for c in calls if "--to-reference" in c]
+    assert [s.split("--variants ")[1].split()[0] for s in sweeps] == [v.label for v in GRIDS["decay"]]
+    assert all(" sweep decay " in s for s in sweeps)
+    bad, _ = _run(checkout, "--grid", "no-such-grid", "--seeds", "0")
+    assert bad.returncode == 2 and "known grids are" in bad.stderr

@@ -175,6 +175,60 @@ def test_the_ladders_block_is_what_its_data_gives(repo_root):
     assert max(len(line) for line in block.splitlines() if not line.startswith("|")) <= 120
 
 
+def test_the_v2_ablations_block_is_what_its_data_gives(repo_root):
+    """docs/results.md's v2 ablations block is rebuilt from reference/quick/<grid>-v2/ for the six ablation grids
+    (summary --readme): a hand-edited cell fails here."""
+    from omcrl.pipeline.glance import ABLATION_END, ABLATION_START, ablation_block, current_block
+
+    block = ablation_block("quick")
+    page = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
+    assert current_block(page, "docs/results.md", ABLATION_START, ABLATION_END) == block
+    assert block.startswith(("**Recorded**", "Not run yet"))
+    assert max(len(line) for line in block.splitlines() if not line.startswith("|")) <= 120
+
+
+def test_the_ablations_block_judges_the_findings_from_the_grid_records(tmp_path, monkeypatch):
+    """The block from grid records alone: a variant far below its partner makes the finding hold in every unseen
+    scene, one recorded at a single seed is shown and not judged, and grids with nothing recorded say 0/3."""
+    import numpy as np
+    import pandas as pd
+
+    from omcrl.pipeline.glance import ablation_block
+    from omcrl.pipeline.griddata import GridData, grid_data_dir
+
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    scenes = ("box-v2", "furniture-v2", "barrier-v2", "tree-v2")
+    rng = np.random.default_rng(1)
+
+    def episodes(method: str, label: str, p: float, seed: int) -> pd.DataFrame:
+        ok = rng.random((len(scenes), 50)) < p
+        return pd.DataFrame([{"method": method, "label": label, "scene": sc, "train_seed": seed, "seed": j,
+                              "success": bool(ok[i, j]), "collision": not ok[i, j],
+                              "final_distance": 0.1 if ok[i, j] else 3.0, "min_distance": 0.1 if ok[i, j] else 2.0,
+                              "path_length": 8.0, "optimal_path_length": 7.0, "steps": 80}
+                             for i, sc in enumerate(scenes) for j in range(50)])  # fmt: skip
+
+    cfg = load_config("quick")
+    ot = GridData(grid_data_dir(cfg, "oracle-teacher"))
+    for s in (0, 1, 2):
+        ot.save_episodes("Ours", s, episodes("ours", "Ours", 0.9, s))
+        ot.save_episodes("Ours w/o OT", s, episodes("ours-noOT", "Ours w/o OT", 0.1, s))
+    ot.save_episodes("NPE", 0, episodes("npe", "NPE", 0.5, 0))
+    ot.save_episodes("NPE w/ OT", 0, episodes("npe-ot", "NPE w/ OT", 0.5, 0))
+    ot.save_episodes("Ours", 3, episodes("ours", "Ours", 0.0, 3))  # not one of the block's seeds
+    block = ablation_block("quick", reps=200)
+    lines = block.splitlines()
+    assert "| oracle-teacher | Ours | 3/3 |" in lines and "| oracle-teacher | NPE | 1/3 |" in lines
+    assert "| decay | linear | 0/3 |" in lines
+    # 9 checks (3 orderings x 3 unseen scenes): Ours > Ours w/o OT holds in each; the 6 of one seed are not judged.
+    assert "| 5 the oracle teacher helps ours and NPE | 9 | 3 | 0 | 0 | holds |" in block
+    check = next(x for x in lines if "| Ours > Ours w/o OT |" in x)
+    assert check.count(" holds") == 3 and "box-v2" not in check
+    assert next(x for x in lines if "| NPE w/ OT > NPE |" in x).count("one seed") == 3
+    sr = next(x for x in lines if x.startswith("| oracle-teacher | Ours | 3 |"))
+    assert len(sr.split("|")) == 2 + 3 + len(scenes) and "[" in sr
+
+
 def test_generalizations_transfer_table_is_what_the_grid_data_gives(repo_root):
     """docs/generalization.md's "what transfers" table is rebuilt from reference/quick/table1-v2/ (summary --readme):
     a hand-edited cell fails here. Each change is SR(scene) − SR(box-v2) of the same runs."""

@@ -15,6 +15,7 @@ import math
 import shutil
 import tempfile
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -22,11 +23,14 @@ import pandas as pd
 
 from omcrl import planners
 from omcrl.config import load_config, project_root
+from omcrl.eval.ablation import ablation_findings, findings_summary
 from omcrl.eval.metrics import glossary_markdown
-from omcrl.eval.stats import cell_rng, contrast, term
+from omcrl.eval.stage import to_markdown
+from omcrl.eval.stats import aggregate, cell_rng, contrast, term
 from omcrl.eval.table1 import Table1Result, ci_text, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, compare_readings, readings_markdown, verdict_counts
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
+from omcrl.pipeline.grids import ABLATION_GRIDS, GRIDS
 from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
 from omcrl.pipeline.records import Table1Record
 from omcrl.pipeline.reference import reference_table_dir
@@ -56,6 +60,12 @@ LADDER_START = "<!-- results-ladder: start (python -m omcrl summary --preset qui
 LADDER_END = "<!-- results-ladder: end -->"
 # Where the ladder's per-scene figures live, relative to the project root and to docs/results.md.
 LADDER_FIGURES = "docs/figures/quick/v2"
+ABLATION_START = (
+    "<!-- results-ablations-v2: start (python -m omcrl summary --preset quick --readme writes this block) -->"
+)
+ABLATION_END = "<!-- results-ablations-v2: end -->"
+# The issue's seeds for the v2 ablations (notebook 06's six findings over three training seeds).
+ABLATION_SEEDS = (0, 1, 2)
 # A claim's verdict over its hypotheses (omcrl.eval.verdicts.verdict_counts), in the README's order.
 CLAIM_VERDICTS = ("holds", "reversed", "mixed", "undecided", "one seed", "not run")
 # The commit that fixed the claim ledger before any v2 Table I evaluation (omcrl.eval.ledger; docs/results.md).
@@ -455,6 +465,91 @@ def ladder_block(preset: str = "quick", figures_to: str | Path | None = None) ->
         return "\n".join(_wrap(x) for x in ladder_markdown(res, rel))
 
 
+def ablation_block(preset: str = "quick", seeds: tuple[int, ...] = ABLATION_SEEDS, reps: int = 2000) -> str:
+    """docs/results.md's block on the paper's six ablation findings (VI-C) on the preset's scene suite, rebuilt from
+    the grids of :data:`omcrl.pipeline.grids.ABLATION_GRIDS` under ``reference/<preset>/<grid>-<suite>/`` at the
+    training ``seeds``: which variants are recorded, each finding's verdict (:func:`omcrl.eval.ablation.
+    findings_summary`), each check's SR difference with its 95 % CI and verdict (paired, Holm over the unseen-scene
+    checks; the stress room a family apart), and SR per variant and scene (Table I's intervals)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
+        episodes = {}
+        for g in ABLATION_GRIDS:
+            ep = GridData(grid_data_dir(cfg, g)).episodes()
+            if len(ep):
+                episodes[g] = ep[ep["train_seed"].isin(list(seeds))]
+    which = ", ".join(map(str, seeds))
+    if not any(len(e) for e in episodes.values()):
+        seed_arg = ",".join(map(str, seeds))
+        return _wrap(
+            f"Not run yet (no ablation grid has episodes of training seeds {which} under `reference/{preset}/`). "
+            f"`scripts/grid_session.sh --grid <grid> --seeds {seed_arg} --by variant` runs a grid and commits each "
+            "variant's rows as it finishes, for each of "
+            + ", ".join(f"`{g}`" for g in ABLATION_GRIDS)
+            + f"; `python -m omcrl sweep all --preset {preset} --seeds {seed_arg} --to-reference --plan` prints their "
+            "cost."
+        )
+    lines = [f"**Recorded** (training seeds of {which} with episodes, per variant of each grid):", ""]
+    lines += ["| grid | variant | seeds |", "|---|---|---|"]
+    for g in ABLATION_GRIDS:
+        ep = episodes.get(g, pd.DataFrame(columns=["label", "train_seed"]))
+        for v in GRIDS[g]:
+            n = ep.loc[ep["label"] == v.label, "train_seed"].nunique()
+            lines.append(f"| {g} | {v.label} | {n}/{len(seeds)} |")
+    findings = ablation_findings(episodes, reps=reps)
+    summary = findings_summary(findings)
+    lines += [
+        "",
+        "Each finding as SR orderings between variants in the unseen scenes (paired layout by layout and seed by "
+        "seed, Holm–Bonferroni over every unseen-scene check; the stress room furniture-v0 counted apart as held / "
+        "reversed / undecided). A verdict holds when every check holds, does not hold when any is reversed and none "
+        "holds:",
+        "",
+        *to_markdown(summary.set_index("finding"), "finding").strip().splitlines(),
+    ]
+    if len(findings):
+        scenes = list(dict.fromkeys(findings["scene"]))
+        lines += _captioned_head(
+            "Every check: SR of the first variant minus the second, percentage points, mean [95 % CI] and verdict "
+            "(`one seed`: shown, not judged):",
+            ["finding", "claim", *scenes],
+        )
+
+        def check(r: pd.Series) -> str:
+            ok = math.isfinite(r["diff"])
+            return f"{_signed(r['diff'])} [{_signed(r['lo'])}, {_signed(r['hi'])}] {r['verdict']}" if ok else ""
+
+        for (finding, claim), g in findings.groupby(["finding", "claim"], sort=False):
+            lines.append(f"| {finding} | {claim} | {_scene_cells(g, scenes, check)} |")
+    frames = [e.assign(grid=g) for g, e in episodes.items() if len(e)]
+    table = aggregate(pd.concat(frames, ignore_index=True), ("grid", "label", "scene"), reps=reps).reset_index()
+    order = {(g, v.label): i for i, (g, v) in enumerate((g, v) for g in ABLATION_GRIDS for v in GRIDS[g])}
+    rank = [order.get(k, len(order)) for k in zip(table["grid"], table["label"])]  # the grids' own order
+    table = table.assign(_rank=rank).sort_values("_rank", kind="stable").drop(columns="_rank")
+    scenes = list(dict.fromkeys(table["scene"]))
+    lines += _captioned_head(
+        "Success rate % per variant, mean [95 % CI] over its seeds × the layouts (the ablation budgets: a variant is "
+        "not its Table I run):",
+        ["grid", "variant", "seeds", *scenes],
+    )
+    for (g, label), t in table.groupby(["grid", "label"], sort=False):
+        sr = _scene_cells(t, scenes, lambda r: ci_text(r["SR"], r["SR_lo"], r["SR_hi"]))
+        lines.append(f"| {g} | {label} | {int(t['seeds'].max())} | {sr} |")
+    return "\n".join(_wrap(x) for x in lines)
+
+
+def _captioned_head(caption: str, columns: list[str]) -> list[str]:
+    """Markdown lines opening a table: a blank line, ``caption``, a blank line, the header and its rule."""
+    return ["", caption, "", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+
+
+def _scene_cells(rows: pd.DataFrame, scenes: list[str], cell: Callable[[pd.Series], str]) -> str:
+    """A Markdown row's cells, one per scene in ``scenes`` order: ``cell`` of ``rows``' row of that scene (column
+    ``scene``), empty where it has none."""
+    by = rows.set_index("scene")
+    return " | ".join(cell(by.loc[s]) if s in by.index else "" for s in scenes)
+
+
 def _progress_md(cfg: Any, seeds: int = 5) -> list[str]:
     """Markdown lines: which learned methods' training seeds the grid has recorded (✓) and which are to come."""
     record = GridData(grid_data_dir(cfg, "table1"))
@@ -568,7 +663,8 @@ def _rewrite(path: Path, blocks: list[tuple[str, str, str]]) -> bool:
 def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bool:
     """Rewrite the README's blocks (v2 from ``reference/<preset>/table1-v2/``, v1 from ``reference/<preset>/table1``),
     docs/results.md's v2 block and the v2 Fig. 5 beside them (:data:`V2_FIGURE`), its ladder block and figures
-    (:func:`ladder_block`, :data:`LADDER_FIGURES`), and docs/glossary.md's metrics
+    (:func:`ladder_block`, :data:`LADDER_FIGURES`), its v2 ablations block (:func:`ablation_block`), and
+    docs/glossary.md's metrics
     table (:func:`omcrl.eval.metrics.glossary_markdown`); True when the README changed."""
     root = project_root()
     path = Path(readme) if readme is not None else root / "README.md"
@@ -576,7 +672,7 @@ def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bo
     v1 = render_v1_results(reference_table_dir(preset))
     ladder = ladder_block(preset, figures_to=root / LADDER_FIGURES)
     blocks = [(full, FULL_START, FULL_END), (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END),
-              (ladder, LADDER_START, LADDER_END)]  # fmt: skip
+              (ladder, LADDER_START, LADDER_END), (ablation_block(preset), ABLATION_START, ABLATION_END)]  # fmt: skip
     _rewrite(root / "docs" / "results.md", blocks)
     _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
     _rewrite(root / "docs" / "generalization.md", [(transfer_block(preset), TRANSFER_START, TRANSFER_END)])
