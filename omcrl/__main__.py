@@ -152,6 +152,13 @@ def build_parser() -> argparse.ArgumentParser:
             )
             sp.add_argument("--rates", default=None, help="with --plan: JSON {rate_key: units/s} (default: measured)")
             sp.add_argument(
+                "--rates-out",
+                default=None,
+                metavar="FILE.json",
+                help="with --plan: also write the rates it used, in --rates' format, to a new file (kept beside a "
+                "grid's data, it is what the grid's measured cost is set against)",
+            )
+            sp.add_argument(
                 "--release-teachers",
                 action="store_true",
                 help="only take the committed weights of teachers whose students are all recorded out of "
@@ -352,7 +359,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 kw = {"release": True}
             elif args.plan:
                 kw = {"plan": True, "rates": args.rates, "to_reference": args.to_reference,
-                      "variants": _csv(args.variants)}  # fmt: skip
+                      "variants": _csv(args.variants), "rates_out": args.rates_out}  # fmt: skip
             result = func(cfg, args.grid, seeds=seeds, **kw)
         else:
             result = func(cfg)

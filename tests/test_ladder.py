@@ -110,6 +110,30 @@ def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
     assert "SR change from ×1" in md and "| pretrain | ours | ×4 | 3 | +" in md and "↑" in md and "↓" in md
     assert "of 1 hypotheses judged at two or more budgets" not in md and "pretrain ladder: of " in md
     assert res.paths["ladder_scale.md"].read_text().count("| pretrain |") == 2
+    # Cost: the jobs the ladder's grid ran against the rates its plan kept (skipped jobs ran nothing).
+    assert res.cost.empty and "Cost: the plan's prediction" not in md
+    folder = grid_data_dir(cfg, "ladder-pretrain")
+    (folder / "plan_rates.json").write_text(json.dumps({"pretrain": 2.0, "train:frozen": 100.0}))
+    pd.DataFrame(
+        [
+            ("p0", "pretrain", "done", 1800.0, "pretrain", 6000),
+            ("t0", "train", "done", 3600.0, "train:frozen", 450000),
+            ("o0", "train", "skipped", 0.4, "train:oracle", 450000),
+            ("c0", "collect", "done", 120.0, "collect", 320),
+        ],
+        columns=["id", "kind", "status", "seconds", "rate_key", "work"],
+    ).assign(method="ours", seed=0).to_csv(folder / "jobs.csv", index=False)
+    res = ladder_stage(cfg, reps=100)
+    cost = res.cost.set_index("rate_key")
+    assert list(cost.index) == ["pretrain", "train:frozen", "collect"]
+    assert (
+        cost.at["pretrain", "planned_h"] == pytest.approx(6000 / 2.0 / 3600)
+        and cost.at["pretrain", "measured_h"] == 0.5
+    )
+    assert cost.at["train:frozen", "planned_h"] == pytest.approx(1.25) and np.isnan(cost.at["collect", "planned_h"])
+    md = "\n".join(ladder_markdown(res))
+    assert "| pretrain | pretrain | 1 | 6,000 | 0.83 | 0.50 | 0.60 |" in md
+    assert "| pretrain | collect | 1 | 320 | – | 0.03 | – |" in md and "| pretrain | all | 3 | – | – | 1.53 | – |" in md
     # A point of one training seed is compared with x1's same seed and shown, not judged.
     ep = ladder_episodes(cfg)
     one = scale_effects(ep[(ep["scale"] == 1.0) | (ep["train_seed"] == 0)], reps=100)

@@ -136,6 +136,31 @@ def test_a_training_no_sweep_timed_is_rated_from_its_own_clock(tmp_path, monkeyp
     assert rates.loc["train:frozen", "rate"] == pytest.approx(100) and rates.loc["train:frozen", "jobs"] == 1
 
 
+def test_a_plans_rates_are_kept_once_and_plan_the_same_again(tmp_path, monkeypatch):
+    """--rates-out writes the rates a plan used, in --rates' format: planning again from that file prints the same
+    hours, and an existing file is never overwritten (a grid's plan is set against its measured cost later)."""
+    import json
+
+    from omcrl.config import ConfigError
+    from omcrl.pipeline.sweep import sweep_stage
+
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    cfg = load_config("smoke")
+    given = tmp_path / "given.json"
+    given.write_text(json.dumps({"collect": 2.0, "pretrain": 3.0, "train:frozen": 50.0, "train:pixel": 40.0,
+                                 "train:oracle": 45.0, "evaluate": 1.5}))  # fmt: skip
+    out = tmp_path / "kept" / "plan_rates.json"
+    first = sweep_stage(cfg, "smoke", seeds=[0, 1], plan=True, rates=str(given), rates_out=str(out))
+    assert json.loads(out.read_text()) == json.loads(given.read_text()) and "rates written to" in first
+    again = sweep_stage(cfg, "smoke", seeds=[0, 1], plan=True, rates=str(out))
+    hours = [x for x in first.splitlines() if "machine-hours" in x]
+    assert hours and hours == [x for x in again.splitlines() if "machine-hours" in x]
+    before = out.read_bytes()
+    with pytest.raises(ConfigError, match="the file exists"):
+        sweep_stage(cfg, "smoke", seeds=[0], plan=True, rates=str(given), rates_out=str(out))
+    assert out.read_bytes() == before
+
+
 def test_plan_counts_shared_jobs_once_and_knows_the_main_comparison(tmp_path):
     paper = load_config("paper", overrides=[f"results_dir={tmp_path}"])
     plan = planning.sweep_plan(paper, ["projection", "oracle-teacher"], [0])

@@ -23,6 +23,7 @@ runs at the ladder's seeds (:data:`LADDER_SEEDS`), so every point is compared ov
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import time
@@ -60,6 +61,9 @@ LADDERS: dict[str, tuple[str, str]] = {
 # The issue's seeds for the ladder; Table I's ×1 points are taken at the same ones.
 LADDER_SEEDS = (0, 1, 2)
 SHOWN = ("SR", "CR", "SPL")
+# Beside a ladder grid's data: the rates (units/s per rate_key) its plan was made with, written by
+# ``python -m omcrl sweep <grid> --plan --rates-out`` before its first job; --rates with this file plans the same.
+PLAN_RATES = "plan_rates.json"
 
 
 def _multiplier(overrides: Sequence[str], field_name: str) -> float | None:
@@ -163,6 +167,35 @@ def scale_effects(episodes: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 
     out = holm_verdicts(pd.DataFrame(rows), "axis").rename(columns={"estimate": "diff"})
     out["verdict"] = out["verdict"].replace({"holds": "up", "reversed": "down", "undecided": "no change resolved"})
     return out[cols]
+
+
+def cost_table(cfg: Config) -> pd.DataFrame:
+    """The plan's predicted cost against the measured time, per ladder and kind of job, for the jobs its grid ran.
+
+    Reads what a ladder's grid keeps beside its data (:func:`grid_data_dir`): ``jobs.csv`` (each job this grid ran,
+    its work and seconds; a training resumed from a checkpoint counts the part after it) and :data:`PLAN_RATES`
+    (the rates its plan used, ``sweep <grid> --plan --rates-out``). Jobs found finished (``skipped``) ran nothing and
+    are left out.
+
+    Returns
+    -------
+    DataFrame ``ladder, rate_key, jobs, work, planned_h, measured_h``: ``planned_h`` = Σ work / the plan's rate
+    (NaN for a kind the plan had no rate for, or no plan kept), ``measured_h`` = Σ seconds, both in hours.
+    """
+    rows = []
+    for axis, (grid, _) in LADDERS.items():
+        folder = grid_data_dir(cfg, grid)
+        if not (folder / "jobs.csv").is_file():
+            continue
+        jobs = pd.read_csv(folder / "jobs.csv")
+        jobs = jobs[(jobs["status"] == "done") & (jobs["seconds"] > 0)]
+        rates = json.loads((folder / PLAN_RATES).read_text()) if (folder / PLAN_RATES).is_file() else {}
+        for key, g in jobs.groupby("rate_key", sort=False):
+            rate = rates.get(key)
+            rows.append({"ladder": axis, "rate_key": key, "jobs": len(g), "work": int(g["work"].sum()),
+                         "planned_h": g["work"].sum() / rate / 3600 if rate else math.nan,
+                         "measured_h": g["seconds"].sum() / 3600})  # fmt: skip
+    return pd.DataFrame(rows, columns=["ladder", "rate_key", "jobs", "work", "planned_h", "measured_h"])
 
 
 def encoder_rows(cfg: Config, seeds: Sequence[int] = LADDER_SEEDS) -> pd.DataFrame:
@@ -294,6 +327,7 @@ class LadderResult:
     encoders: pd.DataFrame
     verdicts: pd.DataFrame
     effects: pd.DataFrame = field(default_factory=pd.DataFrame)
+    cost: pd.DataFrame = field(default_factory=pd.DataFrame)
     paths: dict[str, Path] = field(default_factory=dict)
     seconds: float = 0.0
 
@@ -344,7 +378,7 @@ def ladder_stage(
         fig = plot_ladder(table, scene, budgets(cfg), scales)
         paths[f"ladder_{scene}"] = save_figure(fig, cfg.run_root / "figures", f"ladder_{scene}")
         plt.close(fig)
-    return LadderResult(table, encoders, long, effects, paths, time.perf_counter() - t0)
+    return LadderResult(table, encoders, long, effects, cost_table(cfg), paths, time.perf_counter() - t0)
 
 
 def _effects_md(effects: pd.DataFrame) -> list[str]:
@@ -373,6 +407,16 @@ def _effects_md(effects: pd.DataFrame) -> list[str]:
         f"resolved" + (f", {int(n.get('one seed', 0))} of one seed (not judged)" if n.get("one seed", 0) else "") + ".",
     ]
     return lines
+
+
+def _cost_totals(cost: pd.DataFrame) -> pd.DataFrame:
+    """One row per ladder, kind ``all``: the sums of :func:`cost_table`'s rows (planned only where every kind has a
+    plan rate)."""
+    out = cost.groupby("ladder", sort=False).agg(jobs=("jobs", "sum"), planned_h=("planned_h", "sum"),
+                                                 measured_h=("measured_h", "sum"),
+                                                 _nan=("planned_h", lambda h: h.isna().any()))  # fmt: skip
+    out.loc[out["_nan"], "planned_h"] = math.nan
+    return out.drop(columns="_nan").reset_index().assign(rate_key="all", work=0)
 
 
 def _stability_line(wide: pd.DataFrame) -> str:
@@ -480,6 +524,22 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
             "",
             *_effects_md(res.effects),
         ]
+    if len(res.cost):
+        c = res.cost
+        lines += [
+            "",
+            "Cost: the plan's prediction (its rates, kept beside the grid's data) against the measured time, for the "
+            "jobs each ladder's grid ran (hours on this 2-core machine; a training resumed from a checkpoint counts "
+            "the part after it):",
+            "",
+            "| ladder | kind | jobs | work | planned h | measured h | measured / planned |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for r in [*c.itertuples(), *_cost_totals(c).itertuples()]:
+            ratio = r.measured_h / r.planned_h if r.planned_h > 0 else math.nan
+            work = "–" if r.rate_key == "all" else f"{r.work:,}"  # (the kinds' units differ)
+            lines.append(f"| {r.ladder} | {r.rate_key} | {r.jobs} | {work} | {r.planned_h:.2f} | "
+                         f"{r.measured_h:.2f} | {ratio:.2f} |".replace("nan", "–"))  # fmt: skip
     if figures is not None:
         lines += ["", "SR against budget, one figure per scene (log axis; the intervals as in the table):", ""]
         lines += [f"![ladder, {s}]({figures}/ladder_{s}.png)" for s in scenes]

@@ -742,6 +742,11 @@ def sweep_stage(
             return "no teacher weights to release (none kept, a student still to record, or not yet committed)"
         return "\n".join(["released teacher weights (now read from git history):", *map(str, released)])
     if plan:
+        rates_out = kw.get("rates_out")
+        if rates_out is not None and Path(rates_out).exists():
+            raise ConfigError(
+                f"--rates-out {rates_out}: the file exists; a plan's rates are written once, to a new file"
+            )
         fast = None
         if rates is not None:
             r = json.loads(Path(rates).read_text(encoding="utf-8"))
@@ -762,7 +767,14 @@ def sweep_stage(
                 seed = {j.id: j.seed for j in jobs}
                 kept = {j for j, label in teachers.items() if record.has_weights(label, seed[j], "rl")}
                 recorded |= _recorded(jobs, record) | kept
-        return describe_plan(cfg, grids, seeds, r, recorded=recorded, only=only, fast_rates=fast)
+        text = describe_plan(cfg, grids, seeds, r, recorded=recorded, only=only, fast_rates=fast)
+        if rates_out is not None:
+            Path(rates_out).parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(Path(rates_out), json.dumps(r or {}, indent=1, sort_keys=True) + "\n")
+            text += (
+                f"\nrates written to {rates_out} (units per second per rate_key; --rates {rates_out} plans the same)"
+            )
+        return text
     out = run_ablations(cfg, grids, seeds, progress=progress, **kw)
     text = "\n".join(repr(v["result"]) for v in out.values())
     bad = {g: v["result"].counts() for g, v in out.items() if set(v["result"].status.values()) & {"failed", "blocked"}}
