@@ -176,3 +176,17 @@ def test_an_encoder_report_is_written_once_per_encoder_and_travels_with_the_reco
     path.write_text(json.dumps({**rep, "encoder_digest": "of another encoder"}))
     write_encoder_report(cfg, run.run_dir)
     assert read_report(run.run_dir) == rep
+
+
+def test_a_point_of_fewer_seeds_is_drawn_hollow_and_labelled():
+    from omcrl.viz.ladder import plot_ladder
+
+    points = ((1.0, 3, 40.0), (4.0, 1, 5.0), (16.0, 3, 50.0))  # (budget, seeds, SR)
+    rows = [{"axis": "pretrain", "method": "ours", "scale": k, "scene": "tree-v2", "seeds": n, "SR": sr,
+             "SR_lo": sr - 10, "SR_hi": sr + 10} for k, n, sr in points]  # fmt: skip
+    fig = plot_ladder(pd.DataFrame(rows), "tree-v2", {"pretrain": "1,500 iterations"})
+    ax = fig.axes[0]
+    assert [t.get_text() for t in ax.texts] == ["1 seed"]
+    hollow = [ln for ln in ax.lines if ln.get_markerfacecolor() in ("white", "w", (1.0, 1.0, 1.0, 1.0))]
+    assert len(hollow) == 1 and list(hollow[0].get_ydata()) == [5.0]
+    assert "ours (1-3 seeds)" in [t.get_text() for t in ax.get_legend().get_texts()]

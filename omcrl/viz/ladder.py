@@ -28,6 +28,7 @@ def plot_ladder(
         steps"}``: one panel per axis, in this order; the x label says what the multiplier multiplies.
     scales : ``{axis: the ladder's multipliers}``, ticked whether or not they have data yet (default: those in
         ``table``). Methods are drawn side by side around each multiplier, so their intervals do not hide each other.
+        A point with fewer training seeds than the method's other points is hollow and labelled with its count.
     """
     axes_names = [a for a in budgets if (table["axis"] == a).any()] or list(budgets)
     fig, axes = plt.subplots(1, len(axes_names), figsize=(5.2 * len(axes_names), 3.8), squeeze=False, sharey=True)
@@ -40,8 +41,16 @@ def plot_ladder(
             err = [g[metric] - g[f"{metric}_lo"], g[f"{metric}_hi"] - g[metric]]
             lo, hi = int(g["seeds"].min()), int(g["seeds"].max())
             seeds = f"{lo} seed{'s' if hi > 1 else ''}" if lo == hi else f"{lo}-{hi} seeds"
-            ax.errorbar(g["scale"] * dodge, g[metric], yerr=err, marker="o", capsize=3, color=method_color(method),
+            color = method_color(method)
+            ax.errorbar(g["scale"] * dodge, g[metric], yerr=err, marker="o", capsize=3, color=color,
                         label=f"{method} ({seeds})")  # fmt: skip
+            # A point of fewer seeds than the method's others is not their like (its interval leaves out the seed
+            # spread it cannot see): drawn hollow and labelled, so the line is not read as a trend of equals.
+            few = g[g["seeds"] < hi]
+            ax.plot(few["scale"] * dodge, few[metric], "o", mfc="white", mec=color, zorder=3)
+            for x, y, n in zip(few["scale"] * dodge, few[metric], few["seeds"]):
+                ax.annotate(f"{int(n)} seed{'s' if n > 1 else ''}", (x, y), xytext=(6, 4), textcoords="offset points",
+                            fontsize=7, color=color)  # fmt: skip
         ticks = sorted(scales[axis]) if scales and axis in scales else sorted(sub["scale"].unique()) or [1.0]
         ax.set_xscale("log", base=2)
         ax.set_xticks(ticks, [f"×{s:g}" for s in ticks])
