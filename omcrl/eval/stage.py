@@ -326,6 +326,13 @@ def to_markdown(wide: pd.DataFrame, index_name: str = "method") -> str:
     return "\n".join(lines) + "\n"
 
 
+def scene_cells(rows: pd.DataFrame, scenes: Sequence[str], cell: Callable[[pd.Series], str]) -> str:
+    """A markdown table row's cells, one per scene in ``scenes`` order: ``cell`` of ``rows``' row of that scene
+    (column ``scene``), empty where it has none."""
+    by = rows.set_index("scene")
+    return " | ".join(cell(by.loc[s]) if s in by.index else "" for s in scenes)
+
+
 def write_tables(episodes_df: pd.DataFrame, directory: str | Path, name: str, os_threshold: float = 0.5) -> dict:
     """Write ``<name>_episodes.csv``, ``<name>.csv`` (long metrics) and ``<name>.md`` (Table I layout).
 

@@ -15,7 +15,6 @@ import math
 import shutil
 import tempfile
 import textwrap
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +24,7 @@ from omcrl import planners
 from omcrl.config import load_config, project_root
 from omcrl.eval.ablation import ablation_findings, findings_summary
 from omcrl.eval.metrics import glossary_markdown
-from omcrl.eval.stage import to_markdown
+from omcrl.eval.stage import scene_cells, to_markdown
 from omcrl.eval.stats import aggregate, cell_rng, contrast, term
 from omcrl.eval.table1 import Table1Result, ci_text, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, compare_readings, readings_markdown, verdict_counts
@@ -520,7 +519,7 @@ def ablation_block(preset: str = "quick", seeds: tuple[int, ...] = ABLATION_SEED
             return f"{_signed(r['diff'])} [{_signed(r['lo'])}, {_signed(r['hi'])}] {r['verdict']}" if ok else ""
 
         for (finding, claim), g in findings.groupby(["finding", "claim"], sort=False):
-            lines.append(f"| {finding} | {claim} | {_scene_cells(g, scenes, check)} |")
+            lines.append(f"| {finding} | {claim} | {scene_cells(g, scenes, check)} |")
     frames = [e.assign(grid=g) for g, e in episodes.items() if len(e)]
     table = aggregate(pd.concat(frames, ignore_index=True), ("grid", "label", "scene"), reps=reps).reset_index()
     order = {(g, v.label): i for i, (g, v) in enumerate((g, v) for g in ABLATION_GRIDS for v in GRIDS[g])}
@@ -533,7 +532,7 @@ def ablation_block(preset: str = "quick", seeds: tuple[int, ...] = ABLATION_SEED
         ["grid", "variant", "seeds", *scenes],
     )
     for (g, label), t in table.groupby(["grid", "label"], sort=False):
-        sr = _scene_cells(t, scenes, lambda r: ci_text(r["SR"], r["SR_lo"], r["SR_hi"]))
+        sr = scene_cells(t, scenes, lambda r: ci_text(r["SR"], r["SR_lo"], r["SR_hi"]))
         lines.append(f"| {g} | {label} | {int(t['seeds'].max())} | {sr} |")
     return "\n".join(_wrap(x) for x in lines)
 
@@ -541,13 +540,6 @@ def ablation_block(preset: str = "quick", seeds: tuple[int, ...] = ABLATION_SEED
 def _captioned_head(caption: str, columns: list[str]) -> list[str]:
     """Markdown lines opening a table: a blank line, ``caption``, a blank line, the header and its rule."""
     return ["", caption, "", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-
-
-def _scene_cells(rows: pd.DataFrame, scenes: list[str], cell: Callable[[pd.Series], str]) -> str:
-    """A Markdown row's cells, one per scene in ``scenes`` order: ``cell`` of ``rows``' row of that scene (column
-    ``scene``), empty where it has none."""
-    by = rows.set_index("scene")
-    return " | ".join(cell(by.loc[s]) if s in by.index else "" for s in scenes)
 
 
 def _progress_md(cfg: Any, seeds: int = 5) -> list[str]:

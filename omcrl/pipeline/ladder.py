@@ -36,7 +36,7 @@ import pandas as pd
 
 from omcrl.config import Config
 from omcrl.eval.metrics import episode_values
-from omcrl.eval.stage import to_markdown
+from omcrl.eval.stage import scene_cells, to_markdown
 from omcrl.eval.stats import BOUNDED, DEFAULT_REPS, aggregate, cell_rng, term
 from omcrl.eval.table1 import ci_text
 from omcrl.eval.verdicts import holm_verdicts, judge, ledger_verdicts
@@ -156,7 +156,7 @@ def scale_effects(episodes: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 
                 hi_ = top[top["scene"] == scene]
                 lo_ = base[(base["scene"] == scene) & base["train_seed"].isin(set(hi_["train_seed"]))]
                 terms = [
-                    term(hi_, values.loc[hi_.index, "SR"].to_numpy(), scene, 1.0) if len(hi_) else None,
+                    term(hi_, values.loc[hi_.index, "SR"].to_numpy(), scene, 1.0),
                     term(lo_, values.loc[lo_.index, "SR"].to_numpy(), scene, -1.0) if len(lo_) else None,
                 ]
                 rng = cell_rng(seed, "scale", axis, method, scale, scene)
@@ -391,15 +391,14 @@ def _effects_md(effects: pd.DataFrame) -> list[str]:
         "|---|---|---|---|" + "---|" * len(scenes),
     ]
     mark = {"up": " ↑", "down": " ↓"}
+
+    def change(r: pd.Series) -> str:
+        if not math.isfinite(r["diff"]):
+            return ""
+        return f"{r['diff']:+.0f} [{r['lo']:+.0f}, {r['hi']:+.0f}]{mark.get(r['verdict'], '')}"
+
     for (axis, method, scale), g in effects.groupby(["axis", "method", "scale"], sort=False):
-        by = g.set_index("scene")
-        cells = [
-            f"{by.at[s, 'diff']:+.0f} [{by.at[s, 'lo']:+.0f}, {by.at[s, 'hi']:+.0f}]{mark.get(by.at[s, 'verdict'], '')}"
-            if s in by.index and math.isfinite(by.at[s, "diff"])
-            else ""
-            for s in scenes
-        ]
-        lines.append(f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | " + " | ".join(cells) + " |")
+        lines.append(f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | {scene_cells(g, scenes, change)} |")
     n = effects["verdict"].value_counts()
     lines += [
         "",
@@ -412,11 +411,10 @@ def _effects_md(effects: pd.DataFrame) -> list[str]:
 def _cost_totals(cost: pd.DataFrame) -> pd.DataFrame:
     """One row per ladder, kind ``all``: the sums of :func:`cost_table`'s rows (planned only where every kind has a
     plan rate)."""
-    out = cost.groupby("ladder", sort=False).agg(jobs=("jobs", "sum"), planned_h=("planned_h", "sum"),
-                                                 measured_h=("measured_h", "sum"),
-                                                 _nan=("planned_h", lambda h: h.isna().any()))  # fmt: skip
-    out.loc[out["_nan"], "planned_h"] = math.nan
-    return out.drop(columns="_nan").reset_index().assign(rate_key="all", work=0)
+    every = ("planned_h", lambda h: h.sum(min_count=len(h)))  # NaN unless every kind was planned
+    measured = ("measured_h", "sum")
+    out = cost.groupby("ladder", sort=False).agg(jobs=("jobs", "sum"), planned_h=every, measured_h=measured)
+    return out.reset_index().assign(rate_key="all", work=0)
 
 
 def _stability_line(wide: pd.DataFrame) -> str:
@@ -472,9 +470,8 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
         "|---|---|---|---|" + "---|" * len(scenes),
     ]
     for (axis, method, scale), g in t.groupby(["axis", "method", "scale"], sort=False):
-        by = g.set_index("scene")
-        cells = [ci_text(by.at[s, "SR"], by.at[s, "SR_lo"], by.at[s, "SR_hi"]) if s in by.index else "" for s in scenes]
-        lines.append(f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | " + " | ".join(cells) + " |")
+        sr = scene_cells(g, scenes, lambda r: ci_text(r["SR"], r["SR_lo"], r["SR_hi"]))
+        lines.append(f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | {sr} |")
     if len(res.encoders):
         enc = res.encoders
         cols = [c for c in enc.columns if c not in ("method", "scale", "seeds")]
