@@ -76,6 +76,8 @@ def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
     )
     assert t.loc[("pretrain", "ours", 1.0, "tree-v2"), "seeds"] == 3  # the x1 points at the ladder's seeds only
     assert ("rl", "ours", 1.0, "box-v2") in t.index and ("pretrain", "ours", 16.0, "box-v2") not in t.index
+    for col in ("SR", "SR_lo", "SR_hi"):  # Table I's runs are both ladders' x1: one interval, printed twice
+        assert t.loc[("rl", "ours", 1.0, "tree-v2"), col] == t.loc[("pretrain", "ours", 1.0, "tree-v2"), col]
     enc = res.encoders.set_index(["method", "scale"])
     assert enc.loc[("ours", 4.0), "top1"] == 0.4 and enc.loc[("ours", 4.0), "R2 furniture-v2"] == 0.1
     assert "MMD box-v2" not in enc and enc.loc[("ours", 4.0), "MMD furniture-v2"] == 0.2

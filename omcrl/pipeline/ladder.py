@@ -117,10 +117,19 @@ def ladder_episodes(cfg: Config, seeds: Sequence[int] = LADDER_SEEDS) -> pd.Data
 
 
 def ladder_table(episodes: pd.DataFrame, reps: int = DEFAULT_REPS) -> pd.DataFrame:
-    """Mean and 95 % CI (omcrl.eval.stats.aggregate) of every metric per ``axis, method, scale, scene``."""
+    """Mean and 95 % CI (omcrl.eval.stats.aggregate) of every metric per ``axis, method, scale, scene``; a point
+    recorded in both ladders (×1) gets the same interval in each."""
     if episodes.empty:
         return pd.DataFrame(columns=["axis", "method", "scale", "scene", "seeds", "episodes"])
-    out = aggregate(episodes, ("axis", "method", "scale", "scene"), reps=reps).reset_index()
+    # Per ladder, with the ladder left out of the bootstrap's key: both ladders' ×1 points are Table I's runs, and the
+    # same runs should print the same interval in either.
+    out = pd.concat(
+        [
+            aggregate(ep, ("method", "scale", "scene"), reps=reps).reset_index().assign(axis=axis)
+            for axis, ep in episodes.groupby("axis", sort=False)
+        ],
+        ignore_index=True,
+    )
     return out.sort_values(["axis", "method", "scale"], kind="stable", ignore_index=True)
 
 
