@@ -14,6 +14,7 @@ Example
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 import typing
@@ -707,6 +708,21 @@ def field_default(section: Any, name: str) -> Any:
         if f.name == name:
             return _declared_default(f)
     raise ConfigError(f"{getattr(section, '__name__', type(section).__name__)} has no field {name!r}")
+
+
+def overrides_from_config(cfg: Any) -> list[str]:
+    """``"section.field=value"`` for every field of ``cfg`` that differs from its preset's defaults."""
+    base = load_config(cfg.preset).to_dict()
+
+    def diff(a: dict, b: dict, prefix: str) -> typing.Iterator[str]:
+        for k, v in a.items():
+            if isinstance(v, dict) and isinstance(b.get(k), dict) and k not in ("mix",):
+                yield from diff(v, b[k], f"{prefix}{k}.")
+            elif v != b.get(k):
+                val = list(v) if isinstance(v, tuple) else v
+                yield f"{prefix}{k}={json.dumps(val)}"
+
+    return list(diff(cfg.to_dict(), base, ""))
 
 
 def section_identity(section: Any, **resolved: Any) -> dict:

@@ -114,6 +114,7 @@ def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
     assert res.paths["ladder_scale.md"].read_text().count("| pretrain |") == 2
     # Cost: the jobs the ladder's grid ran against the rates its plan kept (skipped jobs ran nothing).
     assert res.cost.empty and "Cost: the plan's prediction" not in md
+    assert res.rest.empty and "What the rest would cost" not in md  # no plan's rates kept, no hours
     folder = grid_data_dir(cfg, "ladder-pretrain")
     (folder / "plan_rates.json").write_text(json.dumps({"pretrain": 2.0, "train:frozen": 100.0}))
     pd.DataFrame(
@@ -136,6 +137,16 @@ def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
     md = "\n".join(ladder_markdown(res))
     assert "| pretrain | pretrain | 1 | 6,000 | 0.83 | 0.50 | 0.60 |" in md
     assert "| pretrain | collect | 1 | 320 | – | 0.03 | – |" in md and "| pretrain | all | 3 | – | – | 1.53 | – |" in md
+    # What the rest costs: the x16 points, recorded nowhere, at the plan's rates and the ratio measured for the kind.
+    rest = res.rest.set_index("rate_key")
+    assert set(res.rest["ladder"]) == {"pretrain"}  # the rl ladder kept no plan rates
+    n_iter = 16 * cfg.pretrain.iterations
+    assert rest.at["pretrain", "jobs"] == 6 and rest.at["pretrain", "work"] == 6 * n_iter  # ours, curl x seeds 0-2
+    assert rest.at["pretrain", "planned_h"] == pytest.approx(6 * n_iter / 2.0 / 3600)
+    assert rest.at["pretrain", "ratio"] == pytest.approx(0.6)  # 0.50 h measured / 0.83 h planned
+    assert rest.at["pretrain", "estimate_h"] == pytest.approx(0.6 * 6 * n_iter / 2.0 / 3600)
+    assert np.isnan(rest.at["evaluate", "planned_h"])  # no plan rate: no hours, said as "–"
+    assert "What the rest would cost" in md and "| pretrain | pretrain | 6 | " in md
     # A point of one training seed is compared with x1's same seed and shown, not judged.
     ep = ladder_episodes(cfg)
     one = scale_effects(ep[(ep["scale"] == 1.0) | (ep["train_seed"] == 0)], reps=100)

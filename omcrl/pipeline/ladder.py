@@ -44,7 +44,9 @@ from omcrl.interpret.encoder_report import REPORT, read_report, suite_settings, 
 from omcrl.interpret.transfer import setting_samples
 from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.pipeline.grids import GRIDS
+from omcrl.pipeline.plan import sweep_plan
 from omcrl.pipeline.reference import config_suite
+from omcrl.pipeline.sweep import recorded_jobs
 from omcrl.planners import PLANNERS
 from omcrl.rl.train import rollout_geometry
 from omcrl.runs import read_identity
@@ -207,6 +209,41 @@ def cost_table(cfg: Config) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["ladder", "rate_key", "jobs", "work", "planned_h", "measured_h"])
 
 
+def rest_cost(cfg: Config, cost: pd.DataFrame, seeds: Sequence[int] = LADDER_SEEDS) -> pd.DataFrame:
+    """What the rest of each ladder would cost: its jobs at ``seeds`` that no record in the checkout holds (Table
+    I's runs left out, as the plan leaves them), per kind of job.
+
+    Parameters
+    ----------
+    cost : :func:`cost_table`'s rows; their measured / planned ratio scales the plan's hours to this machine.
+
+    Returns
+    -------
+    DataFrame ``ladder, rate_key, jobs, work, planned_h, ratio, estimate_h``: ``planned_h`` at the rates the ladder's
+    plan kept (:data:`PLAN_RATES`; a ladder without them is left out), ``ratio`` the measured / planned hours of the
+    jobs of that kind that ran in either ladder, else of every job that ran (NaN when none has), ``estimate_h`` =
+    ``planned_h × ratio``. A job half run counts whole; a job no plan rate covers has NaN hours.
+    """
+    cols = ["ladder", "rate_key", "jobs", "work", "planned_h", "ratio", "estimate_h"]
+    measured = cost.groupby("rate_key")[["planned_h", "measured_h"]].sum(min_count=1)
+    ratio = (measured["measured_h"] / measured["planned_h"]).dropna()
+    overall = cost["measured_h"].sum() / cost["planned_h"].sum() if cost["planned_h"].sum() > 0 else math.nan
+    rows = []
+    for axis, (grid, _) in LADDERS.items():
+        folder = grid_data_dir(cfg, grid)
+        if not (folder / PLAN_RATES).is_file():
+            continue
+        rates = json.loads((folder / PLAN_RATES).read_text())
+        plan = sweep_plan(cfg, [grid], seeds)
+        rest = plan[~plan["id"].isin(recorded_jobs(cfg, [grid], seeds)) & ~plan["table1"]]
+        for key, g in rest.groupby("rate_key", sort=False):
+            planned = g["work"].sum() / rates[key] / 3600 if key in rates else math.nan
+            r = float(ratio.get(key, overall))
+            rows.append({"ladder": axis, "rate_key": key, "jobs": len(g), "work": int(g["work"].sum()),
+                         "planned_h": planned, "ratio": r, "estimate_h": planned * r})  # fmt: skip
+    return pd.DataFrame(rows, columns=cols)
+
+
 def encoder_rows(cfg: Config, seeds: Sequence[int] = LADDER_SEEDS) -> pd.DataFrame:
     """The recorded encoder reports of the pretraining ladder's points, long: ``method, scale, seed, quantity,
     setting, value`` (quantity ``top1``, ``probe_r2`` or ``mmd``)."""
@@ -337,6 +374,7 @@ class LadderResult:
     verdicts: pd.DataFrame
     effects: pd.DataFrame = field(default_factory=pd.DataFrame)
     cost: pd.DataFrame = field(default_factory=pd.DataFrame)
+    rest: pd.DataFrame = field(default_factory=pd.DataFrame)
     paths: dict[str, Path] = field(default_factory=dict)
     seconds: float = 0.0
 
@@ -387,7 +425,9 @@ def ladder_stage(
         fig = plot_ladder(table, scene, budgets(cfg), scales)
         paths[f"ladder_{scene}"] = save_figure(fig, cfg.run_root / "figures", f"ladder_{scene}")
         plt.close(fig)
-    return LadderResult(table, encoders, long, effects, cost_table(cfg), paths, time.perf_counter() - t0)
+    cost = cost_table(cfg)
+    return LadderResult(table, encoders, long, effects, cost, rest_cost(cfg, cost, seeds), paths,
+                        time.perf_counter() - t0)  # fmt: skip
 
 
 def _effects_md(effects: pd.DataFrame) -> list[str]:
@@ -424,6 +464,34 @@ def _cost_totals(cost: pd.DataFrame) -> pd.DataFrame:
     measured = ("measured_h", "sum")
     out = cost.groupby("ladder", sort=False).agg(jobs=("jobs", "sum"), planned_h=every, measured_h=measured)
     return out.reset_index().assign(rate_key="all", work=0)
+
+
+def _each_with_total(rows: pd.DataFrame, totals: pd.DataFrame) -> list:
+    """The rows of each ladder in turn, each ladder's followed by its total (both with a ``ladder`` column)."""
+    return [r for axis in LADDERS for df in (rows, totals) for r in df[df["ladder"] == axis].itertuples()]
+
+
+def _rest_md(rest: pd.DataFrame) -> list[str]:
+    """Markdown lines of :func:`rest_cost`: a row per ladder and kind, and per ladder its total."""
+    lines = [
+        "What the rest would cost: each ladder's jobs that no record holds yet (Table I's runs left out; a job half "
+        "run counts whole) at the plan's rates, and those hours × the measured / planned ratio of the jobs of that "
+        "kind that ran (of every job that ran where none of that kind has): the estimate for this machine.",
+        "",
+        "| ladder | kind | jobs | work | planned h | measured / planned | estimated h |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    sums = ("planned_h", lambda h: h.sum(min_count=len(h)))  # NaN unless every kind has hours
+    totals = rest.groupby("ladder", sort=False).agg(
+        jobs=("jobs", "sum"), planned_h=sums, estimate_h=("estimate_h", lambda h: h.sum(min_count=len(h)))
+    )
+    totals = totals.reset_index().assign(rate_key="all", work=0, ratio=totals["estimate_h"].to_numpy()
+                                         / totals["planned_h"].to_numpy())  # fmt: skip
+    for r in _each_with_total(rest, totals):
+        work = "–" if r.rate_key == "all" else f"{r.work:,}"  # (the kinds' units differ)
+        lines.append(f"| {r.ladder} | {r.rate_key} | {r.jobs} | {work} | {r.planned_h:.2f} | {r.ratio:.2f} | "
+                     f"{r.estimate_h:.2f} |".replace("nan", "–"))  # fmt: skip
+    return lines
 
 
 def _stability_line(wide: pd.DataFrame) -> str:
@@ -541,11 +609,13 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
             "| ladder | kind | jobs | work | planned h | measured h | measured / planned |",
             "|---|---|---|---|---|---|---|",
         ]
-        for r in [*c.itertuples(), *_cost_totals(c).itertuples()]:
+        for r in _each_with_total(c, _cost_totals(c)):
             ratio = r.measured_h / r.planned_h if r.planned_h > 0 else math.nan
             work = "–" if r.rate_key == "all" else f"{r.work:,}"  # (the kinds' units differ)
             lines.append(f"| {r.ladder} | {r.rate_key} | {r.jobs} | {work} | {r.planned_h:.2f} | "
                          f"{r.measured_h:.2f} | {ratio:.2f} |".replace("nan", "–"))  # fmt: skip
+    if len(res.rest):
+        lines += ["", *_rest_md(res.rest)]
     if figures is not None:
         lines += ["", "SR against budget, one figure per scene (log axis; the intervals as in the table):", ""]
         lines += [f"![ladder, {s}]({figures}/ladder_{s}.png)" for s in scenes]

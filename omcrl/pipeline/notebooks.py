@@ -32,7 +32,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from omcrl.config import PRESETS, ConfigError, load_config, resolve_path
+from omcrl.config import PRESETS, ConfigError, overrides_from_config, resolve_path
 from omcrl.pipeline.expected import EXPECTED_WALL_S
 from omcrl.pipeline.summary import write_summary
 from omcrl.utils.io import atomic_write_text
@@ -432,21 +432,6 @@ def _record(path: Path, name: str, value: float) -> None:
         d = {}
     d[name] = value
     atomic_write_text(path, json.dumps(dict(sorted(d.items())), indent=1) + "\n")
-
-
-def overrides_from_config(cfg: Any) -> list[str]:
-    """``"section.field=value"`` for every field of ``cfg`` that differs from its preset's defaults."""
-    base = load_config(cfg.preset).to_dict()
-
-    def diff(a: dict, b: dict, prefix: str) -> Iterator[str]:
-        for k, v in a.items():
-            if isinstance(v, dict) and isinstance(b.get(k), dict) and k not in ("mix",):
-                yield from diff(v, b[k], f"{prefix}{k}.")
-            elif v != b.get(k):
-                val = list(v) if isinstance(v, tuple) else v
-                yield f"{prefix}{k}={json.dumps(val)}"
-
-    return list(diff(cfg.to_dict(), base, ""))
 
 
 def select_notebooks(only: Sequence[str] | None = None, skip: Sequence[str] | None = None) -> list[str]:

@@ -18,9 +18,17 @@ from typing import Any
 
 import pandas as pd
 
-from omcrl.config import Config, ConfigError, config_hash, load_config, parse_override, project_root, section_identity
+from omcrl.config import (
+    Config,
+    ConfigError,
+    config_hash,
+    load_config,
+    overrides_from_config,
+    parse_override,
+    project_root,
+    section_identity,
+)
 from omcrl.pipeline.grids import ABLATION_GRIDS, FULL_BUDGET_GRIDS, grid_variants
-from omcrl.pipeline.notebooks import overrides_from_config
 from omcrl.pretrain.train import pretrain_run
 from omcrl.rl.methods import encoder_config, get_method
 from omcrl.rl.train import oracle_run

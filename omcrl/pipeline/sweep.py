@@ -433,6 +433,19 @@ def _recorded(jobs: Sequence[Job], record: GridData) -> set[str]:
     return {j.id for j in jobs} - need
 
 
+def recorded_jobs(cfg: Config, grids: Sequence[str], seeds: Sequence[int] | None = None) -> set[str]:
+    """Ids of the jobs of ``grids`` at ``seeds`` that the checkout's records (reference/) leave nothing to run for:
+    :func:`_recorded`'s, and the teachers whose weights are kept. ``sweep --plan --to-reference`` leaves them out."""
+    out: set[str] = set()
+    for g in grids:
+        jobs, record = expand(cfg, g, seeds), GridData(grid_data_dir(cfg, g))
+        teachers = _teachers(jobs, _record_targets(jobs))
+        seed = {j.id: j.seed for j in jobs}
+        kept = {j for j, label in teachers.items() if record.has_weights(label, seed[j], "rl")}
+        out |= _recorded(jobs, record) | kept
+    return out
+
+
 def _shares(jobs: Sequence[Job], grid: str, store: Storage | None) -> dict[str, dict]:
     """Each job's storage instructions for :func:`run_job` (none without storage)."""
     if store is None:
@@ -756,17 +769,10 @@ def sweep_stage(
             m = measured_rates(cfg)
             r = dict(zip(m["rate_key"], m["rate"], strict=True)) or None
             fast = dict(zip(m["rate_key"], m["rate_fast"], strict=True)) or None
-        recorded: set[str] = set()
         variants = kw.get("variants")
         only = None if variants is None else {j.id for g in grids for j in only_variants(expand(cfg, g, seeds),
                                                                                           variants, g)}  # fmt: skip
-        if kw.get("to_reference"):
-            for g in grids:
-                jobs, record = expand(cfg, g, seeds), GridData(grid_data_dir(cfg, g))
-                teachers = _teachers(jobs, _record_targets(jobs))
-                seed = {j.id: j.seed for j in jobs}
-                kept = {j for j, label in teachers.items() if record.has_weights(label, seed[j], "rl")}
-                recorded |= _recorded(jobs, record) | kept
+        recorded = recorded_jobs(cfg, grids, seeds) if kw.get("to_reference") else set()
         text = describe_plan(cfg, grids, seeds, r, recorded=recorded, only=only, fast_rates=fast)
         if rates_out is not None:
             Path(rates_out).parent.mkdir(parents=True, exist_ok=True)
