@@ -203,3 +203,9 @@ def test_a_point_of_fewer_seeds_is_drawn_hollow_and_labelled():
     hollow = [ln for ln in ax.lines if ln.get_markerfacecolor() in ("white", "w", (1.0, 1.0, 1.0, 1.0))]
     assert len(hollow) == 1 and list(hollow[0].get_ydata()) == [5.0]
     assert "ours (1-3 seeds)" in [t.get_text() for t in ax.get_legend().get_texts()]
+    # Each seed's own SR beside its point: the spread an interval of three seeds summarises.
+    per_seed = pd.DataFrame([{"axis": "pretrain", "method": "ours", "scale": k, "scene": "tree-v2", "train_seed": s,
+                              "SR": sr + 10 * (s - 1)} for k, n, sr in points for s in range(n)])  # fmt: skip
+    fig = plot_ladder(pd.DataFrame(rows), "tree-v2", {"pretrain": "1,500 iterations"}, per_seed=per_seed)
+    dots = [ln for ln in fig.axes[0].lines if ln.get_marker() == "."]
+    assert len(dots) == 1 and sorted(dots[0].get_ydata()) == sorted(per_seed["SR"])

@@ -421,8 +421,10 @@ def ladder_stage(
         atomic_write_text(paths[f"{name}.md"], md)
     points = ladder_points()
     scales = {a: sorted(points.loc[points["axis"] == a, "scale"].unique()) for a in LADDERS}
+    keys = ["axis", "method", "scale", "scene", "train_seed"]
+    per_seed = episodes[keys].assign(SR=episode_values(episodes)["SR"]).groupby(keys, as_index=False)["SR"].mean()
     for scene in dict.fromkeys(table["scene"]):
-        fig = plot_ladder(table, scene, budgets(cfg), scales)
+        fig = plot_ladder(table, scene, budgets(cfg), scales, per_seed=per_seed)
         paths[f"ladder_{scene}"] = save_figure(fig, cfg.run_root / "figures", f"ladder_{scene}")
         plt.close(fig)
     cost = cost_table(cfg)
@@ -617,6 +619,11 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
     if len(res.rest):
         lines += ["", *_rest_md(res.rest)]
     if figures is not None:
-        lines += ["", "SR against budget, one figure per scene (log axis; the intervals as in the table):", ""]
+        lines += [
+            "",
+            "SR against budget, one figure per scene (log axis; the intervals as in the table; the small dots beside "
+            "each point: each training seed's SR over the layouts):",
+            "",
+        ]
         lines += [f"![ladder, {s}]({figures}/ladder_{s}.png)" for s in scenes]
     return lines

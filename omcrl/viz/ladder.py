@@ -16,6 +16,7 @@ def plot_ladder(
     budgets: Mapping[str, str],
     scales: Mapping[str, Sequence[float]] | None = None,
     metric: str = "SR",
+    per_seed: pd.DataFrame | None = None,
 ) -> plt.Figure:
     """``metric`` (mean and 95 % CI, seeds × layouts) against the budget multiplier (log axis) in ``scene``.
 
@@ -29,6 +30,8 @@ def plot_ladder(
     scales : ``{axis: the ladder's multipliers}``, ticked whether or not they have data yet (default: those in
         ``table``). Methods are drawn side by side around each multiplier, so their intervals do not hide each other.
         A point with fewer training seeds than the method's other points is hollow and labelled with its count.
+    per_seed : optional, columns ``axis, method, scale, scene, train_seed, <metric>``: each training seed's mean
+        over the layouts, drawn as small faint dots beside its point (where the seeds disagree, the interval is wide).
     """
     axes_names = [a for a in budgets if (table["axis"] == a).any()] or list(budgets)
     fig, axes = plt.subplots(1, len(axes_names), figsize=(5.2 * len(axes_names), 3.8), squeeze=False, sharey=True)
@@ -44,6 +47,10 @@ def plot_ladder(
             color = method_color(method)
             ax.errorbar(g["scale"] * dodge, g[metric], yerr=err, marker="o", capsize=3, color=color,
                         label=f"{method} ({seeds})")  # fmt: skip
+            if per_seed is not None:
+                at = per_seed[["axis", "scene", "method"]].eq([axis, scene, method]).all(axis=1)
+                ps = per_seed[at]
+                ax.plot(ps["scale"] * dodge * 2**0.05, ps[metric], ".", ms=5, alpha=0.6, color=color, zorder=2)
             # A point of fewer seeds than the method's others is not their like (its interval leaves out the seed
             # spread it cannot see): drawn hollow and labelled, so the line is not read as a trend of equals.
             few = g[g["seeds"] < hi]
