@@ -556,9 +556,12 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
         cols = [c for c in enc.columns if c not in ("method", "scale", "seeds")]
         lines += [
             "",
-            "Encoders per pretraining point (mean over the seeds reported): `top1` the masked objective's top-1 at the "
-            "end of pretraining, `R2 <scene>` the linear probe's R² of the privileged state from the frozen features, "
-            "`MMD <scene>` the features' shift from the training scene (MMD², 0 = none):",
+            "Encoders per pretraining point (mean over the seeds reported): `top1` the pretraining objective's top-1 "
+            "over its last 10 % of iterations (ours: a masked position's prediction picks its own key among the "
+            "batch's; curl: an augmented stack picks its pair; different tasks, so compare a method across budgets, "
+            "not the two methods), "
+            "`R2 <scene>` the linear probe's R² of the privileged state from the frozen features, `MMD <scene>` the "
+            "features' shift from the training scene (MMD², 0 = none):",
             "",
             "| method | budget | seeds | " + " | ".join(cols) + " |",
             "|---|---|---|" + "---|" * len(cols),
