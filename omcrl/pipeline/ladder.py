@@ -459,12 +459,17 @@ def _effects_md(effects: pd.DataFrame) -> list[str]:
     return lines
 
 
+def _sum_of_all(hours: pd.Series) -> float:
+    """The sum, or NaN when any kind of job lacks hours (a total that leaves one out would read as complete)."""
+    return hours.sum(min_count=len(hours))
+
+
 def _cost_totals(cost: pd.DataFrame) -> pd.DataFrame:
     """One row per ladder, kind ``all``: the sums of :func:`cost_table`'s rows (planned only where every kind has a
     plan rate)."""
-    every = ("planned_h", lambda h: h.sum(min_count=len(h)))  # NaN unless every kind was planned
-    measured = ("measured_h", "sum")
-    out = cost.groupby("ladder", sort=False).agg(jobs=("jobs", "sum"), planned_h=every, measured_h=measured)
+    out = cost.groupby("ladder", sort=False).agg(
+        jobs=("jobs", "sum"), planned_h=("planned_h", _sum_of_all), measured_h=("measured_h", "sum")
+    )
     return out.reset_index().assign(rate_key="all", work=0)
 
 
@@ -483,9 +488,8 @@ def _rest_md(rest: pd.DataFrame) -> list[str]:
         "| ladder | kind | jobs | work | planned h | measured / planned | estimated h |",
         "|---|---|---|---|---|---|---|",
     ]
-    sums = ("planned_h", lambda h: h.sum(min_count=len(h)))  # NaN unless every kind has hours
     totals = rest.groupby("ladder", sort=False).agg(
-        jobs=("jobs", "sum"), planned_h=sums, estimate_h=("estimate_h", lambda h: h.sum(min_count=len(h)))
+        jobs=("jobs", "sum"), planned_h=("planned_h", _sum_of_all), estimate_h=("estimate_h", _sum_of_all)
     )
     totals = totals.reset_index().assign(rate_key="all", work=0, ratio=totals["estimate_h"].to_numpy()
                                          / totals["planned_h"].to_numpy())  # fmt: skip
