@@ -726,3 +726,31 @@ def test_table1s_confirmation_grid_reuses_its_training_and_flies_layouts_it_neve
     cfg, first = job_config(base, ev.overrides, 2), base.eval
     assert cfg.eval.episodes == 200 and cfg.eval.seed_offset >= first.seed_offset + first.episodes
     assert "table1-confirm" in grids.FULL_BUDGET_GRIDS and "table1-confirm" in grids.EVAL_ONLY_GRIDS
+
+
+def test_what_a_grid_still_costs_is_its_jobs_at_the_measured_rates_and_says_when_a_kind_has_none(tmp_path, monkeypatch):
+    """rest_hours prices the jobs no record holds at the median and upper quartile of the rates the checkout's
+    jobs.csv measured: by hand, each job's work / rate; a kind with no measured rate gives no hours (NaN), not a
+    figure that leaves it out."""
+    import math
+
+    from omcrl.pipeline.sweep import rest_hours
+
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    cfg = load_config("smoke")
+    plan = planning.sweep_plan(cfg, ["projection"], [0])
+    plan = plan[~plan["table1"]]
+    kinds = sorted(set(plan["rate_key"]))
+    grid = tmp_path / "reference" / "smoke" / "g-v2"
+    grid.mkdir(parents=True)
+    # Per kind, jobs at 1 and 3 units/s: the median 2, the upper quartile 2.5.
+    rows = [{"id": f"{k}:{r}", "kind": "x", "method": "m", "seed": 0, "status": "done", "seconds": 100.0 / r,
+             "rate_key": k, "work": 100} for k in kinds[:-1] for r in (1.0, 3.0)]  # fmt: skip
+    pd.DataFrame(rows).to_csv(grid / "jobs.csv", index=False)
+    partial = rest_hours(cfg, ["projection"], [0])
+    assert partial["jobs"] == len(plan) and math.isnan(partial["hours"]) and math.isnan(partial["hours_fast"])
+    rows += [{**rows[0], "id": f"{kinds[-1]}:{r}", "seconds": 100.0 / r, "rate_key": kinds[-1]} for r in (1.0, 3.0)]
+    pd.DataFrame(rows).to_csv(grid / "jobs.csv", index=False)
+    got = rest_hours(cfg, ["projection"], [0])
+    assert got["hours"] == pytest.approx(plan["work"].sum() / 2.0 / 3600)
+    assert got["hours_fast"] == pytest.approx(plan["work"].sum() / 2.5 / 3600)

@@ -33,6 +33,7 @@ from omcrl.pipeline.grids import ABLATION_GRIDS, GRIDS
 from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
 from omcrl.pipeline.records import Table1Record
 from omcrl.pipeline.reference import reference_table_dir
+from omcrl.pipeline.sweep import rest_hours
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
 from omcrl.scenes import scene_label, scene_spec
 from omcrl.utils.io import atomic_write_text
@@ -464,6 +465,16 @@ def ladder_block(preset: str = "quick", figures_to: str | Path | None = None) ->
         return "\n".join(_wrap(x) for x in ladder_markdown(res, rel))
 
 
+def _hours_text(cost: dict[str, float]) -> str:
+    """:func:`omcrl.pipeline.sweep.rest_hours` in words."""
+    if math.isnan(cost["hours"]):
+        return f"{cost['jobs']} jobs, some of a kind no record has measured (so no hours)"
+    return (
+        f"{cost['jobs']} jobs, {cost['hours']:.1f} machine-hours at the median of the rates this checkout's records "
+        f"measured ({cost['hours_fast']:.1f} at their upper quartile, a machine to itself)"
+    )
+
+
 def ablation_block(preset: str = "quick", seeds: tuple[int, ...] = ABLATION_SEEDS, reps: int = 2000) -> str:
     """docs/results.md's block on the paper's six ablation findings (VI-C) on the preset's scene suite, rebuilt from
     the grids of :data:`omcrl.pipeline.grids.ABLATION_GRIDS` under ``reference/<preset>/<grid>-<suite>/`` at the
@@ -486,7 +497,7 @@ def ablation_block(preset: str = "quick", seeds: tuple[int, ...] = ABLATION_SEED
             "variant's rows as it finishes, for each of "
             + ", ".join(f"`{g}`" for g in ABLATION_GRIDS)
             + f"; `python -m omcrl sweep all --preset {preset} --seeds {seed_arg} --to-reference --plan` prints their "
-            "cost."
+            f"cost: {_hours_text(rest_hours(cfg, ABLATION_GRIDS, seeds))}."
         )
     lines = [f"**Recorded** (training seeds of {which} with episodes, per variant of each grid):", ""]
     lines += ["| grid | variant | seeds |", "|---|---|---|"]

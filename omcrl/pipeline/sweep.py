@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import time
 import traceback
@@ -55,6 +56,8 @@ from omcrl.pipeline.plan import (
     job_cpus,
     job_gpus,
     measured_rates,
+    sweep_cost,
+    sweep_plan,
     work_rows,
 )
 from omcrl.pipeline.recipes import pretrain_method, train_method
@@ -444,6 +447,29 @@ def recorded_jobs(cfg: Config, grids: Sequence[str], seeds: Sequence[int] | None
         kept = {j for j, label in teachers.items() if record.has_weights(label, seed[j], "rl")}
         out |= _recorded(jobs, record) | kept
     return out
+
+
+def rest_hours(cfg: Config, grids: Sequence[str], seeds: Sequence[int] | None = None) -> dict[str, float]:
+    """What ``grids`` at ``seeds`` still cost on one machine: the jobs no record in the checkout holds
+    (:func:`recorded_jobs`; the main comparison's runs left out, as ``sweep --plan --to-reference`` leaves them) at
+    the rates this preset's records measured (:func:`omcrl.pipeline.plan.measured_rates`).
+
+    Returns
+    -------
+    ``{"jobs", "hours", "hours_fast"}``: the number of jobs, and their machine-hours at the measured rates' median
+    and upper quartile (a machine to itself); the hours are NaN when a kind of job has no measured rate.
+    """
+    plan = sweep_plan(cfg, grids, seeds)
+    plan = plan[~plan["id"].isin(recorded_jobs(cfg, grids, seeds)) & ~plan["table1"]]
+    m = measured_rates(cfg)
+    median = dict(zip(m["rate_key"], m["rate"], strict=True))
+    fast = dict(zip(m["rate_key"], m["rate_fast"], strict=True))
+    rated = set(plan["rate_key"]) <= set(median)
+    return {
+        "jobs": len(plan),
+        "hours": sweep_cost(plan, median)["machine_hours"] if rated else math.nan,
+        "hours_fast": sweep_cost(plan, fast)["machine_hours"] if rated else math.nan,
+    }
 
 
 def _shares(jobs: Sequence[Job], grid: str, store: Storage | None) -> dict[str, dict]:
