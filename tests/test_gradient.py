@@ -69,7 +69,11 @@ def test_furniture_v0_room_is_the_shift_v1_removes(quick_shift):
 FAST_LAYOUTS, BOX_LAYOUTS = 30, 100
 
 
-@pytest.mark.stage  # flies quick-preset pilots and planners: minutes
+# 3.5 min on 2 cores (570 flown episodes), a third of the default suite's budget: slow. The default suite keeps the
+# v2 layouts it measured pinned (tests/test_scenes.py::test_published_scenes_are_todays_scenes, seconds), so a scene
+# edited in place still fails there; this measures the criteria again (./reproduce.sh --test -m slow).
+@pytest.mark.slow
+@pytest.mark.stage
 def test_v2_suite_meets_its_criteria_with_nothing_learned():
     """Scenes v2, fixed before any learned method flew them: the blind pilot <= 20 % SR everywhere, the privileged
     Hybrid APF >= 90 %, the local APF <= 70 % (and >= 20 % in box-v2), >= 30 % of box-v2's layouts bend by more
