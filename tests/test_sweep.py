@@ -81,6 +81,10 @@ def test_local_sweep_reports_a_failure_finishes_the_rest_and_reruns_only_what_is
     assert failed.kind == "collect" and "blocker" in res.errors[failed.id]
     assert res.logs[failed.id].exists() and "Traceback" in res.logs[failed.id].read_text()
     assert res.counts() == {"failed": 1, "blocked": 3, "done": 2}
+    # Each job's own progress is in its log (status lines, whatever the caller's progress flag), not only the sweep's.
+    for job in (j for j in res.jobs if res.status[j.id] == "done"):
+        status = [x for x in res.logs[job.id].read_text().splitlines() if x.startswith("[omcrl] ") and " elapsed" in x]
+        assert status and status[-1].endswith("elapsed, done") and "(100%)" in status[-1], (job.id, status)
     assert "FAILED collect" in repr(res)
     assert set(res.episodes.label) == {"PPO"} and len(res.episodes) == len(cfg.eval.scenes) * cfg.eval.episodes
     # Run again: the finished training is found, not redone, and evaluation gives the same rows.

@@ -36,6 +36,21 @@ def test_progress_log_lines_and_time_left(capsys, monkeypatch):
     assert lines[-1].endswith("elapsed, done")
 
 
+def test_progress_in_a_kernel_writes_log_lines_inside_log_lines(capsys, monkeypatch):
+    """A sweep's local backend runs each job in the caller's process, a notebook's kernel in notebook 06: inside
+    log_lines() its loops write status lines to stderr (the job's log), not a display in the notebook."""
+    from omcrl.utils import progress
+
+    monkeypatch.delenv("OMCRL_STATUS_FILE", raising=False)
+    monkeypatch.setattr(progress, "_in_kernel", lambda: True)
+    shown = []
+    monkeypatch.setattr(Progress, "_text_object", lambda self, final=False: shown.append(final))
+    with progress.log_lines(), Progress(10, "rl/ours seed0", log_interval=0.0) as bar:
+        bar.update(10)
+    assert not shown and capsys.readouterr().err.splitlines()[-1].endswith("elapsed, done")
+    assert not progress._LOG_LINES.get()  # after the block, a kernel's loops show in the notebook again
+
+
 def test_progress_disabled_writes_nothing(capsys, tmp_path, monkeypatch):
     status = tmp_path / "status.log"
     monkeypatch.setenv("OMCRL_STATUS_FILE", str(status))

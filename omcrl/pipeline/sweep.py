@@ -66,7 +66,7 @@ from omcrl.pipeline.storage import Storage, job_key
 from omcrl.planners import PLANNERS
 from omcrl.rl.methods import final_policy_path, get_method
 from omcrl.utils.io import atomic_write_text
-from omcrl.utils.progress import Progress
+from omcrl.utils.progress import Progress, log_lines
 from omcrl.utils.runtime import cpu_count
 from omcrl.viz import save_figure
 from omcrl.viz.compare import plot_learning_curves
@@ -144,6 +144,7 @@ def run_job(preset_cfg: dict, job: Job, log_path: str, share: dict | None = None
             open(log_path, "a", encoding="utf-8") as log,
             contextlib.redirect_stdout(log),
             contextlib.redirect_stderr(log),
+            log_lines(),  # each long job's progress in its own log: `tail -f` shows how far it is
         ):
             print(f"[sweep] {job.kind} {job.method} seed {job.seed} {list(job.overrides)} ({job.id})", flush=True)
             if store is not None:
@@ -177,22 +178,22 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
     rows: list[dict] = []
     result: Any = None
     if job.kind == "collect":
-        result = collect_stage(cfg, progress=False)  # with data.policy=oracle, the variant's oracle flies
+        result = collect_stage(cfg, progress=True)  # with data.policy=oracle, the variant's oracle flies
         skipped = bool(result.skipped)
     elif job.kind == "pretrain":
-        result = pretrain_method(cfg, job.method, progress=False)
+        result = pretrain_method(cfg, job.method, progress=True)
         skipped = bool(result.skipped)
         if preset_cfg.get("encoder_reports"):
             write_encoder_report(cfg, result.run_dir)
     elif job.kind == "train":
-        result = train_method(cfg, job.method, progress=False)
+        result = train_method(cfg, job.method, progress=True)
         skipped = bool(result.skipped)
     else:
         path = final_policy_path(cfg, job.method)
         if path is None:
             raise FileNotFoundError(f"{job.method} seed {job.seed}: no finished run to evaluate")
         counts: dict[str, int] = {}
-        df = evaluate_methods(cfg, {job.method: path}, stats=counts)
+        df = evaluate_methods(cfg, {job.method: path}, stats=counts, progress=True)
         # Read back whole from the cache: a skip, so jobs.csv keeps the time the evaluation took when it ran.
         skipped = counts.get("evaluated", 0) == 0
         df = df.drop(columns=["trajectory"], errors="ignore").assign(label=job.label, overrides=" ".join(job.overrides))

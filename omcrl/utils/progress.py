@@ -7,7 +7,9 @@ its text goes depends on where the code runs:
   (``display(..., display_id=True)`` and ``update_display``), at most once per ``notebook_interval`` seconds, so
   an executed notebook holds one output per loop however long it ran;
 - **in a terminal** (stderr is a TTY): a tqdm bar;
-- **elsewhere** (a log file, CI, a pipe): a status line on stderr every ``log_interval`` seconds;
+- **elsewhere** (a log file, CI, a pipe), and inside :func:`log_lines` whatever the process: a status line on
+  stderr every ``log_interval`` seconds (a sweep's job writes its own progress into its log this way, even when the
+  local backend runs it in a notebook's kernel);
 - and, in every case, when the environment variable ``OMCRL_STATUS_FILE`` names a file, the same status line
   is appended to it every ``status_interval`` seconds. The notebook runner (:mod:`omcrl.pipeline.notebooks`) sets it and
   prints the file's new lines on the console, so ``./reproduce.sh --quick`` is never silent for long.
@@ -18,6 +20,8 @@ left``. Intervals come from ``OMCRL_STATUS_INTERVAL`` (seconds, default 30) for 
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import os
 import sys
 import time
@@ -30,6 +34,20 @@ STATUS_FILE_ENV = "OMCRL_STATUS_FILE"
 STATUS_INTERVAL_ENV = "OMCRL_STATUS_INTERVAL"
 DEFAULT_STATUS_INTERVAL_S = 30.0
 NOTEBOOK_INTERVAL_S = 1.0
+# Set by log_lines(): a context variable, so a thread that runs a job does not change another's mode.
+_LOG_LINES: contextvars.ContextVar[bool] = contextvars.ContextVar("omcrl_progress_log_lines", default=False)
+
+
+@contextlib.contextmanager
+def log_lines() -> Iterator[None]:
+    """Within this block every enabled :class:`Progress` writes status lines to ``sys.stderr`` (never a notebook
+    output or a terminal bar): a sweep redirects a job's stderr to the job's log, and the local backend runs the job
+    in the caller's process, which may be a notebook's kernel."""
+    token = _LOG_LINES.set(True)
+    try:
+        yield
+    finally:
+        _LOG_LINES.reset(token)
 
 
 def format_duration(seconds: float) -> str:
@@ -120,7 +138,9 @@ class Progress:
         self._mode = "off"
         if not enabled:
             return
-        if _in_kernel():
+        if _LOG_LINES.get():
+            self._mode = "log"
+        elif _in_kernel():
             self._mode = "notebook"
             from IPython.display import display
 
