@@ -758,3 +758,33 @@ def test_what_a_grid_still_costs_is_its_jobs_at_the_measured_rates_and_says_when
     got = rest_hours(cfg, ["projection"], [0])
     assert got["hours"] == pytest.approx(plan["work"].sum() / 2.0 / 3600)
     assert got["hours_fast"] == pytest.approx(plan["work"].sum() / 2.5 / 3600)
+
+
+def test_a_sweeps_time_left_is_priced_per_kind_of_job_not_counted_in_jobs():
+    """Five jobs, the first a 1-minute collection, then an hour's pretraining: counting jobs says 4 minutes left after
+    the first; the planned seconds (work / measured rate) say about an hour and a half, and once a tenth of the
+    planned work has run, at the pace it ran."""
+    from omcrl.pipeline.sweep import _time_left
+
+    planned = {"collect": 60.0, "pretrain": 3600.0, "train": 1200.0, "eval": 60.0, "eval2": 60.0}
+    ids = list(planned)
+    assert _time_left(planned, ids, {}, 5.0) == pytest.approx(sum(planned.values()))  # the measured rates as they are
+    # The collection took 1.5× its plan, but it is 1 % of the work: its pace is not taken.
+    assert _time_left(planned, ids, {"collect": "done"}, 90.0) == pytest.approx(3600 + 1200 + 60 + 60)
+    # The pretraining ran at half its plan's time: the rest is priced at that pace; a cached job adds none.
+    status = {"collect": "skipped", "pretrain": "done"}
+    assert _time_left(planned, ids, status, 1800.0) == pytest.approx(0.5 * (1200 + 60 + 60))
+    # A job with no measured rate gives no estimate (the bar counts jobs).
+    assert _time_left({k: v for k, v in planned.items() if k != "train"}, ids, status, 1800.0) is None
+
+
+def test_progress_takes_the_callers_time_left_and_falls_back_to_counting(capsys, monkeypatch):
+    from omcrl.utils.progress import Progress
+
+    monkeypatch.delenv("OMCRL_STATUS_FILE", raising=False)
+    answers = iter([None, None, 3600.0])
+    bar = Progress(5, "sweep/x", unit="job", log_interval=0.0, time_left=lambda elapsed: next(answers))
+    bar.update(1)
+    bar.update(1)
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("[omcrl]")]
+    assert "left" not in lines[0] and "left" in lines[1] and lines[-1].endswith("~1h00m00s left")

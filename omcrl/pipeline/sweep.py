@@ -287,7 +287,14 @@ def run_sweep(
     log_arg = {j.id: Storage._rel(res.logs[j.id], project_root()) if store else str(res.logs[j.id]) for j in jobs}
     t0 = time.perf_counter()
     rows: list[dict] = []
-    bar = Progress(len(jobs), f"sweep/{grid}", unit="job", enabled=progress)
+    # Jobs are not alike (a pretraining takes an hour, its evaluation a minute): the time left is priced from the
+    # measured rates of each kind of job where this preset has them, not from the number of jobs done.
+    rates = measured_rates(cfg)
+    rate = dict(zip(rates["rate_key"], rates["rate"], strict=True))
+    planned = {w.id: w.work / rate[w.rate_key] for w in work_rows(cfg, jobs) if rate.get(w.rate_key)}
+    ids = [j.id for j in jobs]
+    bar = Progress(len(jobs), f"sweep/{grid}", unit="job", enabled=progress,
+                   time_left=lambda elapsed: _time_left(planned, ids, res.status, elapsed))  # fmt: skip
 
     def finish(job: Job, out: dict | None, err: str | None) -> None:
         if err is not None:
@@ -515,6 +522,21 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path, portable: bool 
                           "work": work}  # fmt: skip
     # Named columns: a sweep that measured nothing (every job recorded) still writes a file that reads back.
     atomic_write_text(path, pd.DataFrame(list(kept.values()), columns=JOB_TIME_COLUMNS).to_csv(index=False))
+
+
+def _time_left(planned: dict[str, float], ids: Sequence[str], status: dict[str, str], elapsed: float) -> float | None:
+    """Seconds left of a sweep of jobs ``ids`` from each job's ``planned`` seconds (work / the kind's measured rate):
+    the planned seconds of the jobs not finished, times the pace of this run (elapsed wall time over the planned
+    seconds of the jobs it finished: parallel nodes, this machine's speed) once those are a tenth of the whole, at
+    the measured rates as they are before. None when a job involved has no planned time (the caller counts jobs)."""
+    ran = [j for j in ids if status.get(j) == "done"]
+    rest = [j for j in ids if status.get(j) not in ("done", "skipped", "recorded", "failed", "blocked")]
+    if any(j not in planned for j in ran + rest):
+        return None
+    spent, left = sum(planned[j] for j in ran), sum(planned[j] for j in rest)
+    # A first short job (a collection found on disk) would set the pace for the hour that follows: not before a tenth.
+    pace = elapsed / spent if spent > 0 and spent >= 0.1 * (spent + left) else 1.0
+    return pace * left
 
 
 def _postfix(res: SweepResult, running: set[str]) -> dict[str, Any]:

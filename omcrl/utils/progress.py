@@ -25,7 +25,7 @@ import contextvars
 import os
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -96,6 +96,8 @@ class Progress:
     enabled : False: nothing is shown or written anywhere (tests, nested loops).
     notebook_interval, log_interval, status_interval : seconds between refreshes of the notebook output, the
         stderr log line and the status-file line (the last two default to ``OMCRL_STATUS_INTERVAL`` or 30 s).
+    time_left : optional ``f(elapsed_s) -> seconds | None``: the time left when units are not alike (a sweep's
+        jobs), instead of elapsed / units done × units left; None from it falls back to that.
 
     Examples
     --------
@@ -115,6 +117,7 @@ class Progress:
         notebook_interval: float = NOTEBOOK_INTERVAL_S,
         log_interval: float | None = None,
         status_interval: float | None = None,
+        time_left: Callable[[float], float | None] | None = None,
     ) -> None:
         self.total = int(total)
         self.desc = desc
@@ -123,6 +126,7 @@ class Progress:
         self.initial = int(initial)
         self.enabled = enabled
         self.postfix: dict[str, str] = {}
+        self._time_left = time_left
         self.t0 = time.perf_counter()
         self._closed = False
         every = _status_interval()
@@ -196,8 +200,12 @@ class Progress:
         timing = f"{format_duration(elapsed)} elapsed"
         if final:
             timing += ", done" if self.n >= self.total else ", stopped"
-        elif done > 0 and self.total > self.n:
-            timing += f", ~{format_duration(elapsed / done * (self.total - self.n))} left"
+        elif self.total > self.n:
+            left = self._time_left(elapsed) if self._time_left is not None else None
+            if left is None and done > 0:
+                left = elapsed / done * (self.total - self.n)
+            if left is not None:
+                timing += f", ~{format_duration(left)} left"
         parts.append(timing)
         return " | ".join(parts)
 
