@@ -44,9 +44,8 @@ from omcrl.interpret.encoder_report import REPORT, read_report, suite_settings, 
 from omcrl.interpret.transfer import setting_samples
 from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.pipeline.grids import GRIDS
-from omcrl.pipeline.plan import sweep_plan
 from omcrl.pipeline.reference import config_suite
-from omcrl.pipeline.sweep import recorded_jobs
+from omcrl.pipeline.sweep import rest_plan
 from omcrl.planners import PLANNERS
 from omcrl.rl.train import rollout_geometry
 from omcrl.runs import read_identity
@@ -234,8 +233,7 @@ def rest_cost(cfg: Config, cost: pd.DataFrame, seeds: Sequence[int] = LADDER_SEE
         if not (folder / PLAN_RATES).is_file():
             continue
         rates = json.loads((folder / PLAN_RATES).read_text())
-        plan = sweep_plan(cfg, [grid], seeds)
-        rest = plan[~plan["id"].isin(recorded_jobs(cfg, [grid], seeds)) & ~plan["table1"]]
+        rest = rest_plan(cfg, [grid], seeds)
         for key, g in rest.groupby("rate_key", sort=False):
             planned = g["work"].sum() / rates[key] / 3600 if key in rates else math.nan
             r = float(ratio.get(key, overall))

@@ -338,6 +338,13 @@ def measured_rates(cfg: Config, grids: Sequence[str] | None = None) -> pd.DataFr
 JOB_COLUMNS = ["id", "status", "seconds", "rate_key", "work"]
 
 
+def rate_maps(rates: pd.DataFrame) -> tuple[dict[str, float], dict[str, float]]:
+    """:func:`measured_rates`' rows as ``{rate_key: units/s}``: at the median, and at the upper quartile (a machine
+    to itself), the forms :func:`sweep_cost` and :func:`describe_plan` take."""
+    keys = rates["rate_key"]
+    return dict(zip(keys, rates["rate"], strict=True)), dict(zip(keys, rates["rate_fast"], strict=True))
+
+
 def recorded_training_times(grid_dir: Path) -> list[dict]:
     """One ``jobs.csv``-like row per training run recorded under a grid's data folder (``<label>/seed<k>/rl/``):
     its seconds are the sum of the ``rollout_s`` and ``update_s`` its PPO updates logged (start-up and the

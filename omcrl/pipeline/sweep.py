@@ -56,6 +56,7 @@ from omcrl.pipeline.plan import (
     job_cpus,
     job_gpus,
     measured_rates,
+    rate_maps,
     sweep_cost,
     sweep_plan,
     work_rows,
@@ -289,8 +290,7 @@ def run_sweep(
     rows: list[dict] = []
     # Jobs are not alike (a pretraining takes an hour, its evaluation a minute): the time left is priced from the
     # measured rates of each kind of job where this preset has them, not from the number of jobs done.
-    rates = measured_rates(cfg)
-    rate = dict(zip(rates["rate_key"], rates["rate"], strict=True))
+    rate, _ = rate_maps(measured_rates(cfg))
     planned = {w.id: w.work / rate[w.rate_key] for w in work_rows(cfg, jobs) if rate.get(w.rate_key)}
     ids = [j.id for j in jobs]
     bar = Progress(len(jobs), f"sweep/{grid}", unit="job", enabled=progress,
@@ -457,6 +457,13 @@ def recorded_jobs(cfg: Config, grids: Sequence[str], seeds: Sequence[int] | None
     return out
 
 
+def rest_plan(cfg: Config, grids: Sequence[str], seeds: Sequence[int] | None = None) -> pd.DataFrame:
+    """:func:`omcrl.pipeline.plan.sweep_plan`'s rows of the jobs still to run: those no record in the checkout
+    holds (:func:`recorded_jobs`), the main comparison's runs left out."""
+    plan = sweep_plan(cfg, grids, seeds)
+    return plan[~plan["id"].isin(recorded_jobs(cfg, grids, seeds)) & ~plan["table1"]]
+
+
 def rest_hours(cfg: Config, grids: Sequence[str], seeds: Sequence[int] | None = None) -> dict[str, float]:
     """What ``grids`` at ``seeds`` still cost on one machine: the jobs no record in the checkout holds
     (:func:`recorded_jobs`; the main comparison's runs left out, as ``sweep --plan --to-reference`` leaves them) at
@@ -467,11 +474,8 @@ def rest_hours(cfg: Config, grids: Sequence[str], seeds: Sequence[int] | None = 
     ``{"jobs", "hours", "hours_fast"}``: the number of jobs, and their machine-hours at the measured rates' median
     and upper quartile (a machine to itself); the hours are NaN when a kind of job has no measured rate.
     """
-    plan = sweep_plan(cfg, grids, seeds)
-    plan = plan[~plan["id"].isin(recorded_jobs(cfg, grids, seeds)) & ~plan["table1"]]
-    m = measured_rates(cfg)
-    median = dict(zip(m["rate_key"], m["rate"], strict=True))
-    fast = dict(zip(m["rate_key"], m["rate_fast"], strict=True))
+    plan = rest_plan(cfg, grids, seeds)
+    median, fast = rate_maps(measured_rates(cfg))
     rated = set(plan["rate_key"]) <= set(median)
     return {
         "jobs": len(plan),
@@ -815,9 +819,8 @@ def sweep_stage(
             if not isinstance(r, dict) or not all(isinstance(v, int | float) and v > 0 for v in r.values()):
                 raise ConfigError(f"--rates {rates}: expected a JSON object of positive rates per rate_key, got {r!r}")
         else:
-            m = measured_rates(cfg)
-            r = dict(zip(m["rate_key"], m["rate"], strict=True)) or None
-            fast = dict(zip(m["rate_key"], m["rate_fast"], strict=True)) or None
+            median, quartile = rate_maps(measured_rates(cfg))
+            r, fast = median or None, quartile or None
         variants = kw.get("variants")
         only = None if variants is None else {j.id for g in grids for j in only_variants(expand(cfg, g, seeds),
                                                                                           variants, g)}  # fmt: skip
