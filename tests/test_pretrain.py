@@ -231,9 +231,10 @@ def test_interrupted_run_resumes_to_identical_result(data, tmp_path):
     straight = pretrain_encoder(cfg_a, data, progress=False)
     cfg_b = _cfg(tmp_path / "b")
     part = pretrain_encoder(cfg_b, data, progress=False, stop_after=4)  # checkpoint at 3, iteration 4 is lost
-    assert part.iterations == 4 and not (part.run_dir / "encoder.pt").exists()
+    assert part.iterations == 4 and part.start == 0 and not (part.run_dir / "encoder.pt").exists()
     resumed = pretrain_encoder(cfg_b, data, progress=False)
-    assert resumed.iterations == 6 and not resumed.skipped
+    # It says where it began, so that a sweep times it against the iterations it ran, not the whole budget.
+    assert resumed.iterations == 6 and resumed.start == 3 and not resumed.skipped
     sa = torch.load(straight.encoder_path, weights_only=True)
     sb = torch.load(resumed.encoder_path, weights_only=True)
     for key in ("f", "phi"):

@@ -18,6 +18,7 @@ from omcrl.pipeline import plan as planning
 from omcrl.pipeline.grids import GRIDS, Variant
 from omcrl.pipeline.plan import expand
 from omcrl.pipeline.sweep import run_sweep
+from omcrl.pretrain.train import PretrainResult
 
 
 def _cfg(root, *extra):
@@ -692,6 +693,21 @@ def test_a_resumed_training_is_timed_against_the_steps_it_trained(tmp_path):
     sweep._record_job_times(cfg, res, path)
     work = pd.read_csv(path).set_index("id")["work"]
     assert work[fresh.id] == cfg.rl.total_steps and work[resumed.id] == cfg.rl.total_steps - 384
+
+
+def test_a_resumed_pretraining_is_timed_against_the_iterations_it_ran(tmp_path, monkeypatch):
+    """A pretraining resumed from its checkpoint reports where it began, and jobs.csv sets its seconds against the
+    iterations after it (before: the whole budget, so ladder ×16 seed 1's 8,250 iterations were 24,000 in jobs.csv)."""
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    job = next(j for j in expand(cfg, "smoke", [0]) if j.kind == "pretrain")
+    made = PretrainResult("omc", tmp_path, tmp_path / "encoder.pt", tmp_path / "m.csv", 20, 1.0, "fp", start=7)
+    monkeypatch.setattr(sweep, "pretrain_method", lambda *a, **k: made)
+    status, _, _, start = sweep._run_stage({"preset": "smoke", "overrides": [f"results_dir={tmp_path}"]}, job)
+    assert (status, start) == ("done", 7)
+    res = sweep.SweepResult("smoke", [job], {job.id: "done"})
+    res.seconds, res.started = {job.id: 4.0}, {job.id: start}
+    sweep._record_job_times(cfg, res, tmp_path / "jobs.csv")
+    assert pd.read_csv(tmp_path / "jobs.csv").set_index("id").loc[job.id, "work"] == cfg.pretrain.iterations - 7
 
 
 def test_the_plan_prices_a_machine_to_itself_at_the_upper_quartile_of_measured_rates(tmp_path, monkeypatch):

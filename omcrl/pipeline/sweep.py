@@ -85,7 +85,7 @@ class SweepResult:
     episodes: pd.DataFrame = field(default_factory=pd.DataFrame)
     wall_s: float = 0.0
     seconds: dict[str, float] = field(default_factory=dict)  # job id -> wall time of this invocation (s)
-    started: dict[str, int] = field(default_factory=dict)  # job id -> env step a resumed training began at
+    started: dict[str, int] = field(default_factory=dict)  # job id -> step/iteration a resumed job began at
 
     @property
     def failed(self) -> list[Job]:
@@ -172,7 +172,8 @@ def _job_config(preset_cfg: dict, job: Job) -> Config:
 
 def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path], int]:
     """The stage of one job in this process: ``(status, evaluation rows, output paths, start)``; ``start``: the env
-    step a resumed training began at (0 otherwise), so that its time is set against the steps it trained."""
+    step a resumed training (the iteration a resumed pretraining) began at, 0 otherwise, so that its time is set
+    against the work it did."""
     cfg = _job_config(preset_cfg, job)
     if cfg.eval.workers == 0 and job.kind == "evaluate":
         cfg.eval.workers = job_cpus(cfg, job)
@@ -199,7 +200,7 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
         skipped = counts.get("evaluated", 0) == 0
         df = df.drop(columns=["trajectory"], errors="ignore").assign(label=job.label, overrides=" ".join(job.overrides))
         rows = json.loads(df.to_json(orient="records"))
-    start = int(getattr(result, "start", 0)) if job.kind == "train" else 0
+    start = int(getattr(result, "start", 0)) if job.kind in ("train", "pretrain") else 0
     return ("skipped" if skipped else "done"), rows, _outputs(cfg, job, result), start
 
 
@@ -519,7 +520,7 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path, portable: bool 
         st = res.status.get(j.id)
         if st == "done" or (st == "skipped" and name(j.id) not in kept):
             w = plan[j.id]
-            # A resumed training timed only the part after its checkpoint: its work is that part too.
+            # A resumed training or pretraining timed only the part after its checkpoint: its work is that part too.
             work = max(0, w.work - res.started.get(j.id, 0))
             kept[name(j.id)] = {"id": name(j.id), "kind": j.kind, "method": j.method, "seed": j.seed, "status": st,
                           "seconds": round(res.seconds.get(j.id, float("nan")), 2), "rate_key": w.rate_key,

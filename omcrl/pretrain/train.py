@@ -55,6 +55,7 @@ class PretrainResult:
     final_loss: float
     dataset_fingerprint: str
     skipped: bool = False
+    start: int = 0  # the iteration this call began at: a resumed run's checkpoint (its earlier part not timed)
 
 
 def method_name(p: PretrainConfig) -> str:
@@ -267,7 +268,7 @@ def pretrain_encoder(
             cb.on_end(run_rec, it, finished)
         if not finished:
             ds.close()
-            return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp)
+            return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp, start=start)
         if start >= p.iterations:  # resumed from a final checkpoint whose artifact was not written
             loss_val = next((v for s, m, v in reversed(rows) if m == "loss"), float("nan"))
         run_rec.finish(
@@ -280,6 +281,6 @@ def pretrain_encoder(
             dataset_fingerprint=fp,
         )
         ds.close()
-        return PretrainResult(name, out, enc_path, metrics_path, p.iterations, loss_val, fp)
+        return PretrainResult(name, out, enc_path, metrics_path, p.iterations, loss_val, fp, start=start)
     finally:
         run_rec.release()
