@@ -790,6 +790,9 @@ def test_a_sweeps_time_left_is_priced_per_kind_of_job_not_counted_in_jobs():
     # The pretraining ran at half its plan's time: the rest is priced at that pace; a cached job adds none.
     status = {"collect": "skipped", "pretrain": "done"}
     assert _time_left(planned, ids, status, 1800.0) == pytest.approx(0.5 * (1200 + 60 + 60))
+    # The pretraining resumed from its checkpoint at two thirds: its 1,800 s ran a third of its plan (1,200 s), so
+    # the pace is 1.5, not 0.5 (ladder ×16 seed 1's bar said ~8 min left for a 26-minute training).
+    assert _time_left(planned, ids, status, 1800.0, {"pretrain": 1 / 3}) == pytest.approx(1.5 * (1200 + 60 + 60))
     # A job with no measured rate gives no estimate (the bar counts jobs).
     assert _time_left({k: v for k, v in planned.items() if k != "train"}, ids, status, 1800.0) is None
 

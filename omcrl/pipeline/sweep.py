@@ -292,10 +292,16 @@ def run_sweep(
     # Jobs are not alike (a pretraining takes an hour, its evaluation a minute): the time left is priced from the
     # measured rates of each kind of job where this preset has them, not from the number of jobs done.
     rate, _ = rate_maps(measured_rates(cfg))
+    work = {w.id: w.work for w in work_rows(cfg, jobs)}
     planned = {w.id: w.work / rate[w.rate_key] for w in work_rows(cfg, jobs) if rate.get(w.rate_key)}
     ids = [j.id for j in jobs]
-    bar = Progress(len(jobs), f"sweep/{grid}", unit="job", enabled=progress,
-                   time_left=lambda elapsed: _time_left(planned, ids, res.status, elapsed))  # fmt: skip
+
+    def time_left(elapsed: float) -> float | None:
+        # A job resumed from a checkpoint ran only the part after it: the pace is set against that part.
+        ran = {j: max(0, work[j] - s) / work[j] for j, s in res.started.items() if work.get(j)}
+        return _time_left(planned, ids, res.status, elapsed, ran)
+
+    bar = Progress(len(jobs), f"sweep/{grid}", unit="job", enabled=progress, time_left=time_left)
 
     def finish(job: Job, out: dict | None, err: str | None) -> None:
         if err is not None:
@@ -529,16 +535,25 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path, portable: bool 
     atomic_write_text(path, pd.DataFrame(list(kept.values()), columns=JOB_TIME_COLUMNS).to_csv(index=False))
 
 
-def _time_left(planned: dict[str, float], ids: Sequence[str], status: dict[str, str], elapsed: float) -> float | None:
+def _time_left(
+    planned: dict[str, float],
+    ids: Sequence[str],
+    status: dict[str, str],
+    elapsed: float,
+    ran_share: dict[str, float] | None = None,
+) -> float | None:
     """Seconds left of a sweep of jobs ``ids`` from each job's ``planned`` seconds (work / the kind's measured rate):
     the planned seconds of the jobs not finished, times the pace of this run (elapsed wall time over the planned
     seconds of the jobs it finished: parallel nodes, this machine's speed) once those are a tenth of the whole, at
-    the measured rates as they are before. None when a job involved has no planned time (the caller counts jobs)."""
+    the measured rates as they are before. ``ran_share``: ``{job id: share of its work this run did}`` for jobs
+    resumed from a checkpoint (1 for any other). None when a job involved has no planned time (the caller counts
+    jobs)."""
+    share = ran_share or {}
     ran = [j for j in ids if status.get(j) == "done"]
     rest = [j for j in ids if status.get(j) not in ("done", "skipped", "recorded", "failed", "blocked")]
     if any(j not in planned for j in ran + rest):
         return None
-    spent, left = sum(planned[j] for j in ran), sum(planned[j] for j in rest)
+    spent, left = sum(planned[j] * share.get(j, 1.0) for j in ran), sum(planned[j] for j in rest)
     # A first short job (a collection found on disk) would set the pace for the hour that follows: not before a tenth.
     pace = elapsed / spent if spent > 0 and spent >= 0.1 * (spent + left) else 1.0
     return pace * left
