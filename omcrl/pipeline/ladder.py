@@ -183,9 +183,9 @@ def cost_table(cfg: Config) -> pd.DataFrame:
     """The plan's predicted cost against the measured time, per ladder and kind of job, for the jobs its grid ran.
 
     Reads what a ladder's grid keeps beside its data (:func:`grid_data_dir`): ``jobs.csv`` (each job this grid ran,
-    its work and seconds; a training resumed from a checkpoint counts the part after it) and :data:`PLAN_RATES`
-    (the rates its plan used, ``sweep <grid> --plan --rates-out``). Jobs found finished (``skipped``) ran nothing and
-    are left out.
+    its work and seconds; a training or pretraining resumed from a checkpoint counts the part after it) and
+    :data:`PLAN_RATES` (the rates its plan used, ``sweep <grid> --plan --rates-out``). Jobs found finished
+    (``skipped``) ran nothing and are left out.
 
     Returns
     -------
@@ -610,8 +610,8 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
         lines += [
             "",
             "Cost: the plan's prediction (its rates, kept beside the grid's data) against the measured time, for the "
-            "jobs each ladder's grid ran (hours on this 2-core machine; a training resumed from a checkpoint counts "
-            "the part after it):",
+            "jobs each ladder's grid ran (hours on this 2-core machine; a training or pretraining resumed from a "
+            "checkpoint counts the part after it):",
             "",
             "| ladder | kind | jobs | work | planned h | measured h | measured / planned |",
             "|---|---|---|---|---|---|---|",
