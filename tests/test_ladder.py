@@ -101,6 +101,11 @@ def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
     assert "undecided" in line and "holds" in line and line.rstrip("| ").endswith("no")
     assert "- pretrain ×4: " in md and "![ladder, tree-v2](figures/x/ladder_tree-v2.png)" in md
     assert "| ours | ×4 | 1 | 0.4 |" in md  # the encoder report of seed 0 at x4
+    # Probe and shift in two tables headed by scene alone (one of thirteen columns ran off a page's width).
+    heads = [x for x in md.splitlines() if x.startswith("| method | budget | seeds | ")]
+    assert heads[0].startswith("| method | budget | seeds | top1 | box-v2 |") and "furniture-v2" in heads[0]
+    assert heads[1].startswith("| method | budget | seeds | box-v2, other layouts |") and "top1" not in heads[1]
+    assert not any("R2 " in h or "MMD " in h for h in heads)
     # The direct test of a change with budget: ours rose from 50 % to 90 %, curl fell to 10 %, paired with x1.
     eff = res.effects.set_index(["axis", "method", "scale", "scene"])
     for scene in ("barrier-v2", "tree-v2"):  # (with three seeds a 40-point move is not resolved in every scene)

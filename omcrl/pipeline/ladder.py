@@ -313,6 +313,16 @@ def verdicts_by_budget(
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
+def _encoder_rows(enc: pd.DataFrame, cols: Sequence[str]) -> list[str]:
+    """Markdown rows of the encoder table's ``cols`` (headed by the scene alone: ``R2 tree-v2`` → ``tree-v2``)."""
+    heads = [c.split(" ", 1)[1] if c.startswith(("R2 ", "MMD ")) else c for c in cols]
+    lines = ["", "| method | budget | seeds | " + " | ".join(heads) + " |", "|---|---|---|" + "---|" * len(cols)]
+    for row in enc.to_dict("records"):
+        vals = [f"{row[c]:.3g}" if isinstance(row[c], float) and math.isfinite(row[c]) else "" for c in cols]
+        lines.append(f"| {row['method']} | ×{row['scale']:g} | {int(row['seeds'])} | " + " | ".join(vals) + " |")
+    return lines
+
+
 def verdicts_wide(long: pd.DataFrame) -> pd.DataFrame:
     """One row per hypothesis, one column per ``<axis> ×<scale>`` (its verdict and estimate; empty where that point
     has no data), and per ladder ``stable <axis>``: ``yes`` when every budget that judged the row (holds, reversed
@@ -555,22 +565,21 @@ def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequen
         lines.append(f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | {sr} |")
     if len(res.encoders):
         enc = res.encoders
-        cols = [c for c in enc.columns if c not in ("method", "scale", "seeds")]
+        # Two tables, not one of thirteen columns: each fits a page's width, its columns named by scene alone.
+        probe = ["top1", *(c for c in enc.columns if c.startswith("R2 "))]
+        shift = [c for c in enc.columns if c.startswith("MMD ")]
         lines += [
             "",
             "Encoders per pretraining point (mean over the seeds reported): `top1` the pretraining objective's top-1 "
             "over its last 10 % of iterations (ours: a masked position's prediction picks its own key among the "
             "batch's; curl: an augmented stack picks its pair; different tasks, so compare a method across budgets, "
-            "not the two methods), "
-            "`R2 <scene>` the linear probe's R² of the privileged state from the frozen features, `MMD <scene>` the "
-            "features' shift from the training scene (MMD², 0 = none):",
-            "",
-            "| method | budget | seeds | " + " | ".join(cols) + " |",
-            "|---|---|---|" + "---|" * len(cols),
+            "not the two methods), then per scene the linear probe's R² of the privileged state from the frozen "
+            "features:",
         ]
-        for row in enc.to_dict("records"):
-            vals = [f"{row[c]:.3g}" if isinstance(row[c], float) and math.isfinite(row[c]) else "" for c in cols]
-            lines.append(f"| {row['method']} | ×{row['scale']:g} | {int(row['seeds'])} | " + " | ".join(vals) + " |")
+        lines += _encoder_rows(enc, probe)
+        if shift:
+            lines += ["", "Their features' shift from the training scene (MMD², 0 = none):"]
+            lines += _encoder_rows(enc, shift)
     v = res.verdicts
     if len(v):
         lines += ["", "The claim ledger judged at each point (Holm within each family, over the rows it judges):", ""]
