@@ -19,6 +19,7 @@ from omcrl.pipeline.grids import GRIDS, Variant
 from omcrl.pipeline.plan import expand
 from omcrl.pipeline.sweep import run_sweep
 from omcrl.pretrain.train import PretrainResult
+from omcrl.utils.progress import Progress
 
 
 def _cfg(root, *extra):
@@ -780,8 +781,7 @@ def test_a_sweeps_time_left_is_priced_per_kind_of_job_not_counted_in_jobs():
     """Five jobs, the first a 1-minute collection, then an hour's pretraining: counting jobs says 4 minutes left after
     the first; the planned seconds (work / measured rate) say about an hour and a half, and once a tenth of the
     planned work has run, at the pace it ran."""
-    from omcrl.pipeline.sweep import _time_left
-
+    _time_left = sweep._time_left
     planned = {"collect": 60.0, "pretrain": 3600.0, "train": 1200.0, "eval": 60.0, "eval2": 60.0}
     ids = list(planned)
     assert _time_left(planned, ids, {}, 5.0) == pytest.approx(sum(planned.values()))  # the measured rates as they are
@@ -798,8 +798,6 @@ def test_a_sweeps_time_left_is_priced_per_kind_of_job_not_counted_in_jobs():
 
 
 def test_progress_takes_the_callers_time_left_and_falls_back_to_counting(capsys, monkeypatch):
-    from omcrl.utils.progress import Progress
-
     monkeypatch.delenv("OMCRL_STATUS_FILE", raising=False)
     answers = iter([None, None, 3600.0])
     bar = Progress(5, "sweep/x", unit="job", log_interval=0.0, time_left=lambda elapsed: next(answers))

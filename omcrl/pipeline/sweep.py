@@ -200,7 +200,7 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
         skipped = counts.get("evaluated", 0) == 0
         df = df.drop(columns=["trajectory"], errors="ignore").assign(label=job.label, overrides=" ".join(job.overrides))
         rows = json.loads(df.to_json(orient="records"))
-    start = int(getattr(result, "start", 0)) if job.kind in ("train", "pretrain") else 0
+    start = int(getattr(result, "start", 0))  # a stage that resumed says where (training, pretraining)
     return ("skipped" if skipped else "done"), rows, _outputs(cfg, job, result), start
 
 
@@ -292,8 +292,9 @@ def run_sweep(
     # Jobs are not alike (a pretraining takes an hour, its evaluation a minute): the time left is priced from the
     # measured rates of each kind of job where this preset has them, not from the number of jobs done.
     rate, _ = rate_maps(measured_rates(cfg))
-    work = {w.id: w.work for w in work_rows(cfg, jobs)}
-    planned = {w.id: w.work / rate[w.rate_key] for w in work_rows(cfg, jobs) if rate.get(w.rate_key)}
+    work_of = work_rows(cfg, jobs)
+    work = {w.id: w.work for w in work_of}
+    planned = {w.id: w.work / rate[w.rate_key] for w in work_of if rate.get(w.rate_key)}
     ids = [j.id for j in jobs]
 
     def time_left(elapsed: float) -> float | None:
