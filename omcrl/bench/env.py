@@ -41,21 +41,29 @@ def _walk(rng: np.random.Generator, n: int) -> np.ndarray:
     return a.astype(np.float32)
 
 
-def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float = 1.0, renderer: str = "auto") -> dict:
-    """Throughputs for one scene, image size and ``env.renderer`` (``tiny``, ``egl`` or ``auto``).
+def measure(
+    scene: str,
+    size: int,
+    seconds: float,
+    n_vec: int = 2,
+    block: float = 1.0,
+    renderer: str = "auto",
+    cull: bool = True,
+) -> dict:
+    """Throughputs for one scene, image size and ``env.renderer`` (``tiny``, ``egl`` or ``auto``); ``cull=False``
+    draws every body for every frame (TinyRenderer before :class:`~omcrl.envs.appearance.CullSet`).
 
     Raw renders, single-env steps and vector-env steps run in alternating short blocks (``block`` s each) for
     ``seconds`` s in all, and each rate is the median over its blocks: whatever else the machine is doing
     then weighs on all three alike, so the ratios stay meaningful on a busy machine. Raw renders use the env's
     own renderer (TinyRenderer, or the EGL plugin it loaded), so ``step/raw`` is the env's overhead on either.
     """
-    env = make_env(scene, seed=0, image_size=size, renderer=renderer)
+    env = make_env(scene, seed=0, image_size=size, renderer=renderer, cull=cull)
     env.reset(seed=0)
-    vec = make_vec_env(scene, n_vec, seed=0, image_size=size, renderer=renderer)
+    vec = make_vec_env(scene, n_vec, seed=0, image_size=size, renderer=renderer, cull=cull)
     vec.reset(seed=0)
-    gvec = gym.vector.AsyncVectorEnv(
-        [env_factory(scene, i, {"image_size": size, "renderer": renderer}) for i in range(n_vec)], shared_memory=True
-    )
+    kwargs = {"image_size": size, "renderer": renderer, "cull": cull}
+    gvec = gym.vector.AsyncVectorEnv([env_factory(scene, i, kwargs) for i in range(n_vec)], shared_memory=True)
     gvec.reset(seed=0)
     acts = _walk(np.random.default_rng(0), 100_000)
     va = np.stack([acts] * n_vec, 1)
@@ -66,13 +74,17 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
     def raw_rate() -> float:
         cid, proj = env._client, env._proj
         if not views:
-            views.append(env.view_matrix())
+            views.append((env.drone, env.view_matrix()))
         n, t0 = 0, time.perf_counter()
         while time.perf_counter() - t0 < block:
+            drone, view = views[n % len(views)]
+            if env.cull:  # the env's culling is part of its frame's cost
+                env.drone = drone
+                env._cull_to(drone.pos, drone.yaw, 1.0 / proj[0], 1.0 / proj[5], size, size)
             pb.getCameraImage(
                 size,
                 size,
-                views[n % len(views)],
+                view,
                 proj,
                 renderer=env._pb_renderer,
                 shadow=0,
@@ -90,7 +102,7 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
             _, _, term, trunc, _ = env.step(acts[state["k"] % len(acts)])
             t_step += time.perf_counter() - t1
             if len(views) < 2000:
-                views.append(env.view_matrix())
+                views.append((env.drone, env.view_matrix()))
             state["k"] += 1
             n += 1
             if term or trunc:
@@ -128,6 +140,7 @@ def measure(scene: str, size: int, seconds: float, n_vec: int = 2, block: float 
         "scene": scene,
         "px": size,
         "renderer": env.renderer,
+        "cull": env.cull,
         "raw_fps": raw_fps,
         "step_sps": step_sps,
         "step_sps_with_resets": wr,
@@ -149,12 +162,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=20.0, help="measuring time per scene and size (s)")
     ap.add_argument("--renderers", default="auto", help="comma-separated env.renderer values: tiny, egl, auto")
     ap.add_argument("--vec", type=int, default=2, help="envs of the vector envs (default: 2)")
+    ap.add_argument(
+        "--cull",
+        default="on",
+        help="off, on or off,on: TinyRenderer culling (off,on measures both, one after the other per scene)",
+    )
     args = ap.parse_args(argv)
     seconds = 3.0 if args.quick else args.seconds
+    culls = [{"off": False, "on": True}[c] for c in args.cull.split(",")]
     rows = []
-    for scene in args.scenes.split(","):
-        for size in (int(s) for s in args.sizes.split(",")):
+    for size in (int(s) for s in args.sizes.split(",")):
+        for scene in args.scenes.split(","):
             for renderer in args.renderers.split(","):
-                rows.append(measure(scene, size, seconds, n_vec=args.vec, renderer=renderer))
+                for cull in culls:
+                    rows.append(measure(scene, size, seconds, n_vec=args.vec, renderer=renderer, cull=cull))
+    base = {(r["px"], r["renderer"], r["cull"]): r["step_sps"] for r in rows if r["scene"] == rows[0]["scene"]}
+    for r in rows:  # every scene against the first one at the same size, renderer and culling
+        r[f"vs_{rows[0]['scene']}"] = r["step_sps"] / base[(r["px"], r["renderer"], r["cull"])]
+        if len(culls) > 1 and r["cull"]:
+            off = next(o for o in rows if o["scene"] == r["scene"] and o["px"] == r["px"] and not o["cull"])
+            r["cull_gain"] = r["step_sps"] / off["step_sps"]
     write_results("env", rows, args.out)
     return 0

@@ -45,6 +45,7 @@ from omcrl.envs.appearance import (
     APPEARANCE_PARTS,
     GENERIC_TEXTURES,
     POOL_SLACK,
+    CullSet,
     Disturbance,
     SceneLook,
     _adjust,
@@ -107,12 +108,15 @@ class NavEnv(SceneLook, gym.Env):
         config: EnvConfig | None = None,
         render_mode: str | None = "rgb_array",
         camera: bool = True,
+        cull: bool = True,
         **overrides: Any,
     ) -> None:
         """``camera=False``: no frame is rendered on reset or step, and ``rgb`` and ``depth`` stay zero (as does
         :meth:`render`), for a pilot that does not look (:class:`omcrl.planners.HybridAPF`, the blind pilot):
-        its episodes are the same, in a fifth to a third of the time. Not a config field: it changes no
-        episode, so no run identity. The other keywords are described in :func:`make_env`."""
+        its episodes are the same, in a fifth to a third of the time. ``cull=False``: TinyRenderer draws every
+        body of the layout for every frame, as before culling (:class:`~omcrl.envs.appearance.CullSet`; the
+        frames are bit-identical either way, so benchmarks compare the two). Neither is a config field: they
+        change no episode, so no run identity. The other keywords are described in :func:`make_env`."""
         cfg = EnvConfig(**asdict(config)) if config is not None else EnvConfig()
         # Explicit arguments win over the config; every value is validated like a config field.
         given = {"scene": scene, "image_size": image_size, "frame_stack": frame_stack}
@@ -159,6 +163,11 @@ class NavEnv(SceneLook, gym.Env):
         if self.renderer == "egl":
             load_egl(self._client)
         self._pb_renderer = pybullet_renderer(self.renderer)
+        # EGL clips on the GPU and would blend an alpha-0 body: culling is TinyRenderer's alone.
+        self.cull = bool(cull) and self.renderer == "tiny"
+        self._cull_set: CullSet | None = None
+        self._paint: dict[int, tuple] = {}  # body -> its rgba as painted (alpha included)
+        self._hidden: set[int] = set()  # bodies drawn with alpha 0 now (culled or parked)
         self._proj = pb.computeProjectionMatrixFOV(cfg.fov_deg, 1.0, cfg.near, cfg.far)
         # What each reset decides before touching PyBullet (layout, maps, start/goal): an object the env holds.
         self.episodes = EpisodePlanner(cfg, self.scene, self.layout)
@@ -341,6 +350,11 @@ class NavEnv(SceneLook, gym.Env):
         for forward in RENDER_NUDGES_M:
             if not self._plane_is_clear(forward):
                 continue
+            if self.cull:
+                yaw = self.drone.yaw
+                eye = self.drone.pos + forward * np.array([math.cos(yaw), math.sin(yaw), 0.0])
+                # A pinhole projection's first and sixth entries are 1/tan of the half-angles (x, y).
+                self._cull_to(eye, yaw, 1.0 / proj[0], 1.0 / proj[5], width, height)
             _, _, rgba, zbuf, seg = pb.getCameraImage(
                 width,
                 height,
