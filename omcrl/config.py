@@ -156,11 +156,21 @@ class DataConfig:
     )
 
 
+# Encoders made without data or training (controls): ``random`` keeps f and φ as pretraining initialises them at the
+# seed; ``blind`` zeroes every weight, so the features are 0 whatever the camera shows.
+UNTRAINED_ENCODERS = ("random", "blind")
+
+
 @dataclass
 class PretrainConfig:
     """Upstream masked contrastive learning (paper IV-B, V-D)."""
 
-    method: str = _f("omc", choices=("omc", "curl", "curl_cons"), doc="objective")
+    method: str = _f(
+        "omc",
+        choices=("omc", "curl", "curl_cons", *UNTRAINED_ENCODERS),
+        doc="objective; random / blind: no training, f and phi at their initialisation / constant zero features "
+        "(the controls ours-random and ours-blind)",
+    )
     crop_from: int = _f(72, lo=16, hi=512, doc="stored image size (px); equals env.image_size of the data")
     crop_to: int = _f(64, lo=16, hi=512, doc="random-crop size (px) fed to the encoder")
     batch_size: int = _f(32, lo=1, hi=4096, doc="B, sequences per batch")

@@ -48,7 +48,7 @@ grid=table1
 seeds=0,1,2,3,4
 # Teacher first (its students need it), then the frozen-encoder students (about 31 min each), then the pixel
 # runs (about 70 min each), so that what a session finishes is as many whole rows as it can be.
-table1_variants=oracle,ours,ours-noOT,ours-lapf,curl,curl-phi,npe,npe-ot,ppo
+table1_variants=oracle,ours,ours-noOT,ours-lapf,ours-random,ours-blind,curl,curl-phi,npe,npe-ot,ppo
 variants=""  # default: Table I's order above for table1 and table1-confirm, every variant of any other grid
 preset=quick
 backend=local

@@ -13,7 +13,8 @@ from omcrl.eval import ledger as L
 def test_every_claim_names_known_methods_metrics_and_scenes_in_every_suite():
     for suite in ("v1", "v2"):
         rows = L.hypotheses(suite)
-        assert len(rows) == 98 and sum(r["family"] == "primary" for r in rows) == 38
+        assert len(rows) == 106 and sum(r["family"] == "primary" for r in rows) == 38
+        assert sum(r["family"] == "controls" for r in rows) == 8
         assert len({r["hypothesis"] for r in rows}) == len(rows)  # no hypothesis twice
         assert {r["scene"] for r in rows if r["claim"].startswith("E")} >= {f"tree-v{2 if suite == 'v2' else 0}"}
     training = [r for r in L.hypotheses("v2") if r["metric"] in L.TRAINING_METRICS]
@@ -44,3 +45,13 @@ def test_docs_show_the_ledger_the_code_holds():
     text = (Path(__file__).parents[1] / "docs" / "results.md").read_text(encoding="utf-8")
     block = re.search(r"<!-- ledger:begin.*?-->\n(.*?)<!-- ledger:end -->", text, re.S)
     assert block is not None and block.group(1) == L.ledger_markdown()
+
+
+def test_the_controls_are_their_own_family_in_box_and_every_unseen_scene():
+    """Issue 75: ours > ours-random and ours-random > ours-blind on SR in box-v2 and each unseen v2 scene, Holm within
+    a family of their own (the paper's families keep their 38 + 60 hypotheses)."""
+    rows = [r for r in L.hypotheses("v2") if r["family"] == "controls"]
+    got = {(r["a"], r["b"], r["scene"]) for r in rows}
+    scenes = ("box-v2", "furniture-v2", "barrier-v2", "tree-v2")
+    assert got == {(a, b, s) for a, b in (("ours", "ours-random"), ("ours-random", "ours-blind")) for s in scenes}
+    assert {r["metric"] for r in rows} == {"SR"} and {r["kind"] for r in rows} == {"order"}

@@ -388,16 +388,40 @@ def test_every_pretraining_method_is_one_objective_chosen_once():
     from dataclasses import fields
     from types import SimpleNamespace
 
-    from omcrl.config import PretrainConfig
+    from omcrl.config import UNTRAINED_ENCODERS, PretrainConfig
     from omcrl.pretrain import OBJECTIVES, ContrastiveLearner, objective
 
     choices = next(f for f in fields(PretrainConfig) if f.name == "method").metadata["choices"]
-    assert set(choices) == set(OBJECTIVES)
+    assert set(choices) == set(OBJECTIVES) | set(UNTRAINED_ENCODERS)  # the controls' encoders have no objective
     assert [m for m, o in OBJECTIVES.items() if o.sequences] == ["omc"]
     assert [m for m, o in OBJECTIVES.items() if o.consecutive] == ["curl_cons"]
-    for m in choices:
+    for m in OBJECTIVES:
         p = PretrainConfig(method=m, feature_dim=8, crop_to=16, proj_hidden=8)
         learner = ContrastiveLearner(p, 2)
         assert (learner.xi is not None) == objective(p).sequences and (learner.W is None) == objective(p).sequences
     with pytest.raises(ValueError, match="'byol'"):
         objective(SimpleNamespace(method="byol"))
+
+
+def test_the_controls_encoders_are_the_initialisation_and_a_constant(tmp_path):
+    """Issue 75: ``random`` is f+φ exactly as OMC pretraining initialises them at the seed (before its first
+    iteration), made without data; ``blind`` gives (B, d) zeros for any input; both are finished runs found again."""
+    from dataclasses import replace
+
+    from omcrl.pipeline.recipes import pretrain_method
+    from omcrl.pretrain import ContrastiveLearner
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    r = pretrain_method(cfg, "ours-random", progress=False)
+    assert r.iterations == 0 and not cfg.data_path.exists()  # no data was collected or needed
+    torch.manual_seed(cfg.seed)
+    init = ContrastiveLearner(replace(cfg.pretrain, method="omc"), cfg.env.frame_stack)
+    enc = load_encoder(r.encoder_path)
+    for name, t in init.f.state_dict().items():
+        assert torch.equal(enc.f.state_dict()[name], t), name
+    x = torch.randint(0, 256, (4, 3 * enc.frame_stack, enc.crop_from, enc.crop_from), dtype=torch.uint8)
+    assert not torch.equal(enc(x)[0], enc(x)[1])
+    b = pretrain_method(cfg, "ours-blind", progress=False)
+    z = load_encoder(b.encoder_path)(x)
+    assert z.shape == (4, enc.feature_dim) and torch.count_nonzero(z) == 0
+    assert pretrain_method(cfg, "ours-blind", progress=False).skipped

@@ -740,6 +740,8 @@ def test_table1s_confirmation_grid_reuses_its_training_and_flies_layouts_it_neve
 
     base = load_config("quick")
     table1, confirm = expand(base, "table1", [2]), expand(base, "table1-confirm", [2])
+    # The controls (issue 75) were declared after the confirmation flew: it re-flies every other Table I run.
+    table1 = [j for j in table1 if j.method not in ("ours-random", "ours-blind")]
     upstream = [j.id for j in table1 if j.kind != "evaluate"]
     assert [j.id for j in confirm if j.kind != "evaluate"] == upstream  # the same runs: nothing new to train
     assert [j.label for j in confirm if j.kind == "evaluate"] == [j.label for j in table1 if j.kind == "evaluate"]

@@ -15,8 +15,13 @@ training curves of Fig. 5 on the training scene, from each run's ``episodic_retu
 
 Families for the multiplicity correction (Holm–Bonferroni, each at 5 % family-wise): **primary**, every training
 claim and every success-rate claim (what the paper's text states); **secondary**, Table I's bold cells on the five
-other metrics (ours best on NE, OS, SPL, CR, TTS against each baseline in each unseen scene). The stress column
-(furniture-v0) and the kit's extra rows (the blind pilot, ours with the non-expert guide) are in no family.
+other metrics (ours best on NE, OS, SPL, CR, TTS against each baseline in each unseen scene); **controls**, the kit's
+two controls of the student (issue 75, declared in the commit that added them, before any of their episodes was
+flown): ``ours`` above ``ours-random`` (the same student on its encoder's initialisation: what the masked
+contrastive stage adds) and ``ours-random`` above ``ours-blind`` (constant visual features: what sight adds), on SR
+in box and each unseen scene. They are not the paper's claims; their own family keeps them from weighing on the
+paper's. The stress column (furniture-v0) and the kit's other extra rows (the blind pilot, ours with the non-expert
+guide) are in no family.
 
 Kinds:
 
@@ -37,7 +42,7 @@ TRAINING_METRICS = {
     "return_auc": "mean episodic return over the whole training run (convergence: area under the curve)",
     "return_final": "mean episodic return over the last 10 % of the training env steps (asymptote)",
 }
-FAMILIES = ("primary", "secondary")
+FAMILIES = ("primary", "secondary", "controls")
 KINDS = ("order", "drop", "gap")
 UNSEEN = ("furniture", "barrier", "tree")
 BASELINES = ("npe", "curl", "ppo", "hybrid-apf")
@@ -50,7 +55,7 @@ class Claim:
     Attributes
     ----------
     id : short name (``E1``, ``T3``, ...): ``T`` training (Fig. 5), ``E`` evaluation (Table I and its text),
-        ``S`` Table I's bold cells on the other metrics.
+        ``S`` Table I's bold cells on the other metrics, ``C`` the kit's controls.
     source : where the paper makes it (``Table I``, ``VI-A (2)``, ``Fig. 5``).
     quote : the paper's words, short ("..." cuts; [brackets] are the kit's, e.g. where the paper's own table
         shows a tie and so no claim).
@@ -59,7 +64,7 @@ class Claim:
     a : the method claimed better (``order``, ``gap``) or the method whose scenes are compared (``drop``).
     b : the methods ``a`` is compared with (``order``, ``gap``: one); empty for ``drop``.
     scenes : scene families; ``drop`` and ``gap``: the first is compared with the others.
-    family : ``primary`` or ``secondary`` (Holm within each).
+    family : ``primary``, ``secondary`` or ``controls`` (Holm within each).
     """
 
     id: str
@@ -120,6 +125,11 @@ LEDGER: tuple[Claim, ...] = (
         for m in METRICS
         if m != "SR"
     ),
+    # The kit's controls (issue 75): not the paper's words, so their quotes are the kit's, in brackets.
+    Claim("C1", "control (kit)", "[the masked contrastive stage adds to the student over its own initialisation]",
+          "SR", "order", "ours", ("ours-random",), ("box", *UNSEEN), "controls"),
+    Claim("C2", "control (kit)", "[sight adds to the student over its state pathway alone]", "SR", "order",
+          "ours-random", ("ours-blind",), ("box", *UNSEEN), "controls"),
 )  # fmt: skip
 
 
@@ -194,6 +204,6 @@ def ledger_markdown() -> str:
     lines.append("")
     lines.append(
         f"{len(LEDGER)} claims, {sum(fam.values())} hypotheses: primary {fam['primary']}, secondary "
-        f"{fam['secondary']} (Holm–Bonferroni within each family at 5 %)."
+        f"{fam['secondary']}, controls {fam['controls']} (Holm–Bonferroni within each family at 5 %)."
     )
     return "\n".join(lines) + "\n"

@@ -8,7 +8,7 @@ paper's direction (``a`` better than ``b``: higher SR, lower CR, ...):
 * ``gap``: ``(a − b)`` in the first scene minus ``(a − b)`` in the second;
 * training metrics (``return_auc``, ``return_final``): one value per training run, seeds paired.
 
-The two-sided p-values are Holm–Bonferroni adjusted within each family (primary, secondary) over the rows that
+The two-sided p-values are Holm–Bonferroni adjusted within each family (primary, secondary, controls) over the rows that
 could be computed. Verdict: ``holds`` (adjusted p < 0.05, estimate > 0), ``reversed`` (adjusted p < 0.05,
 estimate < 0), ``undecided`` otherwise, ``not run`` when a method or scene has no data, ``one seed`` when a learned
 method of the row has a single training seed (its estimate and interval over layouts are shown, not judged, and

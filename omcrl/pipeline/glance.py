@@ -236,9 +236,10 @@ def render_v2(result: Table1Result, confirmation: str | None = None, grid_seeds:
         lines += [
             "",
             f"The paper's claims as a ledger fixed before any v2 evaluation (commit {LEDGER_COMMIT}; "
-            f"`omcrl.eval.ledger`), {len(v)} hypotheses, Holm–Bonferroni within the primary and the secondary "
-            f"family: {tally}. A row of one training seed is shown, not judged. Of the undecided, {bound} are bound "
-            f"by the {layouts} layouts: at the measured effect no number of training seeds would decide them, more "
+            f"`omcrl.eval.ledger`; the kit's controls C1–C2 declared before they flew), {len(v)} hypotheses, "
+            f"Holm–Bonferroni within each family (primary, secondary, controls): {tally}. A row of one training "
+            f"seed is shown, not judged. Of the undecided, {bound} are bound by the {layouts} layouts: at the "
+            "measured effect no number of training seeds would decide them, more "
             "layouts would (each row's power line, in docs/results.md).",
             "",
         ]
@@ -375,7 +376,7 @@ def _confirm(preset: str, grid_verdicts: pd.DataFrame) -> tuple[str, str | None]
         if data.episodes().empty:
             return f"Not flown yet (no episodes under `reference/{preset}/{data.root.name}/`).", None
         res = tables_from_reference(cfg, "table1-confirm")
-    learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
+    learned = list(dict.fromkeys(v.method for v in GRIDS["table1-confirm"]))  # the controls came after it
     flown = data.progress(learned, CONFIRM_SEEDS)
     body, layouts, done = _sr_table(res)
     v = res.verdicts

@@ -19,6 +19,7 @@ from typing import Any
 import pandas as pd
 
 from omcrl.config import (
+    UNTRAINED_ENCODERS,
     Config,
     ConfigError,
     config_hash,
@@ -135,20 +136,26 @@ def expand(cfg: Config, grid: str, seeds: Sequence[int] | None = None) -> list[J
             deps: list[str] = []
             oracle = Job(f"train:{oracle_run(c).dir}", "train", "oracle", s, overrides)
             if spec.recipe.pretrained:
-                # Data flown partly by the oracle (data.policy=oracle) waits for that oracle.
-                by_oracle = c.data.policy == "oracle"
-                col = add(
-                    Job(
-                        f"collect:{c.data_path}",
-                        "collect",
-                        v.method,
-                        s,
-                        overrides,
-                        (add(oracle),) if by_oracle else (),
+                enc_cfg = encoder_config(c, spec)
+                if enc_cfg.pretrain.method in UNTRAINED_ENCODERS:  # a control's encoder needs no data
+                    col: tuple[str, ...] = ()
+                else:
+                    # Data flown partly by the oracle (data.policy=oracle) waits for that oracle.
+                    by_oracle = c.data.policy == "oracle"
+                    col = (
+                        add(
+                            Job(
+                                f"collect:{c.data_path}",
+                                "collect",
+                                v.method,
+                                s,
+                                overrides,
+                                (add(oracle),) if by_oracle else (),
+                            )
+                        ),
                     )
-                )
-                enc_run = pretrain_run(encoder_config(c, spec))
-                deps.append(add(Job(f"pretrain:{enc_run.dir}", "pretrain", v.method, s, overrides, (col,))))
+                enc_run = pretrain_run(enc_cfg)
+                deps.append(add(Job(f"pretrain:{enc_run.dir}", "pretrain", v.method, s, overrides, col)))
             if spec.guide == "oracle" or spec.recipe.teacher:
                 deps.append(add(oracle))
             if not spec.recipe.teacher:
@@ -221,7 +228,8 @@ def work_rows(cfg: Config, jobs: Sequence[Job]) -> list[_Work]:
         if j.kind == "collect":
             key, work = "collect", c.data.episodes
         elif j.kind == "pretrain":
-            key, work = "pretrain", c.pretrain.iterations
+            enc = encoder_config(c, j.method).pretrain
+            key, work = "pretrain", 0 if enc.method in UNTRAINED_ENCODERS else enc.iterations
         elif j.kind == "train":
             key, work = f"train:{get_method(j.method).features}", c.rl.total_steps
         else:

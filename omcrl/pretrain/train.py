@@ -21,12 +21,12 @@ import json
 import logging
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
 
-from omcrl.config import Config, PretrainConfig, section_identity
+from omcrl.config import UNTRAINED_ENCODERS, Config, PretrainConfig, section_identity
 from omcrl.data.collect import collection_env
 from omcrl.data.dataset import DatasetError, open_dataset
 from omcrl.data.sampler import SequenceSampler
@@ -63,9 +63,50 @@ def method_name(p: PretrainConfig) -> str:
     (:meth:`~omcrl.pretrain.learner.Objective.run_name`).
 
     ``omc``, ``omc-rho0.3``, ``omc-nophi``, ``omc-dualT``, ``omc-seqneg``, ``omc-stride3``, ``curl`` (no φ, as in CURL),
-    ``curl-phi``, ``curl_cons``, ``curl_cons-stride3``.
+    ``curl-phi``, ``curl_cons``, ``curl_cons-stride3``; the untrained controls ``random`` and ``blind``.
     """
+    if p.method in UNTRAINED_ENCODERS:
+        return p.method if p.use_projection else f"{p.method}-nophi"
     return objective(p).run_name(p)
+
+
+def untrained_encoder(cfg: Config, run_rec: Run, progress: bool = True) -> PretrainResult:
+    """The encoder of an untrained control (``pretrain.method`` in :data:`~omcrl.config.UNTRAINED_ENCODERS`), written
+    as a finished pretraining run with 0 iterations and no dataset.
+
+    ``random``: f and φ exactly as :func:`pretrain_encoder` initialises them at ``cfg.seed`` before its first
+    iteration (the OMC learner's construction under ``torch.manual_seed(cfg.seed)``): what the masked contrastive
+    stage starts from. ``blind``: the same architecture with every weight and bias 0, so f's LayerNorm and tanh
+    give 0 and φ(0) = 0: (B, d) zeros for any input, a student that flies on its state alone.
+    """
+    p = cfg.pretrain
+    name, out = method_name(p), run_rec.dir
+    enc_path = out / "encoder.pt"
+    done = read_identity(out) or {}
+    if done.get("artifact_digest") and run_rec.finished("encoder.pt") is not None:
+        return PretrainResult(name, out, enc_path, out / "metrics.csv", 0, math.nan, "", True)
+    run_rec.claim()
+    try:
+        run_rec.write_config(cfg)
+        torch.manual_seed(cfg.seed)
+        learner = ContrastiveLearner(replace(p, method="omc"), cfg.env.frame_stack)
+        if p.method == "blind":
+            with torch.no_grad():
+                for t in (*learner.f.parameters(), *learner.phi.parameters()):
+                    t.zero_()
+        run_rec.finish(
+            encoder_payload(learner.f, learner.phi, cfg, ""),
+            "encoder.pt",
+            keep_checkpoint=False,
+            iterations=0,
+            final_loss=None,
+            dataset="",
+            dataset_fingerprint="",
+        )
+    finally:
+        run_rec.release()
+    log.info("pretrain %s: untrained encoder written to %s", name, enc_path)
+    return PretrainResult(name, out, enc_path, out / "metrics.csv", 0, math.nan, "")
 
 
 def pretrain_run(cfg: Config) -> Run:
@@ -140,6 +181,8 @@ def pretrain_encoder(
     name = method_name(p)
     run_rec = pretrain_run(cfg)
     run_rec.check()
+    if p.method in UNTRAINED_ENCODERS:
+        return untrained_encoder(cfg, run_rec, progress)
     out = run_rec.dir
     enc_path, metrics_path = out / "encoder.pt", out / "metrics.csv"
     # Finished: run.json holds the digest of the encoder it wrote (Run.finish) and what it was made of.

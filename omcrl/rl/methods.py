@@ -18,6 +18,8 @@ with the same env-step budget, PPO settings and seed for every method.
 | ``npe-expert`` | f trained end to end | — | Hybrid APF on the true map (an expert), fixed std (not a Table I row) |
 | ``npe-ot`` | f trained end to end | — | the oracle |
 | ``ours-lapf`` | frozen f+φ | OMC | local APF on the depth camera, as NPE (control row: encoder vs guide) |
+| ``ours-random`` | frozen f+φ at initialisation | none (control) | the oracle |
+| ``ours-blind`` | constant 0 features (control) | none | the oracle |
 | ``hybrid-apf`` | privileged map | — | (planner, not learned) |
 | ``hybrid-apf-perceptive`` | depth camera map | — | (planner, not learned) |
 """
@@ -90,6 +92,12 @@ METHODS: dict[str, MethodSpec] = {
         # The control that splits ours vs npe (encoder and guide both differ) into an encoder and a guide effect.
         MethodSpec("ours-lapf", "Ours w/ NPE guide", "frozen", {"method": "omc"}, guide="local-apf",
                    description="control: OMC encoder guided early by NPE's local APF (non-expert), fixed std"),
+        # Controls (declared in the ledger's controls family before they flew): what the masked contrastive stage
+        # adds over its own initialisation, and what sight adds over the state pathway.
+        MethodSpec("ours-random", "Ours w/ random encoder", "frozen", {"method": "random"}, guide="oracle",
+                   description="control: ours on a frozen, randomly initialised f+phi (no pretraining)"),
+        MethodSpec("ours-blind", "Ours blind", "frozen", {"method": "blind"}, guide="oracle",
+                   description="control: ours with constant visual features (state pathway only)"),
         MethodSpec("curl", "CURL", "frozen", {"method": "curl", "use_projection": False},
                    description="frozen CURL encoder (no phi), PPO without guidance"),
         MethodSpec("curl-phi", "CURL w/ phi", "frozen", {"method": "curl", "use_projection": True},
