@@ -501,3 +501,50 @@ def test_a_non_finite_action_stops_the_rollout_and_says_whether_the_observations
             runner.collect(4, cfg.rl.horizon, use_guide=False)
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("preset", ["smoke", "quick"])
+def test_the_encoder_stage_in_the_envs_trains_the_same_student(tmp_path, preset):
+    """Speed, third pass, item 2: with ``rl.encoder_in_envs`` each env's process runs the frozen encoder's
+    convolutions and the trainer only its head; the student's weights are bit-identical to those trained with the
+    whole encoder in the trainer. At quick's 64 px the split is exact and used; at smoke's 28 px crop torch's
+    kernels differ by batch, so the trainer keeps the encoder (the same weights, by falling back)."""
+    from omcrl.models import random_encoder, save_encoder
+    from omcrl.models.features import stage_splits_exactly
+
+    weights, used = {}, None
+    for flag in ("true", "false"):
+        over = [f"results_dir={tmp_path / flag}", "rl.total_steps=1024", "rl.buffer_size=512", "rl.minibatch=256"]
+        cfg = load_config(preset, overrides=[*over, f"rl.encoder_in_envs={flag}"])
+        enc = random_encoder(cfg, seed=0)
+        path = save_encoder(tmp_path / "encoder.pt", enc.f, enc.phi, cfg)
+        if flag == "true":
+            e = cfg.env
+            used = stage_splits_exactly(path, e.image_size, e.frame_stack, cfg.rl.n_envs, cfg.rl.num_threads)
+        res = train_student(cfg, path, None, name="stage", progress=False)
+        weights[flag] = torch.load(res.final_path, weights_only=True)["model"]
+    assert used is (preset == "quick")
+    assert weights["true"].keys() == weights["false"].keys()
+    assert all(torch.equal(weights["true"][k], weights["false"][k]) for k in weights["true"])
+
+
+def test_the_encoder_stage_gives_the_encoders_features(tmp_path):
+    """The wrapper's observation holds the stage's output for the env's current stack, and the student's features
+    from it equal the whole encoder's on the same frames (one lane, the same bits)."""
+    from omcrl.envs import make_env
+    from omcrl.models import random_encoder, save_encoder
+    from omcrl.models.features import STAGE_KEY, EncoderStageWrapper, make_student_features
+
+    cfg = load_config("quick", overrides=[f"results_dir={tmp_path}"])
+    enc = random_encoder(cfg, seed=0)
+    path = save_encoder(tmp_path / "encoder.pt", enc.f, enc.phi, cfg)
+    env = EncoderStageWrapper(make_env("box-v2", seed=0, config=cfg.env), path)
+    obs, _ = env.reset(seed=0)
+    obs, *_ = env.step(np.array([0.5, 0.0, 0.3], np.float32))
+    assert obs[STAGE_KEY].dtype == np.float32 and env.observation_space.contains(obs)
+    feats = make_student_features(path, env.observation_space)
+    batched = {k: v[None] for k, v in obs.items()}
+    with_stage = feats.preprocess(batched)["x"]
+    without = feats.preprocess({k: v for k, v in batched.items() if k != STAGE_KEY})["x"]
+    assert torch.equal(with_stage, without)
+    env.close()

@@ -43,39 +43,55 @@ from omcrl.interpret.stage import encoders_for_stability
 from omcrl.rl import load_policy
 from omcrl.rl.methods import final_policy_path
 from omcrl.rl.policy import CheckpointError
+from omcrl.scenes import SUITES, is_stress, scene_id, suite_of
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import track
 
 PILOT_SEED = 5_000_000
-# (setting, layout scene, disturbance): what the shift and probe tables compare with box. "box, other layouts"
-# is a second box sample (the sampling floor); the two look-swapped settings hold geometry fixed.
-SETTINGS: tuple[tuple[str, str, dict | None], ...] = (
-    ("box", "box-v0", None),
-    ("box, other layouts", "box-v0", None),
-    ("box layout, furniture-v0 look", "box-v0", {"appearance": "furniture-v0"}),
-    ("furniture-v0", "furniture-v0", None),
-    ("furniture-v0 layout, box look", "furniture-v0", {"appearance": "box-v0"}),
-    ("furniture-v1", "furniture-v1", None),
-    ("barrier-v0", "barrier-v0", None),
-    ("tree-v0", "tree-v0", None),
-)
-# (layout, look, part swapped): the student's SR with geometry and appearance varied separately. furniture-v1 is
-# furniture-v0's layouts in box's room, i.e. the swap of surroundings that v1 makes the default.
-SWAPS: tuple[tuple[str, str, str], ...] = (
-    ("box-v0", "box-v0", "all"),
-    ("box-v0", "furniture-v0", "all"),
-    ("box-v0", "furniture-v0", "surroundings"),
-    ("box-v0", "furniture-v0", "obstacles"),
-    ("furniture-v0", "furniture-v0", "all"),
-    ("furniture-v0", "box-v0", "all"),
-    ("furniture-v0", "box-v0", "surroundings"),
-    ("furniture-v0", "box-v0", "obstacles"),
-    ("furniture-v1", "furniture-v1", "all"),
-    ("barrier-v0", "barrier-v0", "all"),
-    ("barrier-v0", "box-v0", "all"),
-    ("tree-v0", "tree-v0", "all"),
-    ("tree-v0", "box-v0", "all"),
-)
+
+
+def _suite_scenes(cfg: Config) -> tuple[str, list[str], list[str]]:
+    """The training scene of ``cfg``'s policies, the unseen scenes of its suite, and the stress scenes evaluated."""
+    train = scene_id(cfg.env.scene)
+    suite = suite_of(train)
+    evaluated = [scene_id(s) for s in cfg.eval.scenes]
+    if suite is None:  # a box of no published suite: the evaluated scenes stand in for its unseen ones
+        unseen = [s for s in evaluated if s != train and not is_stress(s)]
+    else:
+        unseen = [scene_id(s) for s in SUITES[suite][1:]]
+    if not unseen:
+        raise ValueError(f"transfer: no unseen scene to compare with {train} (eval.scenes: {evaluated})")
+    return train, unseen, [s for s in evaluated if is_stress(s)]
+
+
+def settings(cfg: Config) -> tuple[tuple[str, str, dict | None], ...]:
+    """(setting, layout scene, disturbance) of the shift and probe tables, in the suite of ``cfg``'s policies
+    (training scene ``cfg.env.scene``; box-v2's suite by default): the training scene (the reference), its other
+    layouts (the sampling floor), the first unseen scene's look on the training layouts and the training look on
+    its layouts (geometry held fixed), then each unseen and stress scene as it is. Each is named by its scene id."""
+    train, unseen, stress = _suite_scenes(cfg)
+    first = unseen[0]
+    return (
+        (train, train, None),
+        (f"{train}, other layouts", train, None),
+        (f"{train} layout, {first} look", train, {"appearance": first}),
+        (first, first, None),
+        (f"{first} layout, {train} look", first, {"appearance": train}),
+        *((s, s, None) for s in [*unseen[1:], *stress]),
+    )
+
+
+def swaps(cfg: Config) -> tuple[tuple[str, str, str], ...]:
+    """(layout, look, part swapped) of the SR table, in the suite of ``cfg``'s policies: the training scene and the
+    first unseen scene each in its own look, the other's whole look, its surroundings alone and its obstacles alone;
+    each other unseen scene in its own look and in the training scene's."""
+    train, unseen, _ = _suite_scenes(cfg)
+    first = unseen[0]
+    out = [(train, train, "all"), *((train, first, part) for part in ("all", "surroundings", "obstacles"))]
+    out += [(first, first, "all"), *((first, train, part) for part in ("all", "surroundings", "obstacles"))]
+    for s in unseen[1:]:
+        out += [(s, s, "all"), (s, train, "all")]
+    return tuple(out)
 
 
 @dataclass(repr=False)
@@ -121,18 +137,20 @@ def setting_samples(
     cfg: Config,
     episodes: int | None = None,
     *,
-    settings: Sequence[tuple[str, str, dict | None]] = SETTINGS,
+    settings: Sequence[tuple[str, str, dict | None]] | None = None,
     progress: bool = False,
 ) -> dict[str, dict[str, np.ndarray]]:
     """:func:`omcrl.interpret.shift.pilot_samples` (with the probe's privileged targets) of every setting in
-    ``settings`` (``(name, scene, disturbance)``, default :data:`SETTINGS`). The first setting (the reference:
-    box) flies twice the episodes on seeds of its own; every other setting flies the seeds of the second ("box,
-    other layouts"), so the two look-swapped settings share their geometry with a scene of their own."""
+    ``settings`` (``(name, scene, disturbance)``, default :func:`settings` of ``cfg``). The first setting (the
+    reference: the training scene) flies twice the episodes on seeds of its own; every other setting flies the seeds
+    of the second (its other layouts), so the two look-swapped settings share their geometry with a scene of their
+    own."""
 
     n = int(episodes if episodes is not None else pilot_episodes(cfg))
     out = {}
-    reference = settings[0][0]
-    for name, scene, dist in track(settings, desc="transfer/pilot frames", unit="setting", enabled=progress):
+    chosen = settings if settings is not None else globals()["settings"](cfg)
+    reference = chosen[0][0]
+    for name, scene, dist in track(chosen, desc="transfer/pilot frames", unit="setting", enabled=progress):
         seed, k = (PILOT_SEED + 100, 2 * n) if name == reference else (PILOT_SEED, n)
         out[name] = pilot_samples(scene, k, seed, env_config=cfg.env, disturbance=dist, privileged=True)
     return out
@@ -141,12 +159,13 @@ def setting_samples(
 def appearance_table(
     cfg: Config, seeds: Sequence[int] | None = None, method: str = "ours", *, progress: bool = False
 ) -> pd.DataFrame:
-    """SR/CR/NE of ``method`` for every (layout, look, part) of :data:`SWAPS`, over ``seeds`` (default
+    """SR/CR/NE of ``method`` for every (layout, look, part) of :func:`swaps` of ``cfg``, over ``seeds`` (default
     ``cfg.seeds``), on Table I's evaluation episodes, with 95 % CIs (seeds and layouts crossed)."""
 
     frames = []
     seeds = list(seeds if seeds is not None else cfg.seeds)
-    jobs = [(s, *swap) for s in seeds for swap in SWAPS]
+    chosen = swaps(cfg)
+    jobs = [(s, *swap) for s in seeds for swap in chosen]
     for s, layout, look, part in track(jobs, desc="transfer/looks", unit="eval", enabled=progress):
         c = cfg.with_seed(s)
         dist = None if look == layout else {"appearance": look, "appearance_parts": part}
@@ -155,7 +174,7 @@ def appearance_table(
     ep = pd.concat(frames, ignore_index=True)
     agg = aggregate(ep, ("setting",))
     rows = []
-    for (layout, look, part), (_, r) in zip(SWAPS, agg.iterrows(), strict=True):
+    for (layout, look, part), (_, r) in zip(chosen, agg.iterrows(), strict=True):
         shown = look if part == "all" else f"{look} {part}"
         rows.append({"layout": layout, "look": shown, "own look": look == layout, "seeds": int(r.seeds),
                      "SR": r.SR, "SR_lo": r.SR_lo, "SR_hi": r.SR_hi, "CR": r.CR, "NE": r.NE})  # fmt: skip
@@ -165,8 +184,9 @@ def appearance_table(
 def blind_table(
     cfg: Config, reference: dict[str, np.ndarray], seeds: Sequence[int] | None = None, method: str = "ours"
 ) -> pd.DataFrame:
-    """SR of ``method`` with vision and with its features fixed at the mean feature of ``reference`` (box pilot
-    samples: ``{"rgb": (N, 3L, H, W) uint8}``), per evaluation scene, over ``seeds`` (default ``cfg.seeds``)."""
+    """SR of ``method`` with vision and with its features fixed at the mean feature of ``reference`` (pilot samples
+    of the training scene: ``{"rgb": (N, 3L, H, W) uint8}``), per evaluation scene, over ``seeds`` (default
+    ``cfg.seeds``). The fixed-feature rows are labelled ``mean <training scene> feature``."""
 
     frames = []
     for s in seeds if seeds is not None else cfg.seeds:
@@ -176,7 +196,8 @@ def blind_table(
         z, _ = encode(policy.agent.features.encoder, reference["rgb"])
         blind = with_fixed_features(policy, z.mean(0))
         frames.append(evaluate_methods(c, {"with vision": path}).assign(method="with vision"))
-        frames.append(evaluate_methods(c, {"mean box feature": blind}, cache=False).assign(method="mean box feature"))
+        label = f"mean {scene_id(c.env.scene)} feature"
+        frames.append(evaluate_methods(c, {label: blind}, cache=False).assign(method=label))
     agg = aggregate(pd.concat(frames, ignore_index=True), ("scene", "method"))
     return agg.reset_index()[["scene", "method", "seeds", "SR", "SR_lo", "SR_hi", "CR", "NE"]]
 
@@ -206,9 +227,10 @@ def transfer_stage(
             _policy(cfg.with_seed(s), m)  # fail early, before the long parts
     enc = encoders(cfg, methods)
     samples = setting_samples(cfg, episodes, progress=progress)
+    reference = next(iter(samples))  # the training scene
     appearance = appearance_table(cfg, progress=progress)
-    blind = blind_table(cfg, samples["box"])
-    shift = shift_table(enc, {k: v["rgb"] for k, v in samples.items()}, reference="box")
+    blind = blind_table(cfg, samples[reference])
+    shift = shift_table(enc, {k: v["rgb"] for k, v in samples.items()}, reference=reference)
     probe = pd.concat([probe_across(e, samples, seed=cfg.seed).assign(encoder=k) for k, e in enc.items()])
     layouts = layout_stats(cfg)  # once, for both tables
     geometry = geometry_table(cfg, layouts)

@@ -393,7 +393,7 @@ def _section_transfer(d: dict, tables: Path) -> list[str]:
         blind = pd.read_csv(tables / "transfer_blind.csv")
         wide = blind.pivot(index="method", columns="scene", values="SR")
         wide = wide.loc[list(dict.fromkeys(blind.method)), list(dict.fromkeys(blind.scene))]
-        out += ["SR with vision and with the mean box feature instead (goal seeking without vision):", ""]
+        out += ["SR with vision and with the training scene's mean feature instead (goal seeking without vision):", ""]
         out += [_md_table(wide.round(0).reset_index().to_dict("records")), ""]
     for p in sorted(tables.glob("remedy_*.md")):
         out += [f"Remedies, `{p.name}`:", "", p.read_text(encoding="utf-8").strip(), ""]
