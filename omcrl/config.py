@@ -265,12 +265,6 @@ class RLConfig(GuidanceConfig):
     init_log_std: float = _f(-0.5, lo=-10.0, hi=2.0)
     checkpoint_every: int = _f(20480, lo=1, hi=10**10, doc="env steps between checkpoints", execution=True)
     num_threads: int = _f(1, lo=1, hi=256, doc="torch intra-op threads while the envs step (rollouts)", execution=True)
-    encoder_in_envs: bool = _f(
-        True,
-        doc="a frozen encoder's convolutions run in each env's process during rollouts (CPU only; bit-identical, "
-        "faster on a multi-core CPU)",
-        execution=True,
-    )
     device: str = _f(
         "auto",
         choices=("auto", "cpu", "cuda"),

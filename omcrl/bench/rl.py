@@ -27,7 +27,6 @@ All numbers depend on what else runs on the machine: compare rows of one invocat
 
 from __future__ import annotations
 
-import functools
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -43,7 +42,6 @@ from omcrl.config import Config, load_config
 from omcrl.envs import make_env, make_vec_env
 from omcrl.models import random_encoder, save_encoder
 from omcrl.models.actor_critic import ActorCritic
-from omcrl.models.features import EncoderStageWrapper
 from omcrl.rl import train_oracle, train_pixel, train_student
 from omcrl.rl.guidance import PolicyGuide
 from omcrl.rl.methods import METHODS, planner_factory
@@ -60,23 +58,16 @@ from omcrl.utils.precision import section_precision
 from omcrl.viz.rl import run_summary
 
 
-def _vec_env_rate(
-    cfg: Config,
-    vec_steps: int,
-    build: Callable[[Any], Any] | None,
-    guide: Path | None = None,
-    wrapper: Callable[[Any], Any] | None = None,
-) -> float:
+def _vec_env_rate(cfg: Config, vec_steps: int, build: Callable[[Any], Any] | None, guide: Path | None = None) -> float:
     """Env steps/s of random-action vector steps, optionally with an agent's rollout forward per step.
 
     ``build``: ``single_observation_space -> FeatureExtractor``; the agent built on it runs
     ``agent.step(agent.prepare(obs))`` every vector step, exactly as the rollout does. ``guide``: an
     oracle policy file evaluated as the rollout evaluates its guide (inputs prepared every step, the network
-    run once per chunk of :data:`omcrl.rl.rollout.GUIDE_CHUNK` states). ``wrapper``: applied to each env in its
-    own process (the frozen encoder's stage, :class:`~omcrl.models.features.EncoderStageWrapper`).
+    run once per chunk of :data:`omcrl.rl.rollout.GUIDE_CHUNK` states).
     """
 
-    env = make_vec_env(cfg.env.scene, cfg.rl.n_envs, seed=0, config=cfg.env, wrapper=wrapper)
+    env = make_vec_env(cfg.env.scene, cfg.rl.n_envs, seed=0, config=cfg.env)
     try:
         agent = ActorCritic(build(env.single_observation_space), 3, cfg.rl.hidden).eval() if build else None
         if agent is not None:
@@ -154,47 +145,26 @@ def measure(
         "pixel": lambda s: make_pixel_features(s, p.crop_to, p.feature_dim),
         "oracle": lambda s: make_oracle_features(s, p.feature_dim, cfg.env.far),
     }
-    stage = functools.partial(EncoderStageWrapper, encoder_path=enc_path)
     rows = [{"case": "(a) vec env", "steps_per_s": _vec_env_rate(cfg, vec_steps, None)}]
     rows += [{"case": f"(b) env+{k}", "steps_per_s": _vec_env_rate(cfg, vec_steps, b)} for k, b in limits.items()]
     guided = _vec_env_rate(cfg, vec_steps, limits["student"], oracle_path)
     rows.append({"case": "(b) env+student+guide", "steps_per_s": guided})
-    # The frozen encoder's convolutions in each env's process (rl.encoder_in_envs), beside the rows above.
-    split = _vec_env_rate(cfg, vec_steps, limits["student"], None, stage)
-    rows.append({"case": "(b) env+student, stage in envs", "steps_per_s": split})
-    split_guided = _vec_env_rate(cfg, vec_steps, limits["student"], oracle_path, stage)
-    rows.append({"case": "(b) env+student+guide, stage in envs", "steps_per_s": split_guided})
 
     def config(*extra: str) -> Config:
         prec = [f"rl.precision={cfg.rl.precision}", f"pretrain.precision={cfg.pretrain.precision}"]
         return load_config(cfg.preset, overrides=[f"results_dir={root}", f"rl.total_steps={steps}", *prec, *extra])
 
     run, apf = config(), planner_factory(cfg, METHODS["npe"].guide)
-    # The frozen students twice, one after the other: the encoder's convolutions in the trainer's process (before
-    # rl.encoder_in_envs) and in the envs' (the default where it is exact), each against its own limit.
-    for where, flag in (("in trainer", "false"), ("in envs", "true")):
-        on = config(f"rl.encoder_in_envs={flag}")
-        lim = "" if flag == "false" else ", stage in envs"
-        rows.append(
-            _train_rate(
-                f"(c) student, stage {where}",
-                f"student+guide{lim}",
-                lambda on=on, flag=flag: train_student(on, enc_path, oracle_path, name=f"s{flag}", progress=False),
-            )
+    rows.append(
+        _train_rate("(c) student", "student+guide", lambda: train_student(run, enc_path, oracle_path, progress=False))
+    )
+    rows.append(
+        _train_rate(
+            "(c0) student α≡0",
+            "student",
+            lambda: train_student(config("rl.alpha_schedule=none"), enc_path, None, name="noOT", progress=False),
         )
-        rows.append(
-            _train_rate(
-                f"(c0) student α≡0, stage {where}",
-                f"student{lim}",
-                lambda on=on, flag=flag: train_student(
-                    config("rl.alpha_schedule=none", f"rl.encoder_in_envs={flag}"),
-                    enc_path,
-                    None,
-                    name=f"noOT{flag}",
-                    progress=False,
-                ),
-            )
-        )
+    )
     rows.append(_train_rate("(d) oracle", "oracle", lambda: train_oracle(run, progress=False)))
     rows.append(_train_rate("(e) ppo", "pixel", lambda: train_pixel(run, None, name="ppo", progress=False)))
     rows.append(

@@ -25,7 +25,6 @@ import multiprocessing as mp
 import os
 import pickle
 import signal
-import sys
 import time
 import traceback
 from collections.abc import Callable
@@ -111,10 +110,6 @@ def _worker(
     """Worker process: owns env ``slot``; serves step/reset/close commands until told to close."""
     # Ctrl-C reaches the whole process group: the caller handles it and closes the workers in order.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    # A forked worker keeps the parent's torch thread pool size (OMP_NUM_THREADS is read once, at torch's start):
-    # an env that runs a network (EncoderStageWrapper) gets one thread, as its process has one core at most.
-    if "torch" in sys.modules:
-        sys.modules["torch"].set_num_threads(1)
     obs = read_from_shared_memory(obs_space, obs_shm, n)
     act = read_from_shared_memory(act_space, act_shm, n)
     scal = np.frombuffer(scal_shm, np.float64).reshape(3, n)  # reward, terminated, truncated
@@ -351,37 +346,29 @@ class SplitVectorEnv(gym.vector.VectorEnv):
                 p.join()
 
 
-def env_factory(scene: str, seed: int, kwargs: dict, wrapper: Callable[[gym.Env], gym.Env] | None = None) -> Any:
-    """A zero-argument builder of ``make_env(scene, seed=seed, **kwargs)`` for a vector env's worker, wrapped by
-    ``wrapper`` (called in the process that steps the env) when given."""
+def env_factory(scene: str, seed: int, kwargs: dict) -> Any:
+    """A zero-argument builder of ``make_env(scene, seed=seed, **kwargs)`` for a vector env's worker."""
 
     def thunk() -> gym.Env:
         # Each worker is its own process with one core at most: keep its BLAS/torch single-threaded.
         os.environ.setdefault("OMP_NUM_THREADS", "1")
-        env = make_env(scene, seed=seed, **kwargs)
-        return wrapper(env) if wrapper is not None else env
+        return make_env(scene, seed=seed, **kwargs)
 
     return thunk
 
 
 def make_vec_env(
-    scene: str,
-    n_envs: int,
-    seed: int = 0,
-    asynchronous: bool = True,
-    wrapper: Callable[[gym.Env], gym.Env] | None = None,
-    **env_kwargs: Any,
+    scene: str, n_envs: int, seed: int = 0, asynchronous: bool = True, **env_kwargs: Any
 ) -> gym.vector.VectorEnv:
     """``n_envs`` copies of ``make_env(scene, ...)``; env i is seeded with ``seed + i``.
 
     ``asynchronous=True`` (default) runs them in parallel with :class:`SplitVectorEnv` (env 0 in this
     process, the rest in worker processes); ``False`` gives a SyncVectorEnv (one process, same semantics),
-    useful for debugging. One env is always a SyncVectorEnv. ``wrapper``: ``env -> env``, applied to each env in
-    the process that steps it (e.g. :class:`omcrl.models.features.EncoderStageWrapper`).
+    useful for debugging. One env is always a SyncVectorEnv.
     """
     if n_envs < 1:
         raise ValueError(f"n_envs: got {n_envs}, expected >= 1")
-    fns = [env_factory(scene, seed + i, env_kwargs, wrapper) for i in range(n_envs)]
+    fns = [env_factory(scene, seed + i, env_kwargs) for i in range(n_envs)]
     if asynchronous and n_envs > 1:
         return SplitVectorEnv(fns)
     return gym.vector.SyncVectorEnv(fns)

@@ -78,19 +78,6 @@ class FrozenEncoder(nn.Module):
         return super().train(False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        # f called as a module (not as stage then head): hooks on f (feature shift, Grad-CAM) see its output.
-        return self.phi(self.f(self._crop(x)))
-
-    def stage(self, x: torch.Tensor) -> torch.Tensor:
-        """The centre crop and f's convolutions (:meth:`omcrl.models.encoder.ConvEncoder.stage`): (B, 3L, H, W) →
-        (B, 32, s, s) float32; ``head(stage(x))`` is ``forward(x)``, bit for bit."""
-        return self.f.stage(self._crop(x))
-
-    def head(self, h: torch.Tensor) -> torch.Tensor:
-        """(B, 32, s, s) from :meth:`stage` → (B, d): the rest of f, then φ."""
-        return self.phi(self.f.head(h))
-
-    def _crop(self, x: torch.Tensor) -> torch.Tensor:
         side = x.shape[-1]
         if side == self.crop_from and side != self.crop_to:
             o = (self.crop_from - self.crop_to) // 2
@@ -100,7 +87,7 @@ class FrozenEncoder(nn.Module):
                 f"encoder expects images of {self.crop_from} px (env) or {self.crop_to} px "
                 f"(already cropped), got {tuple(x.shape)}"
             )
-        return x
+        return self.phi(self.f(x))
 
 
 def build_encoder(meta: dict, seed: int | None = None) -> FrozenEncoder:

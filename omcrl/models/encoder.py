@@ -50,15 +50,7 @@ class ConvEncoder(nn.Module):
         raise NotImplementedError
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """(B, C, H, W) → (B, d): ``head(stage(x))``."""
-        return self.head(self.stage(x))
-
-    def stage(self, x: torch.Tensor) -> torch.Tensor:
-        """The convolutions: (B, C, H, W) → (B, 32, s, s) float32, s = :func:`conv_out_size` (channels-last memory).
-
-        Lane by lane they give the very bits they give batched (measured: 1, 2, 4, 8 lanes); the fully connected
-        :meth:`head` does not (its matrix product's kernel depends on the batch), which is why a rollout may run
-        this part in each env's process and :meth:`head` over all lanes at once."""
+        """(B, C, H, W) → (B, d)."""
         if (
             x.dim() != 4
             or x.shape[1] != self.in_channels
@@ -69,10 +61,7 @@ class ConvEncoder(nn.Module):
                 f"{type(self).__name__}: expected input (B, {self.in_channels}, {self.image_size}, "
                 f"{self.image_size}), got {tuple(x.shape)}"
             )
-        return self.convs(self.preprocess(x).contiguous(memory_format=torch.channels_last))
-
-    def head(self, h: torch.Tensor) -> torch.Tensor:
-        """(B, 32, s, s) from :meth:`stage` (any memory layout) → (B, d): Linear · LayerNorm · tanh."""
+        h = self.convs(self.preprocess(x).contiguous(memory_format=torch.channels_last))
         return torch.tanh(self.norm(self.fc(h.flatten(1))))
 
 

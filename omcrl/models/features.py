@@ -26,7 +26,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import torch
 from torch import nn
@@ -193,19 +192,12 @@ class StudentFeatures(FeatureExtractor):
 
     @torch.no_grad()
     def preprocess(self, obs: Any) -> dict[str, torch.Tensor]:
-        """The encoder runs on its own device (the policy's); ``x`` comes back on that device. When the envs ran
-        the encoder's convolutions themselves (``obs[STAGE_KEY]``, :class:`EncoderStageWrapper`), only its head
-        runs here, over all lanes: the same bits as the whole encoder on ``rgb``."""
+        """The encoder runs on its own device (the policy's); ``x`` comes back on that device."""
         # An encoder without parameters (e.g. a stand-in that returns fixed features) runs on the CPU.
         device = next(self.encoder.parameters(), torch.empty(0)).device
-        if STAGE_KEY in obs:
-            h = torch.as_tensor(np.asarray(obs[STAGE_KEY])).to(device)
-            b = h.shape[0]
-            z = self.encoder.head(h).float()
-        else:
-            rgb = torch.as_tensor(np.asarray(obs["rgb"])).to(device)
-            b = rgb.shape[0]
-            z = self.encoder(rgb.reshape(b, -1, rgb.shape[-2], rgb.shape[-1])).float()
+        rgb = torch.as_tensor(np.asarray(obs["rgb"])).to(device)
+        b = rgb.shape[0]
+        z = self.encoder(rgb.reshape(b, -1, rgb.shape[-2], rgb.shape[-1])).float()
         state = torch.as_tensor(np.asarray(obs["state"]), dtype=torch.float32).to(device)
         return {"x": torch.cat([z.reshape(b, -1), state], dim=1)}
 
@@ -221,70 +213,6 @@ class StudentFeatures(FeatureExtractor):
             "image_size": self.image_size,
             "frame_stack": self.frame_stack,
         }
-
-
-# The observation key of a frozen encoder's convolution output, added by EncoderStageWrapper.
-STAGE_KEY = "encoder_stage"
-
-
-class EncoderStageWrapper(gym.ObservationWrapper):
-    """An env that runs a frozen encoder's convolutions on its own frames, in its own process.
-
-    A rollout's student encodes every lane's stack after each vector step, while the env workers wait for their
-    next action. With this wrapper on each env of the vector env, every process runs
-    :meth:`~omcrl.models.artifact.FrozenEncoder.stage` (crop and f's convolutions, most of the encoder's work) on
-    its own lane as soon as its frame is rendered, in parallel, and the policy's process runs only the
-    :meth:`~omcrl.models.artifact.FrozenEncoder.head` over all lanes (:meth:`StudentFeatures.preprocess`). The
-    convolutions give the same bits lane by lane as batched, and the head runs on the same batch as before, so
-    training is bit-identical either way (``tests/test_rl.py``); only where the work runs changes.
-
-    Observation: the env's, plus ``STAGE_KEY``: (32, s, s) float32, the stage's output for the current stack.
-    In a vector env's worker torch runs one intra-op thread (:func:`omcrl.envs.vec._worker`); in the trainer's
-    process, the rollout's threads (``rl.num_threads``).
-    """
-
-    def __init__(self, env: gym.Env, encoder_path: str | Path) -> None:
-        super().__init__(env)
-        frames, _, h, _ = env.observation_space["rgb"].shape
-        # Building the modules draws their (then overwritten) initial weights from torch's generator: in the
-        # trainer's own process (env 0) that would move every later draw of the run, so the state is put back.
-        with torch.random.fork_rng(devices=[]):
-            self.encoder = load_frozen_encoder(encoder_path, h, frames)
-        with torch.no_grad():
-            shape = tuple(self.encoder.stage(torch.zeros(1, 3 * frames, h, h, dtype=torch.uint8)).shape[1:])
-        self.observation_space = gym.spaces.Dict(
-            {**env.observation_space.spaces, STAGE_KEY: gym.spaces.Box(-np.inf, np.inf, shape, np.float32)}
-        )
-
-    @torch.no_grad()
-    def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
-        rgb = torch.from_numpy(np.asarray(observation["rgb"]))
-        h = self.encoder.stage(rgb.reshape(1, -1, rgb.shape[-2], rgb.shape[-1]))[0]
-        return {**observation, STAGE_KEY: h.contiguous().numpy()}
-
-
-def stage_splits_exactly(encoder_path: str | Path, image_size: int, frame_stack: int, lanes: int, threads: int) -> bool:
-    """Whether the encoder's :meth:`~omcrl.models.artifact.FrozenEncoder.stage` gives, lane by lane on one thread,
-    the very bits it gives over ``lanes`` lanes on ``threads`` threads, for this encoder's shapes on this machine.
-
-    The convolution kernels torch picks depend on the shapes: at 64 px and 224 px (quick, paper) a lane's output is
-    the batched one bit for bit; at the smoke preset's 28 px crop it is not (measured, 2026-12-06). The rollout moves
-    the stage into the envs only where this holds (:class:`EncoderStageWrapper`), so training never depends on it.
-    Checked on random frames (the kernel choice depends on shapes, not values); torch's generator is left as it was.
-    """
-    before = torch.get_num_threads()
-    with torch.random.fork_rng(devices=[]), torch.no_grad():
-        enc = load_frozen_encoder(encoder_path, image_size, frame_stack)
-        torch.manual_seed(0)
-        x = torch.randint(0, 256, (lanes, 3 * frame_stack, image_size, image_size), dtype=torch.uint8)
-        try:
-            torch.set_num_threads(threads)
-            batched = enc.stage(x)
-            torch.set_num_threads(1)
-            split = torch.cat([enc.stage(x[i : i + 1]) for i in range(lanes)])
-        finally:
-            torch.set_num_threads(before)
-    return bool(torch.equal(batched, split))
 
 
 class PixelFeatures(FeatureExtractor):

@@ -21,7 +21,6 @@ and reset with a new seed (``seed·1000 + 100·resumes``), so episodes after the
 from __future__ import annotations
 
 import copy
-import functools
 import math
 import time
 from collections import deque
@@ -37,13 +36,7 @@ from omcrl.config import GUIDANCE_FIELDS, Config, field_default, section_identit
 from omcrl.envs import make_vec_env
 from omcrl.envs.render import env_identity
 from omcrl.models.actor_critic import ActorCritic
-from omcrl.models.features import (
-    STAGE_KEY,
-    EncoderStageWrapper,
-    FeatureExtractor,
-    IdentityFeatures,
-    stage_splits_exactly,
-)
+from omcrl.models.features import FeatureExtractor, IdentityFeatures
 from omcrl.planners import HybridAPF
 from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_from_config
 from omcrl.rl.policy import (
@@ -367,9 +360,7 @@ def train(
         if not finished:
             return Result(run, run.checkpoint_path, step, False, start)
         meta = {"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})}
-        # What the policy sees, less what the training envs computed for it (the encoder stage: an execution detail).
-        shapes = {k: v for k, v in space_shapes(obs_space).items() if k != STAGE_KEY}
-        payload = {**policy_payload(agent, shapes, step, meta=meta), "key": run.key}
+        payload = {**policy_payload(agent, space_shapes(obs_space), step, meta=meta), "key": run.key}
         final = run.finish(payload)
     finally:
         env.close()
@@ -378,25 +369,10 @@ def train(
 
 
 # ---------------------------------------------------------------- trainers
-def _default_make_env(cfg: Config, encoder_path: str | Path | None = None) -> Callable[[int], Any]:
-    """``seed -> vector env`` of ``cfg.rl.n_envs`` training envs. With a frozen encoder on the CPU and
-    ``rl.encoder_in_envs``, each env runs the encoder's convolutions in its own process
-    (:class:`~omcrl.models.features.EncoderStageWrapper`; the work spread over the cores), where that gives the
-    bits the batched encoder gives (:func:`~omcrl.models.features.stage_splits_exactly`): training is the same
-    either way."""
-    wrapper = None
-    rl, env = cfg.rl, cfg.env
-    if (
-        encoder_path is not None
-        and rl.encoder_in_envs
-        and rl.n_envs > 1
-        and resolve_device(rl.device).type == "cpu"
-        and stage_splits_exactly(encoder_path, env.image_size, env.frame_stack, rl.n_envs, rl.num_threads)
-    ):
-        wrapper = functools.partial(EncoderStageWrapper, encoder_path=encoder_path)
-
+def _default_make_env(cfg: Config) -> Callable[[int], Any]:
     def make(seed: int) -> Any:
-        return make_vec_env(cfg.env.scene, cfg.rl.n_envs, seed=seed, config=cfg.env, wrapper=wrapper)
+
+        return make_vec_env(cfg.env.scene, cfg.rl.n_envs, seed=seed, config=cfg.env)
 
     return make
 
@@ -618,7 +594,7 @@ def train_visuomotor(
     return train(
         cfg,
         run=policy_run(cfg, name, encoder_path, oracle_path, planner_factory, custom_env=make_env is not None),
-        make_env=make_env or _default_make_env(cfg, encoder_path),
+        make_env=make_env or _default_make_env(cfg),
         build_features=build,
         make_guide=_guide_maker(cfg, oracle_path, planner_factory),
         overwrite=overwrite,
