@@ -14,6 +14,7 @@ Example
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -481,16 +482,24 @@ def _type_name(tp: Any) -> str:
     return "a finite number" if name == "float" else name
 
 
+@functools.cache
+def _field_types() -> dict[str, Any]:
+    """Each annotation string of this module's dataclass fields (``from __future__ import annotations`` keeps them
+    strings) mapped to its type, resolved once by ``typing.get_type_hints``."""
+    out: dict[str, Any] = {}
+    for cls in [v for v in globals().values() if isinstance(v, type) and dataclasses.is_dataclass(v)]:
+        hints = typing.get_type_hints(cls)
+        for f in fields(cls):
+            out.setdefault(f.type, hints[f.name])
+    return out
+
+
 def _resolve_type(name: str) -> Any:
-    return {
-        "int": int,
-        "float": float,
-        "str": str,
-        "bool": bool,
-        "list": list,
-        "dict": dict,
-        "tuple[float, float]": tuple[float, float],
-    }.get(name, eval(name))
+    """The type of a field annotated ``name`` (a string under postponed annotations)."""
+    types = _field_types()
+    if name not in types:
+        raise ConfigError(f"config: no field of omcrl.config is annotated {name!r}")
+    return types[name]
 
 
 # Fields that moved, for the error a config file written before the move gets (a run's saved config.yaml).

@@ -136,9 +136,9 @@ def test_cli_names_the_problem_in_one_line(tmp_path, capsys):
 
 def test_a_bundle_names_its_scene_suite_and_one_from_before_v2_holds_v1_runs(tmp_path):
     """The runs of a bundle are found under its suite's scenes: the shipped quick bundle holds v2 runs (seed 2 of the
-    v2 grid, at quick's budget: no overrides); the retired v1 bundle beside it holds v1 runs (re-keyed by
-    scripts/rekey_reference.py), so `--from-reference` with it passes v1's overrides; a manifest from before v2 (no
-    `suite` field) holds v1 runs; a bundle of another suite says so."""
+    v2 grid, at quick's budget: no overrides); the retired v1 bundle beside it holds v1 runs (re-keyed at 2b7073b by
+    scripts/rekey_reference.py, since retired to git history), so `--from-reference` with it passes v1's overrides;
+    a manifest from before v2 (no `suite` field) holds v1 runs; a bundle of another suite says so."""
     from omcrl.pipeline.reference import bundle_overrides, bundle_suite, config_suite
     from omcrl.scenes import suite_overrides
 
@@ -172,7 +172,8 @@ def test_a_bundle_names_its_scene_suite_and_one_from_before_v2_holds_v1_runs(tmp
 
 def test_the_shipped_bundle_is_found_by_this_codes_registry(tmp_path, monkeypatch):
     """Every run of reference/quick/bundle is where the run registry of this code looks for it: a change of run
-    identity that would orphan the shipped runs fails here (re-key them once with scripts/rekey_reference.py)."""
+    identity that would orphan the shipped runs fails here (re-key them once with a migration script, as
+    scripts/rekey_reference.py did at 2b7073b)."""
     from omcrl.pipeline.reference import bundle_overrides, default_bundle
     from omcrl.pretrain.train import pretrain_encoder
     from omcrl.rl.methods import METHODS, encoder_config
@@ -180,14 +181,14 @@ def test_the_shipped_bundle_is_found_by_this_codes_registry(tmp_path, monkeypatc
     cfg = load_config("quick", overrides=[f"results_dir={tmp_path}", *bundle_overrides("quick")])
     res = unpack_reference(cfg, default_bundle("quick"))
     assert not res.not_found and len(res.found) == len(res.manifest["methods"]) * len(res.manifest["seeds"])
-    # Its encoders are finished runs to this code (their end recorded in run.json, scripts/migrate_runs.py): found
+    # Its encoders are finished runs to this code (their end recorded in run.json, by a migration of 00dfa04): found
     # and skipped without their dataset, which a fresh clone does not have.
     no_data = cfg.with_overrides([f"data.file={tmp_path / 'absent.h5'}"])
     frozen = [m for m in res.manifest["methods"] if METHODS[m].features == "frozen"]
     for s, m in itertools.product(res.manifest["seeds"], frozen):  # the bundle's seeds, not the preset's seed 0
         enc = pretrain_encoder(encoder_config(no_data.with_seed(int(s)), METHODS[m]), progress=False)
         assert enc.skipped and enc.iterations == 1500, (s, m)
-    # Its evaluations are finished cache runs of this code (scripts/migrate_runs.py): read back, none flown again.
+    # Its evaluations are finished cache runs of this code (migrated at bf1e40c): read back, none flown again.
     import omcrl.eval.stage as stage
 
     def fly(*args, **kwargs):
@@ -227,82 +228,6 @@ def test_the_checkouts_reference_folder_stays_under_the_60_mb_it_may_hold():
     total = sum(p.stat().st_size for p in files)
     biggest = sorted(files, key=lambda p: p.stat().st_size)[-3:]
     assert total <= LIMIT_MB * 1e6, f"reference/ holds {total / 1e6:.1f} MB; the largest files: {biggest}"
-
-
-def test_a_bundle_with_done_json_records_is_migrated_once_in_place(tmp_path):
-    """scripts/migrate_runs.py on a bundle: members rewritten in their order, manifest updated and noted, verified."""
-    import subprocess
-    import sys
-
-    from omcrl.config import project_root
-
-    enc = b"encoder bytes"
-    run = {"stage": "pretrain", "method": "omc", "seed": 0, "key": "abc", "identity": {"stage": "pretrain"}}
-    done = {"hash": "old-rule", "iterations": 1500, "final_loss": 2.5, "dataset": "/x/box.h5",
-            "dataset_fingerprint": "fp", "encoder_digest": hashlib.sha1(enc).hexdigest()[:16]}  # fmt: skip
-    files = {
-        "runs/pretrain/omc-abc/seed0/run.json": json.dumps(run).encode(),
-        "runs/pretrain/omc-abc/seed0/done.json": json.dumps(done).encode(),
-        "runs/pretrain/omc-abc/seed0/encoder.pt": enc,
-        **FILES,
-    }
-    b = _bundle(tmp_path / "bundle", files)
-    script = [sys.executable, str(project_root() / "scripts" / "migrate_runs.py"), str(b)]
-    assert "1 pretraining runs migrated" in subprocess.run(script, capture_output=True, text=True, check=True).stdout
-    manifest, contents = verify_reference(b)
-    assert list(contents) == [f for f in files if not f.endswith("done.json")]
-    rec = json.loads(contents["runs/pretrain/omc-abc/seed0/run.json"])
-    assert rec["artifact_digest"] == done["encoder_digest"] and rec["iterations"] == 1500 and rec["key"] == "abc"
-    assert contents["runs/pretrain/omc-abc/seed0/encoder.pt"] == enc and manifest["migrated"][0]["runs"] == 1
-    digest = sha256(b / ARCHIVE)
-    assert "0 pretraining runs migrated" in subprocess.run(script, capture_output=True, text=True, check=True).stdout
-    assert sha256(b / ARCHIVE) == digest and not list(tmp_path.glob("bundle.*"))
-
-
-def test_a_bundles_old_evaluation_caches_become_cache_runs_and_a_key_no_identity_gives_is_refused(tmp_path):
-    """scripts/migrate_runs.py: ``<scene>-<key>.csv/.json`` becomes ``<scene>-<key>/{run.json, episodes.csv}``, its
-    identity rebuilt and taken only when it hashes to the recorded key; then read back as a finished cache run."""
-    import subprocess
-    import sys
-    from dataclasses import replace
-
-    from omcrl.config import config_hash, project_root
-    from omcrl.eval.stage import cached_episodes, evaluation_identity
-    from omcrl.utils.io import bytes_digest
-
-    cfg = load_config("smoke").with_suite("v1")  # a manifest without "suite" holds v1 runs
-    episodes = b"success,collision\n1,0\n0,1\n"
-    ident = evaluation_identity(cfg, "HybridAPF", replace(cfg.env, scene="box-v0"), 2, planner=True, lanes=1)
-    key = config_hash(ident)
-    meta = {"key": key, "rows": 2, "digest": bytes_digest(episodes)}
-    old = f"eval/HybridAPF/seed0/box-v0-{key[:12]}"
-    files = {**FILES, f"{old}.csv": episodes, f"{old}.json": json.dumps(meta).encode()}
-    script = [sys.executable, str(project_root() / "scripts" / "migrate_runs.py")]
-    b = _bundle(tmp_path / "bundle", files)
-    out = subprocess.run([*script, str(b)], capture_output=True, text=True, check=True).stdout
-    assert "1 evaluation caches made runs" in out
-    manifest, contents = verify_reference(b)
-    new = [f for f in contents if f.startswith("eval/HybridAPF/")]
-    assert len(new) == 2 and all(f.startswith(f"eval/HybridAPF/seed0/box-v0-{key[:10]}/") for f in new)
-    assert manifest["migrated"][-1]["evaluations"] == 1
-    # Unpacked, this code reads it back as the finished evaluation of that identity, without flying.
-    cfg = cfg.with_overrides([f"results_dir={tmp_path / 'results'}"])
-    unpack_reference(cfg, b)
-
-    def fly():
-        raise AssertionError("flown again")
-
-    got = cached_episodes(cfg.run_root / "eval" / "HybridAPF" / "seed0", "box-v0", 0, ident, 2, fly)
-    assert got["success"].tolist() == [1, 0]
-    assert "0 evaluation caches" in subprocess.run([*script, str(b)], capture_output=True, text=True).stdout
-
-    # A key that no identity of this code gives is refused, naming the cache, and the bundle is left as it was.
-    wrong = {**FILES, f"{old}.csv": episodes, f"{old}.json": json.dumps({**meta, "key": "f" * 64}).encode()}
-    b2 = _bundle(tmp_path / "bundle2", wrong)
-    before = sha256(b2 / ARCHIVE)
-    res = subprocess.run([*script, str(b2)], capture_output=True, text=True)
-    assert res.returncode != 0 and f"{old}.json's key is not this code's" in res.stderr
-    assert sha256(b2 / ARCHIVE) == before
 
 
 def test_a_retired_bundle_is_read_from_git_history_and_a_copy_without_it_is_told(tmp_path):

@@ -70,7 +70,6 @@ from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import cpu_count, resolve_device, seed_everything, set_threads
 
 __all__ = [
-    "METRIC_NAMES",
     "Result",
     "RunConfigMismatch",
     "oracle_config",
@@ -86,25 +85,6 @@ __all__ = [
     "train_student",
     "train_visuomotor",
 ]
-
-METRIC_NAMES = (
-    "episodic_return",
-    "episode_length",
-    "success_rate",
-    "alpha",
-    "kl",
-    "policy_loss",
-    "value_loss",
-    "entropy",
-    "loss",
-    "lr",
-    "clip_frac",
-    "approx_kl_old",
-    "steps_per_s",
-    "rollout_s",
-    "update_s",
-)
-
 
 @dataclass
 class Result:
