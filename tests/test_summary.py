@@ -281,3 +281,19 @@ def test_readme_block_is_replaced_between_its_markers_only(tmp_path):
     assert new.startswith("head\n") and new.endswith("tail\n") and current_block(new) == "new table"
     with pytest.raises(GlanceError, match="README.md: the markers"):
         replace_block("no markers here", "x")
+
+
+def test_the_teachers_ceiling_block_is_what_the_grid_data_gives(repo_root):
+    """Issue 75: docs/results.md's SR / CR / timeout by detour is rebuilt from reference/quick/table1-v2/ and the
+    layouts' geometry (summary --readme); each cell's shares add up to its episodes, each scene's bins to its layouts."""
+    from omcrl.pipeline.glance import current_block
+    from omcrl.pipeline.why import WHY_DETOUR_END, WHY_DETOUR_START, detour_block, detour_table
+
+    table = detour_table("quick")
+    shares = table[["SR", "CR", "OUT", "TO"]].sum(axis=1)
+    assert ((shares - 100.0).abs() < 1e-9).all()
+    assert ((table.groupby(["method", "scene"])["layouts"].sum() - 100.0).abs() < 1e-9).all()
+    assert set(table.scene) == {"box-v2", "furniture-v2", "barrier-v2", "tree-v2"}
+    page = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
+    assert current_block(page, "docs/results.md", WHY_DETOUR_START, WHY_DETOUR_END) == detour_block("quick", table)
+    assert "| Oracle |" in page and "**barrier-v2**" in page

@@ -275,6 +275,23 @@ def geometry_table(cfg: Config, stats: pd.DataFrame | None = None) -> pd.DataFra
 DETOUR_BINS: tuple[float, ...] = (1.0, 1.02, 1.1, 1.3, float("inf"))
 
 
+def with_detour_bins(
+    episodes: pd.DataFrame, detour: pd.Series, bins: Sequence[float] = DETOUR_BINS
+) -> tuple[pd.DataFrame, list[str]]:
+    """``episodes`` with a column ``detour``: the label of its layout's detour bin (``detour`` and ``bins`` as in
+    :func:`by_detour`), and the labels in the bins' order."""
+    keys = pd.MultiIndex.from_arrays([episodes["scene"], episodes["eval_seed"]])
+    missing = ~keys.isin(detour.index)
+    if missing.any():
+        raise ValueError(f"by_detour: no detour for layouts {list(keys[missing][:5])} (scene, eval_seed)")
+    edges = list(bins)
+    labels = [f"{lo:.2f}–{hi:.2f}" if np.isfinite(hi) else f"> {lo:.2f}" for lo, hi in itertools.pairwise(edges)]
+    cut = pd.cut(detour.reindex(keys).to_numpy(), edges, labels=labels, include_lowest=True)
+    if pd.isna(cut).any():
+        raise ValueError(f"by_detour: detour ratios outside the bins {edges}")
+    return episodes.assign(detour=np.asarray(cut, dtype=object)), labels
+
+
 def by_detour(
     episodes: pd.DataFrame, detour: pd.Series, bins: Sequence[float] = DETOUR_BINS, reps: int = 2000
 ) -> pd.DataFrame:
@@ -291,25 +308,20 @@ def by_detour(
     Returns
     -------
     DataFrame, one row per non-empty group, columns method, scene, detour (bin label), layouts (% of the
-    scene's episodes in the bin), episodes, SR, SR_lo, SR_hi, CR (percent).
+    scene's episodes in the bin), episodes, SR, SR_lo, SR_hi, CR, TO (percent; TO: episodes that ran out of steps,
+    neither reaching the goal nor colliding nor leaving the arena).
     """
 
-    keys = pd.MultiIndex.from_arrays([episodes["scene"], episodes["eval_seed"]])
-    missing = ~keys.isin(detour.index)
-    if missing.any():
-        raise ValueError(f"by_detour: no detour for layouts {list(keys[missing][:5])} (scene, eval_seed)")
-    edges = list(bins)
-    labels = [f"{lo:.2f}–{hi:.2f}" if np.isfinite(hi) else f"> {lo:.2f}" for lo, hi in itertools.pairwise(edges)]
-    cut = pd.cut(detour.reindex(keys).to_numpy(), edges, labels=labels, include_lowest=True)
-    if pd.isna(cut).any():
-        raise ValueError(f"by_detour: detour ratios outside the bins {edges}")
-    ep = episodes.assign(detour=np.asarray(cut, dtype=object))
+    ep, labels = with_detour_bins(episodes, detour, bins)
     agg = aggregate(ep, ("method", "scene", "detour"), reps=reps).reset_index()
+    ended = ep["success"].astype(bool) | ep["collision"].astype(bool) | ep["out_of_arena"].astype(bool)
+    timeouts = (~ended).groupby([ep["method"], ep["scene"], ep["detour"]], sort=False).mean() * 100.0
+    agg["TO"] = timeouts.reindex(pd.MultiIndex.from_frame(agg[["method", "scene", "detour"]])).to_numpy()
     total = ep.groupby(["method", "scene"]).size()
     agg["layouts"] = 100.0 * agg.episodes / total.reindex(pd.MultiIndex.from_frame(agg[["method", "scene"]])).values
     order = {b: i for i, b in enumerate(labels)}
     agg = agg.sort_values(["method", "scene", "detour"], key=lambda c: c.map(order) if c.name == "detour" else c)
-    cols = ["method", "scene", "detour", "layouts", "episodes", "SR", "SR_lo", "SR_hi", "CR"]
+    cols = ["method", "scene", "detour", "layouts", "episodes", "SR", "SR_lo", "SR_hi", "CR", "TO"]
     return agg[cols].reset_index(drop=True)
 
 

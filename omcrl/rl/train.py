@@ -86,6 +86,7 @@ __all__ = [
     "train_visuomotor",
 ]
 
+
 @dataclass
 class Result:
     """What a training run produced. ``policy()`` loads the final policy for evaluation."""
