@@ -231,7 +231,9 @@ def transfer_stage(
     appearance = appearance_table(cfg, progress=progress)
     blind = blind_table(cfg, samples[reference])
     shift = shift_table(enc, {k: v["rgb"] for k, v in samples.items()}, reference=reference)
-    probe = pd.concat([probe_across(e, samples, seed=cfg.seed).assign(encoder=k) for k, e in enc.items()])
+    probe = pd.concat(
+        [probe_across(e, samples, reference=reference, seed=cfg.seed).assign(encoder=k) for k, e in enc.items()]
+    )
     layouts = layout_stats(cfg)  # once, for both tables
     geometry = geometry_table(cfg, layouts)
     detour = detour_table(cfg, stats=layouts)
