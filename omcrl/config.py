@@ -317,6 +317,12 @@ class EvalConfig:
         "(planners: always 1); a batched forward rounds differently, so rows can differ from lanes=1 "
         "(2 of 600 episode outcomes on the seed-1 quick runs); part of the cache key",
     )
+    look: str = _f(
+        "",
+        doc="render every evaluated scene of another family in this scene's look (an appearance swap of obstacles "
+        "and surroundings, e.g. box-v2: the unseen layouts in the training look); '': each scene's own look. Part of "
+        "the cache key (as the swap's disturbance)",
+    )
 
 
 @dataclass
@@ -538,6 +544,8 @@ def validate(cfg: Config) -> Config:
     if not cfg.eval.scenes:
         raise ConfigError(f"config field 'eval.scenes': got [], expected at least one of {list(SCENE_SPECS)}")
     cfg.eval.scenes = list(dict.fromkeys(_scene_id("eval.scenes", s) for s in cfg.eval.scenes))
+    if cfg.eval.look:
+        cfg.eval.look = _scene_id("eval.look", cfg.eval.look)
     cfg.data.scene = _scene_id("data.scene", cfg.data.scene)
     try:
         seeds = [int(v) for v in cfg.seeds]

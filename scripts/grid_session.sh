@@ -49,7 +49,8 @@ seeds=0,1,2,3,4
 # Teacher first (its students need it), then the frozen-encoder students (about 31 min each), then the pixel
 # runs (about 70 min each), so that what a session finishes is as many whole rows as it can be.
 table1_variants=oracle,ours,ours-noOT,ours-lapf,ours-random,ours-blind,curl,curl-phi,npe,npe-ot,ppo
-variants=""  # default: Table I's order above for table1 and table1-confirm, every variant of any other grid
+variants=""  # default: Table I's order above for table1 (less the controls for table1-confirm, table1-boxlook), every
+#             variant of any other grid
 preset=quick
 backend=local
 bundle_seed=default
@@ -81,8 +82,11 @@ fi
 py="$root/.venv/bin/python"
 [[ -x "$py" ]] || { echo "grid_session: $py not found; run ./reproduce.sh --test once to make .venv" >&2; exit 2; }
 if [[ -z "$variants" ]]; then
-  if [[ "$grid" == table1 || "$grid" == table1-confirm ]]; then
+  if [[ "$grid" == table1 ]]; then
     variants="$table1_variants"
+  elif [[ "$grid" == table1-confirm || "$grid" == table1-boxlook ]]; then
+    # Table I's order without the controls, which these grids do not fly (omcrl.pipeline.grids.CONTROL_METHODS).
+    variants="${table1_variants/,ours-random,ours-blind/}"
   else  # the grid's labels, in its order (an unknown grid fails here, naming the known ones)
     variants="$("$py" -c 'import sys; from omcrl.pipeline.grids import grid_variants
 print(",".join(v.label for v in grid_variants(sys.argv[1])))' "$grid")" || exit 2

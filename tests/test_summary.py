@@ -285,7 +285,8 @@ def test_readme_block_is_replaced_between_its_markers_only(tmp_path):
 
 def test_the_teachers_ceiling_block_is_what_the_grid_data_gives(repo_root):
     """Issue 75: docs/results.md's SR / CR / timeout by detour is rebuilt from reference/quick/table1-v2/ and the
-    layouts' geometry (summary --readme); each cell's shares add up to its episodes, each scene's bins to its layouts."""
+    layouts' geometry (summary --readme); each cell's shares add up to its episodes, each scene's bins to its
+    layouts."""
     from omcrl.pipeline.glance import current_block
     from omcrl.pipeline.why import WHY_DETOUR_END, WHY_DETOUR_START, detour_block, detour_table
 
@@ -297,3 +298,32 @@ def test_the_teachers_ceiling_block_is_what_the_grid_data_gives(repo_root):
     page = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
     assert current_block(page, "docs/results.md", WHY_DETOUR_START, WHY_DETOUR_END) == detour_block("quick", table)
     assert "| Oracle |" in page and "**barrier-v2**" in page
+
+
+def test_the_attribution_splits_a_loss_into_geometry_and_look_with_the_right_pairing():
+    """Issue 75: on episodes made up so that SR is 80 % in box-v2, 60 % on tree-v2's layouts in box's look and 30 % in
+    tree-v2's own look (every seed alike), the attribution reads geometry −20 and look −30, each inside its interval;
+    a scene not flown in box's look gives no number."""
+    import numpy as np
+    import pandas as pd
+
+    from omcrl.pipeline.why import attribution, attribution_block
+
+    def eps(scene, rate, seeds=(0, 1, 2), layouts=20, shift=0):
+        rows = []
+        for s in seeds:
+            for k in range(layouts):
+                rows.append({"method": "ours", "scene": scene, "train_seed": s, "seed": 1_000_000 + k,
+                             "episode": k, "success": (k + shift) % 10 < rate // 10})  # fmt: skip
+        return rows
+
+    own = pd.DataFrame(eps("box-v2", 80) + eps("tree-v2", 30))
+    look = pd.DataFrame(eps("tree-v2", 60))
+    t = attribution(own, look, reps=200)
+    r = t[t.scene == "tree-v2"].iloc[0]
+    assert r.seeds == 3 and (r.box, r.box_look, r.own) == (80.0, 60.0, 30.0)
+    assert r.geometry == -20.0 and r.look == -30.0
+    assert r.look_lo <= -30.0 <= r.look_hi and r.geometry_lo < -20.0 < r.geometry_hi
+    assert np.isnan(t[t.scene == "barrier-v2"].iloc[0].look)  # not flown there: no number
+    assert "| Ours | 3 | 80 [" in attribution_block(table=t) and "**tree-v2**" in attribution_block(table=t)
+    assert attribution(own, look.iloc[0:0]).empty

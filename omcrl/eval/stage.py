@@ -36,7 +36,7 @@ from omcrl.eval.metrics import format_table, summary_table
 from omcrl.eval.runner import EvalPool, evaluate
 from omcrl.rl import load_policy
 from omcrl.runs import Run, RunConfigMismatch, behaviour, cache_run, find_runs, read_identity
-from omcrl.scenes import scene_id
+from omcrl.scenes import scene_id, scene_spec
 from omcrl.utils.io import atomic_write_text, file_digest
 
 HYBRID_APF = "HybridAPF"
@@ -231,6 +231,15 @@ def eval_cache_dir(cfg: Config, label: str) -> Path:
     return eval_cache_root(cfg) / label.replace("/", "_") / f"seed{cfg.seed}"
 
 
+def look_disturbance(cfg: Config, scene: str) -> dict[str, str] | None:
+    """The appearance swap ``cfg.eval.look`` asks for in ``scene``: ``{"appearance": look}`` when the look is another
+    family's (the unseen layouts drawn in the training scene's look), None for the scene's own look."""
+    look = cfg.eval.look
+    if not look or scene_spec(look).family == scene_spec(scene).family:
+        return None
+    return {"appearance": look}
+
+
 def evaluate_methods(
     cfg: Config,
     methods: Mapping[str, Any],
@@ -258,7 +267,8 @@ def evaluate_methods(
     pool : an open :class:`~omcrl.eval.runner.EvalPool` to run episodes in; default: one of
         ``cfg.eval.workers`` processes for this call (in this process when 1). Results do not depend on it.
     disturbance : passed to every env (e.g. ``{"appearance": "box"}``: each scene's layouts in box's look, see
-        :class:`omcrl.envs.Disturbance`); part of the cache key, and of the cache file's name.
+        :class:`omcrl.envs.Disturbance`); part of the cache key, and of the cache file's name. Default: the swap
+        ``cfg.eval.look`` asks for in each scene (:func:`look_disturbance`), none when it is empty.
     stats : when given, ``stats["cached"]`` and ``stats["evaluated"]`` count the (method, scene) evaluations read
         from the cache and flown.
 
@@ -283,12 +293,11 @@ def evaluate_methods(
             lanes = cfg.eval.lanes if callable(getattr(policy, "act_batch", None)) else 1
             for scene in scenes:
                 env = replace(cfg.env, scene=scene)
-                ident = evaluation_identity(
-                    cfg, pkey, env, episodes, planner=planner, lanes=lanes, disturbance=disturbance
-                )
-                tail = "" if not disturbance else "-" + "-".join(f"{v}" for v in disturbance.values())
+                dist = look_disturbance(cfg, scene) if disturbance is None else disturbance
+                ident = evaluation_identity(cfg, pkey, env, episodes, planner=planner, lanes=lanes, disturbance=dist)
+                tail = "" if not dist else "-" + "-".join(f"{v}" for v in dist.values())
 
-                def fly(policy: Any = policy, label: str = label, scene: str = scene) -> pd.DataFrame:
+                def fly(policy: Any = policy, label: str = label, scene: str = scene, dist: Any = dist) -> pd.DataFrame:
                     return evaluate(
                         policy,
                         scene,
@@ -300,7 +309,7 @@ def evaluate_methods(
                         workers=pool or 1,
                         lanes=cfg.eval.lanes,
                         config=cfg.env,
-                        **({"disturbance": dict(disturbance)} if disturbance else {}),
+                        **({"disturbance": dict(dist)} if dist else {}),
                     )
 
                 df = cached_episodes(

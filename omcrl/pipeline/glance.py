@@ -34,7 +34,14 @@ from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
 from omcrl.pipeline.records import Table1Record
 from omcrl.pipeline.reference import reference_table_dir
 from omcrl.pipeline.sweep import rest_hours
-from omcrl.pipeline.why import WHY_DETOUR_END, WHY_DETOUR_START, detour_block
+from omcrl.pipeline.why import (
+    WHY_DETOUR_END,
+    WHY_DETOUR_START,
+    WHY_LOOK_END,
+    WHY_LOOK_START,
+    attribution_block,
+    detour_block,
+)
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
 from omcrl.scenes import scene_label, scene_spec
 from omcrl.utils.io import atomic_write_text
@@ -678,7 +685,8 @@ def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bo
     ladder = ladder_block(preset, figures_to=root / LADDER_FIGURES)
     blocks = [(full, FULL_START, FULL_END), (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END),
               (ladder, LADDER_START, LADDER_END), (ablation_block(preset), ABLATION_START, ABLATION_END),
-              (detour_block(preset), WHY_DETOUR_START, WHY_DETOUR_END)]  # fmt: skip
+              (detour_block(preset), WHY_DETOUR_START, WHY_DETOUR_END),
+              (attribution_block(preset), WHY_LOOK_START, WHY_LOOK_END)]  # fmt: skip
     _rewrite(root / "docs" / "results.md", blocks)
     _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
     _rewrite(root / "docs" / "generalization.md", [(transfer_block(preset), TRANSFER_START, TRANSFER_END)])

@@ -157,10 +157,20 @@ GRIDS["table1-confirm"] = tuple(
 )
 
 
+# Table I's runs flown in the unseen v2 scenes' own layouts drawn in box-v2's look (issue 75's attribution: what the
+# geometry costs, box-v2 -> these flights, and what the look costs, these flights -> Table I's own-look cells). The
+# same layouts and training jobs as Table I (eval.seed_offset unchanged), the look swapped by eval.look.
+BOXLOOK_EVAL = ("eval.look=box-v2", "eval.scenes=[furniture-v2, barrier-v2, tree-v2]")
+GRIDS["table1-boxlook"] = tuple(Variant(v.label, v.method, BOXLOOK_EVAL) for v in GRIDS["table1-confirm"])
+
 # Grids that re-fly another grid's runs (their evaluation overrides, which the planners flown beside them take
 # too): they keep episodes, never run records or teachers' weights.
-TABLE1_GRIDS: dict[str, tuple[str, ...]] = {"table1": (), "table1-confirm": CONFIRM_EVAL}
-EVAL_ONLY_GRIDS = ("table1-confirm",)
+TABLE1_GRIDS: dict[str, tuple[str, ...]] = {
+    "table1": (),
+    "table1-confirm": CONFIRM_EVAL,
+    "table1-boxlook": BOXLOOK_EVAL,
+}
+EVAL_ONLY_GRIDS = ("table1-confirm", "table1-boxlook")
 
 
 # The budget ladder (does a verdict move with scale?). Pretraining: the OMC and CURL encoders at x4 and x16 of the

@@ -8,12 +8,14 @@ attribution of the zero-shot loss to geometry and look joins here once its fligh
 
 from __future__ import annotations
 
+import math
 import tempfile
 import textwrap
 
 import pandas as pd
 
 from omcrl.config import load_config
+from omcrl.eval.stats import Term, cell_rng, contrast, term
 from omcrl.interpret.transfer import DETOUR_BINS, layout_stats, with_detour_bins
 from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.planners import LABELS as PLANNER_LABELS
@@ -22,6 +24,9 @@ from omcrl.scenes import SUITES
 
 WHY_DETOUR_START = "<!-- why-detour-v2: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 WHY_DETOUR_END = "<!-- why-detour-v2: end -->"
+WHY_LOOK_START = "<!-- why-look-v2: start (python -m omcrl summary --preset quick --readme writes this block) -->"
+WHY_LOOK_END = "<!-- why-look-v2: end -->"
+TRAIN_SCENE = SUITES["v2"][0]
 
 
 def detour_table(preset: str = "quick") -> pd.DataFrame:
@@ -82,5 +87,113 @@ def detour_block(preset: str = "quick", table: pd.DataFrame | None = None) -> st
                 f"{cells.SR[b]:.0f} / {cells.CR[b]:.0f} / {cells.TO[b]:.0f}" if b in cells.index else "–" for b in bins
             ]
             lines.append(f"| {_label(method)} | " + " | ".join(row) + " |")
+        lines.append("")
+    return "\n".join(lines).rstrip("\n")
+
+
+def _sr_term(episodes: pd.DataFrame, method: str, scene: str, pool: str, coef: float) -> Term | None:
+    g = episodes[(episodes["method"] == method) & (episodes["scene"] == scene)]
+    if g.empty:
+        return None
+    return term(g, 100.0 * g["success"].astype(float).to_numpy(), pool, coef)
+
+
+def attribution_table(preset: str = "quick", reps: int = 2000) -> pd.DataFrame:
+    """Each learned method's loss from box-v2 to an unseen v2 scene split in two, from the Table I grid's episodes
+    and the box-look grid's (``table1-boxlook``: the same runs on the unseen scenes' own layouts drawn in box-v2's
+    look). One row per method and unseen scene, SR in %, each with its 95 % CI (seeds × layouts crossed,
+    :func:`omcrl.eval.stats.contrast`):
+
+    * ``box``: SR in box-v2; ``box_look``: SR on the scene's layouts in box-v2's look; ``own``: SR in the scene as it
+      is (Table I's cell);
+    * ``geometry`` = box_look − box (the training seeds paired, the two scenes' layouts independent): what the
+      scene's layouts cost with the look held at the training one;
+    * ``look`` = own − box_look (seeds and layouts paired: the same episodes' starts and goals): what the scene's
+      look costs on its own layouts.
+
+    Only methods and seeds flown in both grids enter; ``seeds`` counts them. Empty while the box-look grid holds
+    nothing.
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
+        own = GridData(grid_data_dir(cfg, "table1")).episodes()
+        look = GridData(grid_data_dir(cfg, "table1-boxlook")).episodes()
+    return attribution(own, look, reps)
+
+
+def attribution(own: pd.DataFrame, look: pd.DataFrame, reps: int = 2000) -> pd.DataFrame:
+    """:func:`attribution_table` from the episodes themselves: ``own`` (Table I's, with box-v2 and the unseen scenes)
+    and ``look`` (the unseen scenes in box-v2's look); one row per episode with ``method``, ``scene``,
+    ``train_seed``, the layout ``seed`` and ``success``."""
+    if look.empty or own.empty:
+        return pd.DataFrame()
+    rows = []
+    learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
+    for method in [m for m in learned if m in set(look["method"])]:
+        seeds = set(look.loc[look["method"] == method, "train_seed"]) & set(
+            own.loc[own["method"] == method, "train_seed"]
+        )
+        o = own[(own["method"] == method) & own["train_seed"].isin(seeds)]
+        lk = look[(look["method"] == method) & look["train_seed"].isin(seeds)]
+        for scene in SUITES["v2"][1:]:
+            parts = {
+                "box": [_sr_term(o, method, TRAIN_SCENE, TRAIN_SCENE, 1.0)],
+                "box_look": [_sr_term(lk, method, scene, scene, 1.0)],
+                "own": [_sr_term(o, method, scene, scene, 1.0)],
+                "geometry": [
+                    _sr_term(lk, method, scene, scene, 1.0),
+                    _sr_term(o, method, TRAIN_SCENE, TRAIN_SCENE, -1.0),
+                ],
+                "look": [_sr_term(o, method, scene, scene, 1.0), _sr_term(lk, method, scene, scene, -1.0)],
+            }
+            row: dict = {"method": method, "scene": scene, "seeds": len(seeds)}
+            for name, terms in parts.items():
+                if any(t is None for t in terms):
+                    row[name] = row[f"{name}_lo"] = row[f"{name}_hi"] = math.nan
+                    continue
+                bounded = 100.0 if len(terms) == 1 else None
+                e = contrast(terms, reps, rng=cell_rng(0, "attribution", method, scene, name), bounded=bounded)
+                row[name], row[f"{name}_lo"], row[f"{name}_hi"] = e.estimate, e.lo, e.hi
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def attribution_block(preset: str = "quick", table: pd.DataFrame | None = None) -> str:
+    """The block: per unseen scene, one row per learned method, SR box-v2 → on the scene's layouts in box-v2's look
+    → in its own look, and the two differences (:func:`attribution_table`), each mean [95 % CI]."""
+    t = attribution_table(preset) if table is None else table
+    if t.empty:
+        return (
+            f"Not flown yet (no episodes under `reference/{preset}/table1-boxlook-v2/`: `scripts/grid_session.sh "
+            "--grid table1-boxlook`)."
+        )
+
+    def ci(r: pd.Series, name: str, sign: bool = False) -> str:
+        v, lo, hi = r[name], r[f"{name}_lo"], r[f"{name}_hi"]
+        if not math.isfinite(v):
+            return "–"
+        f = "{:+.0f}" if sign else "{:.0f}"
+        return f"{f.format(v)} [{f.format(lo)}, {f.format(hi)}]"
+
+    caption = (
+        f"SR % in {TRAIN_SCENE} → on each unseen scene's own layouts drawn in {TRAIN_SCENE}'s look → in the scene's "
+        "own look, and the two steps: *geometry* (the layouts, the look held at the training one; seeds paired, the "
+        "two scenes' layouts independent) and *look* (the scene's own look on the same layouts; seeds and layouts "
+        "paired). Mean [95 % CI], seeds × layouts crossed; `seeds`: training seeds flown in both grids. Generated "
+        f"from `reference/{preset}/table1-v2/` and `reference/{preset}/table1-boxlook-v2/`."
+    )
+    lines = [*textwrap.wrap(caption, 120), ""]
+    for scene, g in t.groupby("scene", sort=False):
+        lines += [
+            f"**{scene}**",
+            "",
+            f"| method | seeds | SR {TRAIN_SCENE} | SR in {TRAIN_SCENE}'s look | SR own look | geometry | look |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for _, r in g.iterrows():
+            lines.append(
+                f"| {_label(r['method'])} | {r['seeds']} | {ci(r, 'box')} | {ci(r, 'box_look')} | {ci(r, 'own')} | "
+                f"{ci(r, 'geometry', True)} | {ci(r, 'look', True)} |"
+            )
         lines.append("")
     return "\n".join(lines).rstrip("\n")
