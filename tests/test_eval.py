@@ -219,3 +219,24 @@ def test_lanes_run_episodes_in_lock_step_with_the_same_rows():
     )
     with pytest.raises(ValueError, match="lanes must be >= 1, got 0"):
         evaluate(Proportional(), "box", 3, lanes=0, **kw)
+
+
+def test_eval_look_swaps_other_families_looks_and_keys_the_cache(tmp_path):
+    """Issue 75's attribution: eval.look=box-v2 draws tree-v2's own layouts in box-v2's look (an appearance swap),
+    leaves box-v2 (its own family) alone, is refused for an unknown scene, and gives an evaluation another cache run
+    than the own-look one, with the same layouts."""
+    from omcrl.config import ConfigError, load_config
+    from omcrl.eval.stage import evaluate_methods, look_disturbance
+
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", "eval.look=box"])
+    assert cfg.eval.look == "box-v2"
+    assert look_disturbance(cfg, "tree-v2") == {"appearance": "box-v2"} and look_disturbance(cfg, "box-v2") is None
+    assert look_disturbance(load_config("smoke"), "tree-v2") is None
+    with pytest.raises(ConfigError, match="eval.look"):
+        load_config("smoke", overrides=["eval.look=moon"])
+    own = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    a = evaluate_methods(own, {"hybrid-apf": "hybrid-apf"}, ["tree-v2"], 2)
+    b = evaluate_methods(cfg, {"hybrid-apf": "hybrid-apf"}, ["tree-v2"], 2)
+    assert list(a["seed"]) == list(b["seed"])  # the same layouts
+    runs = sorted(p.name for p in (tmp_path / "smoke" / "eval" / "hybrid-apf" / "seed0").iterdir() if p.is_dir())
+    assert len(runs) == 2 and any("box-v2" in r for r in runs)
