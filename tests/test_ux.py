@@ -179,3 +179,19 @@ def test_reproduce_takes_from_reference_only_with_a_chain_mode(repo_root):
 
 def test_project_root_is_the_checkout(repo_root):
     assert project_root() == repo_root.resolve()
+
+
+def test_the_chain_prints_its_plan_with_each_notebooks_estimate_and_the_total():
+    """Speed issue, item 4: before the first notebook, each notebook of the chain with its estimate (a training
+    notebook's scaled by the run's env steps against the budget it was measured at) and the total."""
+    from omcrl.pipeline.expected import EXPECTED_WALL_S, MEASURED_RL_STEPS, chain_plan
+
+    chain = ["00_scenes", "03_train_oracle", "99_new"]
+    same = chain_plan("quick", chain, MEASURED_RL_STEPS["quick"])
+    assert same[0].startswith("plan, preset quick") and "99_new" in same[3] and "not measured" in same[3]
+    tripled = chain_plan("quick", chain, 3 * MEASURED_RL_STEPS["quick"])
+    assert "scaled to 454,656" in tripled[2] and "scaled" not in tripled[1]
+    from omcrl.utils.progress import format_duration
+
+    want = EXPECTED_WALL_S["quick"]["00_scenes"] + 3 * EXPECTED_WALL_S["quick"]["03_train_oracle"]
+    assert tripled[-1].split("~")[1] == f"{format_duration(want)} + 1 not measured"
