@@ -167,12 +167,14 @@ def test_chain_smoke(tmp_path, tello_ports):
     import pandas as pd
 
     from omcrl.config import load_config
+    from omcrl.pipeline.grids import CONTROL_METHODS
     from omcrl.rl.methods import TABLE1_METHODS
 
     root = tmp_path / "smoke"
     table = pd.read_csv(root / "tables" / "table1.csv")
     scenes = load_config("smoke").eval.scenes
-    assert set(table["method"]) == set(TABLE1_METHODS) and set(table["scene"]) == set(scenes)
+    # The chain trains the paper's comparison; the controls (issue 75) are the grid's rows, not the notebooks'.
+    assert set(table["method"]) == set(TABLE1_METHODS) - set(CONTROL_METHODS) and set(table["scene"]) == set(scenes)
     assert set(table["metric"]) == {"NE", "OS", "SR", "SPL", "CR", "TTS"} and table["episodes"].min() >= 1
     sr = table[table.metric == "SR"]["mean"]
     assert sr.between(0, 100).all()

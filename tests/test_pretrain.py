@@ -314,42 +314,6 @@ def test_finished_run_skips_without_its_dataset_and_lost_metrics_are_reported(da
     assert record["final_loss"] is None or np.isfinite(record["final_loss"])
 
 
-def test_a_run_finished_in_the_old_done_json_form_is_migrated_by_script_and_then_skipped(data, tmp_path):
-    """scripts/migrate_runs.py turns a pretraining run as the code before issue 43's change wrote it (its end in
-    done.json, run.json its identity only) into the record this code writes, so it is found finished again."""
-    import subprocess
-    import sys
-
-    from omcrl.config import project_root
-
-    cfg = _cfg(tmp_path)
-    r = pretrain_encoder(cfg, data, progress=False)
-    now = json.loads((r.run_dir / "run.json").read_text())
-    done = {"key": now["key"], "iterations": 6, "final_loss": now["final_loss"], "dataset": now["dataset"],
-            "dataset_fingerprint": now["dataset_fingerprint"], "encoder_digest": now["artifact_digest"]}  # fmt: skip
-    old = {k: now[k] for k in ("stage", "method", "seed", "key", "identity", "checkpoint_digests")}
-    (r.run_dir / "run.json").write_text(json.dumps(old, indent=1))
-    (r.run_dir / "done.json").write_text(json.dumps(done, indent=1))
-    (r.run_dir / "checkpoint.pt").unlink()  # not found finished, it would have to train again from the start
-    encoder = r.encoder_path.read_bytes()
-    script = [sys.executable, str(project_root() / "scripts" / "migrate_runs.py"), str(tmp_path / "res")]
-    out = subprocess.run(script, capture_output=True, text=True, check=True).stdout
-    assert "1 pretraining runs migrated" in out and not (r.run_dir / "done.json").exists()
-    # What the old code recorded, completed; fields it never wrote (added to run.json later: the machines, the
-    # config's digest) are not made up.
-    later = ("machines", "config_digest")
-    assert json.loads((r.run_dir / "run.json").read_text()) == {k: v for k, v in now.items() if k not in later}
-    again = pretrain_encoder(cfg, data, progress=False)
-    assert again.skipped and r.encoder_path.read_bytes() == encoder and again.final_loss == r.final_loss
-    assert "0 pretraining runs migrated" in subprocess.run(script, capture_output=True, text=True, check=True).stdout
-    # A done.json of another run is refused, naming it, and nothing is written.
-    (r.run_dir / "run.json").write_text(json.dumps(old, indent=1))
-    (r.run_dir / "done.json").write_text(json.dumps({**done, "key": "0123456789"}))
-    bad = subprocess.run(script, capture_output=True, text=True)
-    assert bad.returncode != 0 and "done.json names key '0123456789'" in bad.stderr
-    assert json.loads((r.run_dir / "run.json").read_text()) == old
-
-
 def test_color_jitter_changes_colours_not_masks_and_is_seeded():
     from omcrl.pretrain.learner import color_jitter
 
@@ -411,7 +375,7 @@ def test_the_controls_encoders_are_the_initialisation_and_a_constant(tmp_path):
     from omcrl.pipeline.recipes import pretrain_method
     from omcrl.pretrain import ContrastiveLearner
 
-    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}", f"data.file={tmp_path / 'none.h5'}"])
     r = pretrain_method(cfg, "ours-random", progress=False)
     assert r.iterations == 0 and not cfg.data_path.exists()  # no data was collected or needed
     torch.manual_seed(cfg.seed)

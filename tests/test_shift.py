@@ -341,5 +341,6 @@ def test_by_detour_splits_success_by_how_far_the_path_bends():
     assert list(got.index) == ["1.00–1.02", "> 1.30"]  # empty bins are left out, the rest in bin order
     assert got.loc["1.00–1.02", "SR"] == 75.0 and got.loc["> 1.30", "SR"] == 0.0
     assert got.loc["> 1.30", "CR"] == 75.0 and (got.layouts == 50.0).all() and (got.episodes == 4).all()
+    assert got.loc["> 1.30", "TO"] == 25.0 and got.loc["1.00–1.02", "TO"] == 0.0  # ran out of steps, nothing else
     with pytest.raises(ValueError, match="no detour for layouts"):
         by_detour(ep.assign(eval_seed=3), detour)

@@ -316,7 +316,8 @@ def by_detour(
 
     ep, labels = with_detour_bins(episodes, detour, bins)
     agg = aggregate(ep, ("method", "scene", "detour"), reps=reps).reset_index()
-    ended = ep["success"].astype(bool) | ep["collision"].astype(bool) | ep["out_of_arena"].astype(bool)
+    left = ep["out_of_arena"].astype(bool) if "out_of_arena" in ep else False  # rows from before the column
+    ended = ep["success"].astype(bool) | ep["collision"].astype(bool) | left
     timeouts = (~ended).groupby([ep["method"], ep["scene"], ep["detour"]], sort=False).mean() * 100.0
     agg["TO"] = timeouts.reindex(pd.MultiIndex.from_frame(agg[["method", "scene", "detour"]])).to_numpy()
     total = ep.groupby(["method", "scene"]).size()
