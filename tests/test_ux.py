@@ -195,3 +195,7 @@ def test_the_chain_prints_its_plan_with_each_notebooks_estimate_and_the_total():
 
     want = EXPECTED_WALL_S["quick"]["00_scenes"] + 3 * EXPECTED_WALL_S["quick"]["03_train_oracle"]
     assert tripled[-1].split("~")[1] == f"{format_duration(want)} + 1 not measured"
+    # With the grid's measured training times, a training notebook's estimate is its methods' sum.
+    grid = chain_plan("quick", ["03_train_oracle", "04_train_student"], 450_000, {"oracle": 100.0, "ours": 60.0})
+    assert "~1m40s" in grid[1] and "grid's measured" in grid[1]  # oracle: its measured time
+    assert "scaled" in grid[2]  # ours-noOT has no measured time: 04 falls back to its wall time, scaled

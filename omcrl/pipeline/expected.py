@@ -5,6 +5,10 @@ Kept apart from :mod:`omcrl.pipeline.summary` so that the notebook runner can re
 
 from __future__ import annotations
 
+import csv
+import statistics
+
+from omcrl.config import project_root
 from omcrl.utils.progress import format_duration
 
 # Wall time (s) of each notebook from nothing trained, one seed, on the reference machine (2 CPU cores, no GPU),
@@ -55,31 +59,63 @@ def expected_time(preset: str, notebook: str) -> str:
 # The env steps per training run the times above were measured at (quick: the v1 suite's budget on 2026-12-02; the
 # v2 budget check tripled quick's rl.total_steps to 450,560). The training notebooks' times scale with it.
 MEASURED_RL_STEPS: dict[str, int] = {"smoke": 512, "quick": 151_552}
-TRAINING_NOTEBOOKS = ("03_train_oracle", "04_train_student", "05_train_baselines", "06_ablations")
+# The methods each training notebook trains (one seed each): with the grid's measured training times of the suite in
+# use, its estimate is their sum (notebooks 03-05 train these; 06 trains its sweeps at their own budgets).
+NOTEBOOK_TRAINING: dict[str, tuple[str, ...]] = {
+    "03_train_oracle": ("oracle",),
+    "04_train_student": ("ours", "ours-noOT"),
+    "05_train_baselines": ("ppo", "npe", "npe-ot", "ours-lapf", "curl", "curl-phi"),
+}
+TRAINING_NOTEBOOKS = (*NOTEBOOK_TRAINING, "06_ablations")
 
 
-def chain_plan(preset: str, chain: list[str], rl_steps: int | None = None) -> list[str]:
+def chain_plan(
+    preset: str, chain: list[str], rl_steps: int | None = None, train_s: dict[str, float] | None = None
+) -> list[str]:
     """What the chain will do and about how long it takes: one line per notebook of ``chain`` with its estimate at
-    ``preset`` (:data:`EXPECTED_WALL_S`; a training notebook's scaled by ``rl_steps`` / :data:`MEASURED_RL_STEPS`
-    when the run's budget differs from the one measured), then the total. Estimates, not promises: from nothing
-    trained, one seed, on the reference 2-core CPU; finished runs and cached evaluations are reused in seconds."""
+    ``preset``, then the total. Estimates, not promises: from nothing trained, one seed, on the reference 2-core CPU;
+    finished runs and cached evaluations are reused in seconds.
+
+    A notebook's estimate is its measured wall time (:data:`EXPECTED_WALL_S`), except a training notebook's: the sum
+    of the measured training seconds ``train_s`` (``{method: s}``, e.g. the medians of the Table I grid's jobs at this
+    budget and suite) of the methods it trains (:data:`NOTEBOOK_TRAINING`) when all are given, else its wall time
+    scaled by ``rl_steps`` / :data:`MEASURED_RL_STEPS` when the budget differs from the one measured."""
     measured = EXPECTED_WALL_S.get(preset, {})
     base_steps = MEASURED_RL_STEPS.get(preset)
     scale = rl_steps / base_steps if rl_steps and base_steps and rl_steps != base_steps else 1.0
+    train_s = train_s or {}
     lines = [f"plan, preset {preset} (from nothing trained, one seed, a 2-core CPU; docs/performance.md):"]
     total, unknown = 0.0, []
     for n in chain:
-        wall = measured.get(n)
+        wall, note = measured.get(n), ""
+        methods = NOTEBOOK_TRAINING.get(n, ())
+        if methods and all(m in train_s for m in methods):
+            wall = sum(train_s[m] for m in methods)
+            note = f"  (training {', '.join(methods)}: the grid's measured times at this budget)"
+        elif wall is not None and n in TRAINING_NOTEBOOKS and scale != 1.0:
+            wall *= scale
+            note = f"  (measured at {base_steps:,} env steps per run, scaled to {rl_steps:,})"
         if wall is None:
             unknown.append(n)
             lines.append(f"  {n:22s} not measured")
             continue
-        note = ""
-        if n in TRAINING_NOTEBOOKS and scale != 1.0:
-            wall *= scale
-            note = f"  (measured at {base_steps:,} env steps per run, scaled to {rl_steps:,})"
         total += wall
         lines.append(f"  {n:22s} ~{format_duration(wall)}{note}")
     tail = f" + {len(unknown)} not measured" if unknown else ""
     lines.append(f"  {'total':22s} ~{format_duration(total)}{tail}")
     return lines
+
+
+def grid_training_seconds(preset: str, suite: str | None, rl_steps: int) -> dict[str, float]:
+    """``{method: s}``: the median seconds of the Table I grid's finished training jobs of ``suite`` at ``rl_steps``
+    env steps (``reference/<preset>/table1-<suite>/jobs.csv``, measured on the 2-core machine, often beside other
+    work); empty when there is no such file or no job at that budget."""
+    path = project_root() / "reference" / preset / f"table1-{suite}" / "jobs.csv"
+    if suite is None or not path.exists():
+        return {}
+    times: dict[str, list[float]] = {}
+    with path.open(newline="") as fh:
+        for r in csv.DictReader(fh):
+            if r["kind"] == "train" and r["status"] == "done" and int(float(r["work"])) == rl_steps:
+                times.setdefault(r["method"], []).append(float(r["seconds"]))
+    return {m: statistics.median(v) for m, v in times.items()}

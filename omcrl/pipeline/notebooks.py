@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from omcrl.config import PRESETS, ConfigError, overrides_from_config, resolve_path
-from omcrl.pipeline.expected import EXPECTED_WALL_S, chain_plan
+from omcrl.pipeline.expected import EXPECTED_WALL_S, chain_plan, grid_training_seconds
 from omcrl.pipeline.summary import write_summary
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.memory import PeakRSS
@@ -349,18 +349,19 @@ def run_chain(
     cwd: str | Path | None = None,
     verbose: bool = True,
     rl_steps: int | None = None,
+    train_s: dict[str, float] | None = None,
 ) -> list[Path]:
     """Run ``names`` (default: all of :data:`NOTEBOOKS`) in the given order; stop at the first failure.
 
     Later notebooks read artifacts written by earlier ones, so the default order is the numeric one. First it prints
     its plan (``verbose``): each notebook with its estimate and the total (:func:`~omcrl.pipeline.expected.chain_plan`;
-    ``rl_steps``: the runs' env steps, which the training notebooks' estimates scale with).
+    ``rl_steps``: the runs' env steps; ``train_s``: measured training seconds per method at that budget).
     """
     chain = list(names) if names is not None else discover_notebooks()
     if not chain:
         raise NotebookNotFoundError(f"no notebooks NN_*.ipynb in {NOTEBOOK_DIR}")
     if verbose:
-        for line in chain_plan(preset, chain, rl_steps):
+        for line in chain_plan(preset, chain, rl_steps, train_s):
             print(f"[notebooks] {line}", flush=True)
     done = []
     for n in chain:
@@ -474,7 +475,17 @@ def notebooks_stage(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[
     passing on every non-default field, then write and print the summary (:mod:`omcrl.pipeline.summary`)."""
     chain = select_notebooks(only, skip)
     overrides = [o for o in overrides_from_config(cfg) if not o.startswith("results_dir=")]
-    run_chain(cfg.preset, names=chain, results_dir=cfg.results_root, overrides=overrides, rl_steps=cfg.rl.total_steps)
+    from omcrl.scenes import suite_of
+
+    train_s = grid_training_seconds(cfg.preset, suite_of(cfg.env.scene), cfg.rl.total_steps)
+    run_chain(
+        cfg.preset,
+        names=chain,
+        results_dir=cfg.results_root,
+        overrides=overrides,
+        rl_steps=cfg.rl.total_steps,
+        train_s=train_s,
+    )
     path = write_summary(cfg)
     print(path.read_text(encoding="utf-8"))
     print(f"[notebooks] summary: {path}", flush=True)
