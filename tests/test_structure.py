@@ -184,3 +184,11 @@ def test_a_new_method_kind_is_one_recipe_class_and_one_registry_row(tmp_path, mo
     assert len(episodes) == 2 and set(episodes["method"]) == {"random-enc"}
     with pytest.raises(Exception, match="no recipe"):
         M.register_method(M.MethodSpec("nope", "Nope", "no-such-kind"))
+
+
+def test_the_grids_controls_are_the_methods_marked_control():
+    """omcrl.pipeline.grids stays free of PyTorch and so names the controls itself; they must be the methods table's."""
+    from omcrl.pipeline.grids import CONTROL_METHODS
+    from omcrl.rl.methods import METHODS
+
+    assert set(CONTROL_METHODS) == {n for n, s in METHODS.items() if s.control} == {"ours-random", "ours-blind"}

@@ -70,7 +70,8 @@ class Table1Result:
 
 
 def method_sources(cfg: Config, methods: Sequence[str], seeds: Sequence[int]) -> tuple[dict, list[str]]:
-    """``{(method, seed): final.pt or planner name}`` for every finished run, and the list of missing ones.
+    """``{(method, seed): final.pt or planner name}`` for every finished run, and the list of missing ones (a
+    control's absent runs are not listed: the notebooks do not train them).
 
     Planners are deterministic and untrained: they appear once, under the first seed.
     """
@@ -84,7 +85,8 @@ def method_sources(cfg: Config, methods: Sequence[str], seeds: Sequence[int]) ->
         for s in seeds:
             p = final_policy_path(cfg.with_seed(s), m)
             if p is None:
-                missing.append(f"{m}/seed{s}")
+                if not spec.control:  # a control is flown where it was trained (the grid), not asked for
+                    missing.append(f"{m}/seed{s}")
             else:
                 found[(m, s)] = p
     return found, missing

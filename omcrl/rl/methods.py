@@ -55,6 +55,8 @@ class MethodSpec:
     privileged : uses inputs a real robot does not have (true map or depth + obstacle vectors).
     description : one line for ``--help``.
     ablation : a variant for the ablations (VI-C), not a row of Table I.
+    control : a control of the kit (issue 75: ``ours-random``, ``ours-blind``): a row of the Table I grid and of the
+        ledger's ``controls`` family, not of the paper's comparison that the notebooks train and a bundle holds.
     """
 
     name: str
@@ -65,6 +67,7 @@ class MethodSpec:
     privileged: bool = False
     description: str = ""
     ablation: bool = False
+    control: bool = False
 
     @property
     def recipe(self) -> Recipe:
@@ -95,8 +98,8 @@ METHODS: dict[str, MethodSpec] = {
         # Controls (declared in the ledger's controls family before they flew): what the masked contrastive stage
         # adds over its own initialisation, and what sight adds over the state pathway.
         MethodSpec("ours-random", "Ours w/ random encoder", "frozen", {"method": "random"}, guide="oracle",
-                   description="control: ours on a frozen, randomly initialised f+phi (no pretraining)"),
-        MethodSpec("ours-blind", "Ours blind", "frozen", {"method": "blind"}, guide="oracle",
+                   control=True, description="control: ours on a frozen, randomly initialised f+phi (no pretraining)"),
+        MethodSpec("ours-blind", "Ours blind", "frozen", {"method": "blind"}, guide="oracle", control=True,
                    description="control: ours with constant visual features (state pathway only)"),
         MethodSpec("curl", "CURL", "frozen", {"method": "curl", "use_projection": False},
                    description="frozen CURL encoder (no phi), PPO without guidance"),
