@@ -235,7 +235,7 @@ def _reference_round_trip(tmp_path):
         # the whole one, the oracle that two parts carry (upstream of its students) stored once.
         from omcrl.pipeline.reference import merge_bundles
 
-        names = [m for m in TABLE1_METHODS if METHODS[m].learned]
+        names = paper
         parts = [
             pack_reference(cfg, methods=ms, out=tmp_path / "parts" / ms[0], progress=False).bundle
             for ms in (names[:2], names[2:])
