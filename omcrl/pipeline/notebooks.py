@@ -35,6 +35,7 @@ from typing import Any
 from omcrl.config import PRESETS, ConfigError, overrides_from_config, resolve_path
 from omcrl.pipeline.expected import EXPECTED_WALL_S, chain_plan, grid_training_seconds
 from omcrl.pipeline.summary import write_summary
+from omcrl.scenes import suite_of
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.memory import PeakRSS
 from omcrl.utils.progress import STATUS_FILE_ENV, format_duration
@@ -475,8 +476,6 @@ def notebooks_stage(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[
     passing on every non-default field, then write and print the summary (:mod:`omcrl.pipeline.summary`)."""
     chain = select_notebooks(only, skip)
     overrides = [o for o in overrides_from_config(cfg) if not o.startswith("results_dir=")]
-    from omcrl.scenes import suite_of
-
     train_s = grid_training_seconds(cfg.preset, suite_of(cfg.env.scene), cfg.rl.total_steps)
     run_chain(
         cfg.preset,
