@@ -180,7 +180,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for r in rows:  # every scene against the first one at the same size, renderer and culling
         r[f"vs_{rows[0]['scene']}"] = r["step_sps"] / base[(r["px"], r["renderer"], r["cull"])]
         if len(culls) > 1 and r["cull"]:
-            off = next(o for o in rows if o["scene"] == r["scene"] and o["px"] == r["px"] and not o["cull"])
+            same = ("scene", "px", "renderer")
+            off = next(o for o in rows if all(o[k] == r[k] for k in same) and not o["cull"])
             r["cull_gain"] = r["step_sps"] / off["step_sps"]
     write_results("env", rows, args.out)
     return 0

@@ -217,23 +217,21 @@ class CullSet:
     ids : (N,) int, PyBullet body ids.
     centers : (N, 3) m, world frame.
     radii : (N,) m.
-    state : (N,) bool, whether each body is drawn now (all True when made).
+    state : (N,) bool, whether each body is drawn now.
     """
 
-    def __init__(self, ids: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> None:
-        self.ids, self.centers, self.radii = ids, centers, radii
-        self.state = np.ones(len(ids), bool)
+    def __init__(self, ids: np.ndarray, centers: np.ndarray, radii: np.ndarray, state: np.ndarray) -> None:
+        self.ids, self.centers, self.radii, self.state = ids, centers, radii, state
 
     @classmethod
     def of(cls, bodies: list[int], prims: list[Primitive], hidden: set[int]) -> CullSet:
         """The set for ``bodies[i]`` placed as ``prims[i]``; those in ``hidden`` are not drawn now."""
-        cs = cls(
+        return cls(
             np.asarray(bodies, np.int64),
             np.array([p.center for p in prims], np.float64).reshape(-1, 3),
             np.array([bounding_radius(p) for p in prims], np.float64),
+            np.array([b not in hidden for b in bodies], bool),
         )
-        cs.state = np.array([b not in hidden for b in bodies], bool)
-        return cs
 
     def drawn(self, eye: np.ndarray, yaw: float, tan_h: float, tan_v: float, width: int, height: int) -> np.ndarray:
         """(N,) bool: the bodies that may put a pixel in a ``width`` × ``height`` frame from a level camera at ``eye``
@@ -306,10 +304,11 @@ class SceneLook:
                 hidden.append(Primitive(key[0], (0.0, 0.0, -1000.0), key[1]))
                 if self.cull:  # parked: never drawn until a layout places it again
                     self._set_drawn(body, False)
-        self._cull_set = CullSet.of(placed, [p for _, p in self._decor_bodies] + list(prims), self._hidden)
+        shown = [p for _, p in self._decor_bodies] + list(prims)  # what `placed` holds, body for body
+        self._cull_set = CullSet.of(placed, shown, self._hidden)
         # Every box the renderer draws, hidden ones too (they stand below the origin, still in the camera's plane
         # when it passes through it): NavEnv._camera_image keeps that plane off their vertical edges.
-        self._box_edges_xy = box_edges_xy([p for _, p in self._decor_bodies] + list(prims) + hidden)
+        self._box_edges_xy = box_edges_xy(shown + hidden)
 
     def _look_scene(self, part: str) -> str:
         """The scene whose ``part`` (``surroundings`` or ``obstacles``) this env renders: its own unless swapped."""

@@ -64,7 +64,7 @@ def _suite_scenes(cfg: Config) -> tuple[str, list[str], list[str]]:
     return train, unseen, [s for s in evaluated if is_stress(s)]
 
 
-def settings(cfg: Config) -> tuple[tuple[str, str, dict | None], ...]:
+def transfer_settings(cfg: Config) -> tuple[tuple[str, str, dict | None], ...]:
     """(setting, layout scene, disturbance) of the shift and probe tables, in the suite of ``cfg``'s policies
     (training scene ``cfg.env.scene``; box-v2's suite by default): the training scene (the reference), its other
     layouts (the sampling floor), the first unseen scene's look on the training layouts and the training look on
@@ -81,7 +81,7 @@ def settings(cfg: Config) -> tuple[tuple[str, str, dict | None], ...]:
     )
 
 
-def swaps(cfg: Config) -> tuple[tuple[str, str, str], ...]:
+def transfer_swaps(cfg: Config) -> tuple[tuple[str, str, str], ...]:
     """(layout, look, part swapped) of the SR table, in the suite of ``cfg``'s policies: the training scene and the
     first unseen scene each in its own look, the other's whole look, its surroundings alone and its obstacles alone;
     each other unseen scene in its own look and in the training scene's."""
@@ -141,14 +141,14 @@ def setting_samples(
     progress: bool = False,
 ) -> dict[str, dict[str, np.ndarray]]:
     """:func:`omcrl.interpret.shift.pilot_samples` (with the probe's privileged targets) of every setting in
-    ``settings`` (``(name, scene, disturbance)``, default :func:`settings` of ``cfg``). The first setting (the
+    ``settings`` (``(name, scene, disturbance)``, default :func:`transfer_settings` of ``cfg``). The first setting (the
     reference: the training scene) flies twice the episodes on seeds of its own; every other setting flies the seeds
     of the second (its other layouts), so the two look-swapped settings share their geometry with a scene of their
     own."""
 
     n = int(episodes if episodes is not None else pilot_episodes(cfg))
     out = {}
-    chosen = settings if settings is not None else globals()["settings"](cfg)
+    chosen = settings if settings is not None else transfer_settings(cfg)
     reference = chosen[0][0]
     for name, scene, dist in track(chosen, desc="transfer/pilot frames", unit="setting", enabled=progress):
         seed, k = (PILOT_SEED + 100, 2 * n) if name == reference else (PILOT_SEED, n)
@@ -159,12 +159,12 @@ def setting_samples(
 def appearance_table(
     cfg: Config, seeds: Sequence[int] | None = None, method: str = "ours", *, progress: bool = False
 ) -> pd.DataFrame:
-    """SR/CR/NE of ``method`` for every (layout, look, part) of :func:`swaps` of ``cfg``, over ``seeds`` (default
-    ``cfg.seeds``), on Table I's evaluation episodes, with 95 % CIs (seeds and layouts crossed)."""
+    """SR/CR/NE of ``method`` for every (layout, look, part) of :func:`transfer_swaps` of ``cfg``, over ``seeds``
+    (default ``cfg.seeds``), on Table I's evaluation episodes, with 95 % CIs (seeds and layouts crossed)."""
 
     frames = []
     seeds = list(seeds if seeds is not None else cfg.seeds)
-    chosen = swaps(cfg)
+    chosen = transfer_swaps(cfg)
     jobs = [(s, *swap) for s in seeds for swap in chosen]
     for s, layout, look, part in track(jobs, desc="transfer/looks", unit="eval", enabled=progress):
         c = cfg.with_seed(s)

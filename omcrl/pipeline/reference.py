@@ -39,7 +39,6 @@ from typing import Any
 from omcrl.config import Config, field_default, load_config, project_root, section_identity
 from omcrl.eval.stage import EPISODES, eval_cache_root
 from omcrl.eval.table1 import evaluate_grid
-from omcrl.pipeline.grids import CONTROL_METHODS
 from omcrl.pipeline.released import pointer_path, read_kept, release
 from omcrl.pipeline.storage import sha256
 from omcrl.rl.methods import METHODS, TABLE1_METHODS, final_policy_path
@@ -322,7 +321,7 @@ def pack_reference(
 ) -> ReferenceResult:
     """Make a bundle (default ``reference/<preset>/bundle``) of the finished Table I runs of ``seeds`` (default
     ``cfg.seeds``) in ``cfg.run_root``, the runs they were trained from, and their evaluations. ``methods``: default
-    every learned method of Table I but the controls (:data:`omcrl.pipeline.grids.CONTROL_METHODS`).
+    every learned method of Table I but the controls (``MethodSpec.control``).
 
     With ``rounded`` (default) the artifacts' weight matrices are rounded to float16 precision (the archive then
     compresses to under half), the runs re-keyed to the rounded files (:func:`_copy_runs`), every learned method
@@ -341,7 +340,7 @@ def pack_reference(
         raise ReferenceError(f"methods: {wrong} are not learned methods (a bundle holds trained runs); known: {known}")
     # By default the paper's comparison: the controls (ours-random, ours-blind) are diagnostic rows of the grid, not
     # runs a user starts from; name them in ``methods`` to bundle them.
-    default = [m for m in TABLE1_METHODS if m not in CONTROL_METHODS]
+    default = [m for m in TABLE1_METHODS if not METHODS[m].control]
     methods = [m for m in (methods or default) if METHODS[m].learned]
     root = cfg.run_root
     finals, missing = [], []

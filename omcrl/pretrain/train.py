@@ -70,7 +70,7 @@ def method_name(p: PretrainConfig) -> str:
     return objective(p).run_name(p)
 
 
-def untrained_encoder(cfg: Config, run_rec: Run, progress: bool = True) -> PretrainResult:
+def untrained_encoder(cfg: Config, run_rec: Run) -> PretrainResult:
     """The encoder of an untrained control (``pretrain.method`` in :data:`~omcrl.config.UNTRAINED_ENCODERS`), written
     as a finished pretraining run with 0 iterations and no dataset.
 
@@ -182,7 +182,7 @@ def pretrain_encoder(
     run_rec = pretrain_run(cfg)
     run_rec.check()
     if p.method in UNTRAINED_ENCODERS:
-        return untrained_encoder(cfg, run_rec, progress)
+        return untrained_encoder(cfg, run_rec)
     out = run_rec.dir
     enc_path, metrics_path = out / "encoder.pt", out / "metrics.csv"
     # Finished: run.json holds the digest of the encoder it wrote (Run.finish) and what it was made of.
