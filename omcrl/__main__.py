@@ -20,14 +20,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from omcrl.config import PRESETS, ConfigError, load_config
-from omcrl.pipeline.registry import (
-    METHOD_STAGES,
-    NO_PRESET_STAGES,
-    STAGE_OUTPUTS,
-    STAGES,
-    StageUnavailable,
-    load_stage,
-)
+from omcrl.pipeline.registry import METHOD_STAGES, STAGES, StageUnavailable, load_stage
 
 
 def describe(result: Any) -> str:
@@ -74,10 +67,8 @@ PRESET_HELP = (
 def _stage_epilog(name: str) -> str:
     import textwrap
 
-    out = ""
-    if name in STAGE_OUTPUTS:
-        out = "writes and defaults:\n" + textwrap.fill(STAGE_OUTPUTS[name], 100, initial_indent="  ",
-                                                        subsequent_indent="  ")  # fmt: skip
+    out = "writes and defaults:\n" + textwrap.fill(STAGES[name].outputs, 100, initial_indent="  ",
+                                                    subsequent_indent="  ")  # fmt: skip
     if name in METHOD_STAGES:
         out += f"\n\nmethods (--method):\n{_methods_help(name)}"
     return out
@@ -96,7 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = ap.add_subparsers(dest="stage", metavar="stage", title="stages")
-    for name, (_, desc) in STAGES.items():
+    for name, stage in STAGES.items():
+        desc = stage.description
         sp = sub.add_parser(
             name,
             help=desc,
@@ -104,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
             epilog=_stage_epilog(name),
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
-        if name in NO_PRESET_STAGES:
+        if not stage.preset:
             sp.add_argument("--preset", default="smoke", choices=PRESETS, help=argparse.SUPPRESS)
         else:
             sp.add_argument("--preset", required=True, choices=PRESETS, help=PRESET_HELP)
@@ -139,7 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
                 default=None,
                 help=f"the grid to run: one of {list(GRIDS)}, or all (the six ablations)",
             )
-            sp.add_argument("--seeds", default=None, help="comma-separated seeds (default: the config's seeds)")
+            sp.add_argument(
+                "--seeds", type=_seeds, default=None, help="comma-separated seeds (default: the config's seeds)"
+            )
             sp.add_argument("--backend", default="ray", choices=("ray", "local"), help="Ray tasks or in-process")
             sp.add_argument("--address", default=None, help="a Ray cluster (auto, ray://host:port); default: embedded")
             sp.add_argument("--num-cpus", type=int, default=None, help="CPUs of an embedded Ray (default: cores)")
@@ -160,19 +154,21 @@ def build_parser() -> argparse.ArgumentParser:
             )
             sp.add_argument(
                 "--release-teachers",
+                dest="release",
                 action="store_true",
                 help="only take the committed weights of teachers whose students are all recorded out of "
                 "reference/ (they are then read from git history); run nothing",
             )
             sp.add_argument(
                 "--variants",
+                type=_csv,
                 default=None,
                 metavar="LABEL,..",
                 help="only these variants of the grid (and what they need), e.g. ours-lapf,curl",
             )
         if name == "notebooks":
-            sp.add_argument("--only", default=None, metavar="NN,..", help="run only these notebooks, e.g. 05,07")
-            sp.add_argument("--skip", default=None, metavar="NN,..", help="leave these out, e.g. 06 (the ablations)")
+            sp.add_argument("--only", type=_csv, metavar="NN,..", help="run only these notebooks, e.g. 05,07")
+            sp.add_argument("--skip", type=_csv, metavar="NN,..", help="leave these out, e.g. 06 (the ablations)")
         if name == "summary":
             sp.add_argument(
                 "--readme",
@@ -205,6 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
             )
             sp.add_argument(
                 "--methods",
+                type=_csv,
                 default=None,
                 help="with --pack: only these learned methods (comma-separated) and the runs they were trained "
                 "from: a part of a bundle, merged later with --merge",
@@ -251,9 +248,17 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _csv(text: str | None) -> list[str] | None:
-    """``"05,07"`` -> ``["05", "07"]``; None stays None."""
-    return None if text is None else [t.strip() for t in text.split(",") if t.strip()]
+def _csv(text: str) -> list[str]:
+    """``"05,07"`` -> ``["05", "07"]`` (an argument's ``type``: an absent argument keeps its default, None)."""
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def _seeds(text: str) -> list[int]:
+    """``"0,1,2"`` -> ``[0, 1, 2]``."""
+    try:
+        return [int(t) for t in _csv(text)]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
 
 
 def _expected_errors() -> tuple[type[BaseException], ...]:
@@ -326,43 +331,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 3
     t0 = time.perf_counter()
     try:
-        if args.stage in METHOD_STAGES:
-            result = func(cfg, method=args.method)
-        elif args.stage == "export":
-            result = func(cfg, policy=args.policy, out=args.out)
-        elif args.stage == "replay":
-            result = func(cfg, log=args.log, out=args.out)
-        elif args.stage == "reference":
-            result = func(
-                cfg,
-                pack=args.pack,
-                source=args.source,
-                with_table=args.with_table,
-                exact=args.exact,
-                methods=_csv(args.methods),
-                merge=args.merge,
-                retire=args.retire,
-            )
-        elif args.stage == "summary":
-            result = func(cfg, readme=args.readme)
-        elif args.stage == "tables":
-            result = func(cfg, from_reference=args.from_reference, grid=args.grid)
-        elif args.stage == "ladder":
-            result = func(cfg, reports=args.reports)
-        elif args.stage == "notebooks":
-            result = func(cfg, only=_csv(args.only), skip=_csv(args.skip))
-        elif args.stage == "sweep":
-            seeds = [int(x) for x in args.seeds.split(",")] if args.seeds else None
-            kw = {"backend": args.backend, "address": args.address, "num_cpus": args.num_cpus,
-                  "to_reference": args.to_reference, "variants": _csv(args.variants)}  # fmt: skip
-            if args.release_teachers:
-                kw = {"release": True}
-            elif args.plan:
-                kw = {"plan": True, "rates": args.rates, "to_reference": args.to_reference,
-                      "variants": _csv(args.variants), "rates_out": args.rates_out}  # fmt: skip
-            result = func(cfg, args.grid, seeds=seeds, **kw)
-        else:
-            result = func(cfg)
+        result = func(cfg, **{name: getattr(args, name) for name in STAGES[args.stage].args})
     except ConfigError as e:
         if args.debug:
             raise

@@ -28,7 +28,8 @@ import json
 import math
 import random
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,7 @@ import numpy as np
 
 from omcrl.config import Config, config_hash, save_config
 from omcrl.utils.io import atomic_save_torch, atomic_write_text, file_digest, load_torch
+from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import machine_info
 
 RUN_FILE = "run.json"
@@ -334,6 +336,32 @@ class Run:
             return None
         return file_digest(artifact) == want
 
+    @contextmanager
+    def claimed(self, cfg: Config, overwrite: bool = False) -> Iterator[Run]:
+        """Hold the run folder for a training call: :meth:`claim` it, write ``config.yaml`` (:meth:`write_config`),
+        and :meth:`release` it however the call ends. Enter it only once the inputs are known to fit (encoder, oracle,
+        data), so that a refused start leaves nothing behind that looks like a run."""
+        self.claim(overwrite=overwrite)
+        try:
+            self.write_config(cfg)
+            yield self
+        finally:
+            self.release()
+
+    def session(
+        self,
+        *,
+        total: int,
+        start: int,
+        unit: str,
+        progress: bool = True,
+        callbacks: Sequence[Callback] = (),
+        digits: int | None = 6,
+    ) -> Session:
+        """The bookkeeping of one stretch of training from ``start`` to ``total`` units (a :class:`Session`: the
+        metrics file, the progress bar, checkpoints and callbacks), to use as a context around the training loop."""
+        return Session(self, total, start, unit, progress, callbacks, digits)
+
     def check(self) -> None:
         """Raise RunConfigMismatch when the folder exists with a ``run.json`` of another key."""
         found = read_identity(self.dir)
@@ -534,6 +562,79 @@ class StopAfter(Callback):
 
     def on_step(self, run: Run, step: int, metrics: dict[str, float]) -> bool:
         return step < self.step
+
+
+class Session:
+    """One call's stretch of training a run, kept out of its loop: ``metrics.csv`` (and TensorBoard), the progress bar,
+    the checkpoints and the :class:`Callback` s, so that the loop that uses it holds the algorithm alone (as
+    CleanRL's does). Made by :meth:`Run.session` and used as a context::
+
+        with run.claimed(cfg), run.session(total=n, start=step, unit="step") as s:
+            while step < n:
+                ...                                   # the algorithm: one update, its metrics in ``row``
+                s.log(step, row, advance, loss=...)   # metrics.csv and the bar (fields shown beside it)
+                if s.due(before, step, every):
+                    s.checkpoint(step, state)         # atomic, digest in run.json, then on_checkpoint
+                if not s.keep_going(step, row):       # on_step of every callback
+                    break
+        finished = s.ended                            # on_end called with it
+
+    Starting at ``start`` > 0 (a resume) keeps the metrics rows up to ``start`` and drops the rest (work the
+    checkpoint does not hold). Units (``step``, ``it``) are the loop's own: env steps for PPO, iterations for
+    pretraining.
+    """
+
+    def __init__(
+        self,
+        run: Run,
+        total: int,
+        start: int,
+        unit: str,
+        progress: bool,
+        callbacks: Sequence[Callback],
+        digits: int | None,
+    ) -> None:
+        self.run, self.total, self.callbacks = run, int(total), tuple(callbacks)
+        self.step = int(start)
+        self.ended: bool | None = None  # set on leaving the context: did the run reach ``total``?
+        self.metrics = MetricsLog(run.dir, start if start > 0 else None, digits=digits)
+        self.bar = Progress(
+            total, f"{run.stage}/{run.method} seed{run.seed}", unit=unit, initial=start, enabled=progress
+        )
+
+    def __enter__(self) -> Session:
+        for cb in self.callbacks:
+            cb.on_start(self.run, self.step)
+        return self
+
+    def log(self, step: int, row: dict[str, float], advance: int, **shown: Any) -> None:
+        """Write ``row`` at ``step`` to the metrics and move the bar ``advance`` units on, ``shown`` beside it."""
+        self.step = step
+        self.metrics.log(step, row)
+        self.bar.update(advance, **shown)
+
+    def due(self, before: int, step: int, every: int) -> bool:
+        """Is a checkpoint due (:func:`checkpoint_due`)? Never at the last unit: the finished artifact replaces it."""
+        return step < self.total and checkpoint_due(before, step, every)
+
+    def checkpoint(self, step: int, state: dict) -> Path:
+        """Save the resumable ``state`` (:meth:`Run.save`: atomic, its digest recorded) and tell the callbacks."""
+        path = self.run.save(state)
+        for cb in self.callbacks:
+            cb.on_checkpoint(self.run, step, path)
+        return path
+
+    def keep_going(self, step: int, row: dict[str, float]) -> bool:
+        """Every callback's ``on_step`` (:func:`keep_going`); True at the last unit whatever they say."""
+        return keep_going(self.callbacks, self.run, step, row) or step >= self.total
+
+    def __exit__(self, kind: Any, exc: Any, tb: Any) -> None:
+        self.bar.close()
+        self.metrics.close()
+        if kind is None:
+            self.ended = self.step >= self.total
+            for cb in self.callbacks:
+                cb.on_end(self.run, self.step, self.ended)
 
 
 def checkpoint_due(before: int, step: int, every: int) -> bool:

@@ -19,7 +19,7 @@ from omcrl.config import load_config
 from omcrl.eval import evaluate, summarize
 from omcrl.models import load_encoder, random_encoder, save_encoder
 from omcrl.planners import HybridAPF
-from omcrl.rl import CheckpointError, load_policy, train_oracle, train_student
+from omcrl.rl import CheckpointError, load_policy, train_oracle, train_visuomotor
 from omcrl.rl.policy import make_oracle_features, policy_payload
 from omcrl.rl.ppo import ActorCritic
 
@@ -56,7 +56,7 @@ def chain(tmp_path_factory):
 
     rl_train.make_student_features = spy
     try:
-        student = train_student(cfg, enc_path, oracle.final_path, progress=False)
+        student = train_visuomotor(cfg, enc_path, oracle.final_path, name="ours", progress=False)
     finally:
         rl_train.make_student_features = real
     return {
@@ -100,18 +100,18 @@ def test_missing_or_mismatched_encoder_and_oracle_name_the_file(chain, tmp_path)
     cfg, oracle, enc = chain["cfg"], chain["oracle"], chain["enc_path"]
     kw = {"progress": False}
     with pytest.raises(CheckpointError, match=r"no_encoder\.pt"):
-        train_student(cfg, tmp_path / "no_encoder.pt", oracle.final_path, name="a", **kw)
+        train_visuomotor(cfg, tmp_path / "no_encoder.pt", oracle.final_path, name="a", **kw)
     junk = tmp_path / "junk_encoder.pt"
     junk.write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match=r"junk_encoder\.pt"):
-        train_student(cfg, junk, oracle.final_path, name="b", **kw)
+        train_visuomotor(cfg, junk, oracle.final_path, name="b", **kw)
     # An encoder for 48 px images does not fit the 32 px env.
     cfg48 = load_config("smoke", overrides=["env.image_size=48", "pretrain.crop_from=48", "pretrain.crop_to=40"])
     enc48 = _save_random_encoder(tmp_path / "enc48.pt", cfg48)
     with pytest.raises(CheckpointError, match=r"enc48\.pt.*image_size"):
-        train_student(cfg, enc48, oracle.final_path, name="c", **kw)
+        train_visuomotor(cfg, enc48, oracle.final_path, name="c", **kw)
     with pytest.raises(CheckpointError, match=r"no_oracle\.pt"):
-        train_student(cfg, enc, tmp_path / "no_oracle.pt", name="d", **kw)
+        train_visuomotor(cfg, enc, tmp_path / "no_oracle.pt", name="d", **kw)
     # An oracle built for 24 px depth stacks (untrained is enough: only its spec is checked).
     import gymnasium as gym
 
@@ -126,7 +126,7 @@ def test_missing_or_mismatched_encoder_and_oracle_name_the_file(chain, tmp_path)
     bad = tmp_path / "oracle24.pt"
     torch.save(policy_payload(agent, {k: list(s.shape) for k, s in space.spaces.items()}, 0), bad)
     with pytest.raises(CheckpointError, match=r"oracle24\.pt.*depth"):
-        train_student(cfg, enc, bad, name="e", **kw)
+        train_visuomotor(cfg, enc, bad, name="e", **kw)
     # No run folder was started for any of the failed runs.
     runs = chain["root"] / cfg.preset / "runs" / "rl"
     assert sorted(p.name.rsplit("-", 1)[0] for p in runs.iterdir()) == ["oracle", "ours"]

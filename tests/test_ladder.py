@@ -94,7 +94,7 @@ def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
     for scene in SCENES:
         assert res.paths[f"ladder_{scene}"].stat().st_size > 5_000
     # docs/results.md's block: points and their seeds, a decided row beside its budgets, the figures it shows.
-    md = "\n".join(ladder_markdown(res, "figures/x"))
+    md = ladder_markdown(res, "figures/x")
     assert "| ours | 3/3 | 3/3 | 0/3 |" in md and "| npe | 0/3 | 0/3 |" in md
     assert "| pretrain | ours | ×4 | 3 |" in md and "| pretrain | ours | ×16 |" not in md
     line = next(x for x in md.splitlines() if f"| {row} |" in x)
@@ -139,7 +139,7 @@ def test_the_ladder_is_rebuilt_from_the_records_alone(tmp_path, monkeypatch):
         and cost.at["pretrain", "measured_h"] == 0.5
     )
     assert cost.at["train:frozen", "planned_h"] == pytest.approx(1.25) and np.isnan(cost.at["collect", "planned_h"])
-    md = "\n".join(ladder_markdown(res))
+    md = ladder_markdown(res)
     assert "| pretrain | pretrain | 1 | 6,000 | 0.83 | 0.50 | 0.60 |" in md
     assert "| pretrain | collect | 1 | 320 | – | 0.03 | – |" in md and "| pretrain | all | 3 | – | – | 1.53 | – |" in md
     # What the rest costs: the x16 points, recorded nowhere, at the plan's rates and the ratio measured for the kind.

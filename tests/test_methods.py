@@ -183,10 +183,10 @@ def test_guide_of_the_wrong_shape_is_refused_before_training(grid, tmp_path):
     cfg = grid["cfg"]
     small = _cfg(grid["root"], "env.image_size=24", "pretrain.crop_from=24", "pretrain.crop_to=20")
     bad = train_method(small, "oracle", progress=False).final_path
-    from omcrl.rl.train import train_pixel
+    from omcrl.rl.train import train_visuomotor
 
     with pytest.raises(CheckpointError, match=r"depth: checkpoint \[\d+, 24, 24\]"):
-        train_pixel(cfg, bad, name="npe-ot-bad", progress=False)
+        train_visuomotor(cfg, None, bad, name="npe-ot-bad", progress=False)
     assert not list((grid["root"] / "smoke" / "runs" / "rl").glob("npe-ot-bad-*"))
 
 

@@ -27,7 +27,7 @@ from omcrl.rl import (
     ppo_update,
     train_oracle,
     train_ppo,
-    train_student,
+    train_visuomotor,
 )
 
 torch.set_num_threads(1)
@@ -375,7 +375,7 @@ def test_oracle_and_student_train_and_check_checkpoints(tmp_path):
     obs, info = env.reset(seed=0)
     assert pol.act(obs, info).shape == (3,)
     enc = save_test_encoder(tmp_path / "enc.pt")
-    student = train_student(cfg, enc, oracle.final_path, make_env=toy_vec(), progress=False)
+    student = train_visuomotor(cfg, enc, oracle.final_path, name="ours", make_env=toy_vec(), progress=False)
     spol = load_policy(student.final_path)
     assert spol.act(obs, info).shape == (3,)
     assert spol.act_batch({k: np.stack([v, v]) for k, v in obs.items()}).shape == (2, 3)
@@ -384,15 +384,15 @@ def test_oracle_and_student_train_and_check_checkpoints(tmp_path):
 
     # Missing encoder, missing oracle, and an oracle trained on other image sizes: clear errors, no training.
     with pytest.raises(CheckpointError, match=r"nope\.pt"):
-        train_student(cfg, tmp_path / "nope.pt", oracle.final_path, name="x", make_env=toy_vec(), progress=False)
+        train_visuomotor(cfg, tmp_path / "nope.pt", oracle.final_path, name="x", make_env=toy_vec(), progress=False)
     with pytest.raises(CheckpointError, match=r"missing_oracle\.pt"):
-        train_student(cfg, enc, tmp_path / "missing_oracle.pt", name="y", make_env=toy_vec(), progress=False)
+        train_visuomotor(cfg, enc, tmp_path / "missing_oracle.pt", name="y", make_env=toy_vec(), progress=False)
     cfg24 = rl_cfg(tmp_path / "b", total_steps=128, buffer_size=128, minibatch=64, checkpoint_every=10_000)
     cfg24.pretrain.feature_dim = 8
     cfg24.oracle.guide = "none"
     other = train_oracle(cfg24, make_env=toy_vec(24), progress=False)
     with pytest.raises(CheckpointError, match=r"oracle-\w+/seed0/final.pt.*depth: checkpoint \[2, 24, 24\]"):
-        train_student(cfg, enc, other.final_path, name="z", make_env=toy_vec(), progress=False)
+        train_visuomotor(cfg, enc, other.final_path, name="z", make_env=toy_vec(), progress=False)
     assert not list((tmp_path / "smoke/runs/rl").glob("z-*"))
     assert math.isfinite(float(m[m.metric == "kl"].value.iloc[0]))
 

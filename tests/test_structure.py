@@ -149,7 +149,7 @@ def test_a_new_method_kind_is_one_recipe_class_and_one_registry_row(tmp_path, mo
     from omcrl.eval.stage import evaluate_methods
     from omcrl.models import random_encoder, save_encoder
     from omcrl.pipeline import train_method
-    from omcrl.rl.train import policy_run, train_student
+    from omcrl.rl.train import policy_run, train_visuomotor
 
     class RandomEncoderRecipe(M.Recipe):
         kind = "random-frozen"
@@ -166,7 +166,7 @@ def test_a_new_method_kind_is_one_recipe_class_and_one_registry_row(tmp_path, mo
             return policy_run(cfg, spec.name, self.encoder(cfg))
 
         def train(self, cfg, spec, needs, **common):
-            return train_student(cfg, self.encoder(cfg), None, **common)
+            return train_visuomotor(cfg, self.encoder(cfg), None, **common)
 
     monkeypatch.setattr(M, "RECIPES", dict(M.RECIPES))  # the registries as they were after the test
     monkeypatch.setattr(M, "METHODS", dict(M.METHODS))
@@ -187,7 +187,7 @@ def test_a_new_method_kind_is_one_recipe_class_and_one_registry_row(tmp_path, mo
 
 
 def test_the_grids_controls_are_the_methods_marked_control():
-    """omcrl.pipeline.grids stays free of PyTorch and so names the controls itself; they must be the methods table's."""
+    """The grids' controls (derived from the methods table) are the methods marked control, in Table I's order."""
     from omcrl.pipeline.grids import CONTROL_METHODS
     from omcrl.rl.methods import METHODS
 

@@ -47,7 +47,10 @@ def _fake_results(root: Path) -> None:
 
 @pytest.mark.parametrize("preset", ["smoke", "quick"])
 def test_summary_lists_every_figure_and_the_table(tmp_path, preset):
-    from omcrl.pipeline.summary import SMOKE_NOTE, write_summary
+    from omcrl.pipeline.pages import render
+    from omcrl.pipeline.summary import write_summary
+
+    SMOKE_NOTE = render("summary/smoke_note.md.j2", layout=False).strip()
 
     cfg = load_config(preset, overrides=[f"results_dir={tmp_path}"])
     _fake_results(cfg.run_root)
@@ -327,3 +330,20 @@ def test_the_attribution_splits_a_loss_into_geometry_and_look_with_the_right_pai
     assert np.isnan(t[t.scene == "barrier-v2"].iloc[0].look)  # not flown there: no number
     assert "| Ours | 3 | 80 [" in attribution_block(table=t) and "**tree-v2**" in attribution_block(table=t)
     assert attribution(own, look.iloc[0:0]).empty
+
+
+def test_a_templates_paragraphs_are_joined_and_a_value_it_lacks_is_an_error():
+    """The generated pages' words live in templates (omcrl/pipeline/templates): a paragraph written over several lines
+    is one line before wrapping, table rows and list items keep their lines, a trailing backslash breaks a line, and
+    a name the code does not pass stops the page instead of printing nothing."""
+    import jinja2
+
+    from omcrl.pipeline.pages import reflow, render
+
+    text = "a b\nc d\n\n| t | u |\n- item\n  more\n- next\n\nhard\\\nbreak"
+    assert reflow(text) == ["a b c d", "", "| t | u |", "- item more", "- next", "", "hard", "break"]
+    assert render("summary/missing.md.j2", layout=False, what="data", notebook="01") == (
+        "_data: not run yet (notebook 01)._"
+    )
+    with pytest.raises(jinja2.UndefinedError, match="notebook"):
+        render("summary/missing.md.j2", what="data")

@@ -363,10 +363,10 @@ def test_findings_are_written(tmp_path):
     assert "6 linear decay beats exponential and fixed" in md and "linear > exp" in md and "undecided" in md
     from omcrl.pipeline.summary import _section_ablations
 
-    text = "\n".join(_section_ablations({}, tmp_path))
+    text = _section_ablations({}, tmp_path)
     assert "| 6 linear decay beats exponential and fixed | 2 |" in text
     write_findings({}, tmp_path / "none")
-    assert "None of the paper's ablation grids has run" in _section_ablations({}, tmp_path / "none")[0]
+    assert "None of the paper's ablation grids has run" in _section_ablations({}, tmp_path / "none").splitlines()[0]
 
 
 def test_scaled_overrides_multiply_the_value_before_them():
@@ -461,7 +461,7 @@ def test_remedy_verdicts_compare_with_the_default_and_check_the_target(tmp_path)
         [{"layout": "box", "look": "furniture", "own look": False, "seeds": 2, "SR": 3.0, "SR_lo": 0.0, "SR_hi": 8.0,
           "CR": 60.0, "NE": 4.0}]
     ).to_csv(tmp_path / "transfer_appearance.csv", index=False)  # fmt: skip
-    text = "\n".join(_section_transfer({}, tmp_path))
+    text = _section_transfer({}, tmp_path)
     assert "| box | furniture | 2 | 3 [0, 8] |" in text and "Remedies, `remedy_remedy-data.md`" in text
 
 

@@ -135,7 +135,8 @@ def test_paths_resolve_from_the_repository_root_wherever_the_kernel_runs(repo_ro
 
 # ---------------------------------------------------------------- CLI
 def test_every_stage_has_its_own_help(capsys):
-    from omcrl.__main__ import NO_PRESET_STAGES, STAGES, main
+    from omcrl.__main__ import STAGES, main
+    from omcrl.pipeline.registry import NO_PRESET_STAGES
 
     for stage in STAGES:
         with pytest.raises(SystemExit) as e:

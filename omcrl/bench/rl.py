@@ -42,7 +42,7 @@ from omcrl.config import Config, load_config
 from omcrl.envs import make_env, make_vec_env
 from omcrl.models import random_encoder, save_encoder
 from omcrl.models.actor_critic import ActorCritic
-from omcrl.rl import train_oracle, train_pixel, train_student
+from omcrl.rl import train_oracle, train_visuomotor
 from omcrl.rl.guidance import PolicyGuide
 from omcrl.rl.methods import METHODS, planner_factory
 from omcrl.rl.policy import (
@@ -156,25 +156,35 @@ def measure(
 
     run, apf = config(), planner_factory(cfg, METHODS["npe"].guide)
     rows.append(
-        _train_rate("(c) student", "student+guide", lambda: train_student(run, enc_path, oracle_path, progress=False))
+        _train_rate(
+            "(c) student",
+            "student+guide",
+            lambda: train_visuomotor(run, enc_path, oracle_path, name="ours", progress=False),
+        )
     )
     rows.append(
         _train_rate(
             "(c0) student α≡0",
             "student",
-            lambda: train_student(config("rl.alpha_schedule=none"), enc_path, None, name="noOT", progress=False),
+            lambda: train_visuomotor(config("rl.alpha_schedule=none"), enc_path, None, name="noOT", progress=False),
         )
     )
     rows.append(_train_rate("(d) oracle", "oracle", lambda: train_oracle(run, progress=False)))
-    rows.append(_train_rate("(e) ppo", "pixel", lambda: train_pixel(run, None, name="ppo", progress=False)))
+    rows.append(_train_rate("(e) ppo", "pixel", lambda: train_visuomotor(run, None, None, name="ppo", progress=False)))
     rows.append(
-        _train_rate("(f) npe", "pixel", lambda: train_pixel(run, None, name="npe", planner_factory=apf, progress=False))
+        _train_rate(
+            "(f) npe",
+            "pixel",
+            lambda: train_visuomotor(run, None, None, name="npe", planner_factory=apf, progress=False),
+        )
     )
     if threads:
         one = config("rl.update_threads=1")
         rows.append(
             _train_rate(
-                "(e1) ppo, 1 update thread", "pixel", lambda: train_pixel(one, None, name="ppo1", progress=False)
+                "(e1) ppo, 1 update thread",
+                "pixel",
+                lambda: train_visuomotor(one, None, None, name="ppo1", progress=False),
             )
         )
     if baseline:
@@ -185,7 +195,7 @@ def measure(
                 _train_rate(
                     "(c) before",
                     "student+guide",
-                    lambda: train_student(run, enc_path, oracle_path, name="before", progress=False),
+                    lambda: train_visuomotor(run, enc_path, oracle_path, name="before", progress=False),
                 )
             )
         finally:

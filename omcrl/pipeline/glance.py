@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 import shutil
 import tempfile
-import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +30,7 @@ from omcrl.eval.verdicts import changes_from_v1, compare_readings, readings_mark
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
 from omcrl.pipeline.grids import ABLATION_GRIDS, GRIDS
 from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
+from omcrl.pipeline.pages import render
 from omcrl.pipeline.records import Table1Record
 from omcrl.pipeline.reference import reference_table_dir
 from omcrl.pipeline.sweep import rest_hours
@@ -76,16 +76,12 @@ ABLATION_END = "<!-- results-ablations-v2: end -->"
 ABLATION_SEEDS = (0, 1, 2)
 # A claim's verdict over its hypotheses (omcrl.eval.verdicts.verdict_counts), in the README's order.
 CLAIM_VERDICTS = ("holds", "reversed", "mixed", "undecided", "one seed", "not run")
+TALLIED = ("holds", "reversed", "undecided", "one seed", "not run")  # a hypothesis's verdicts (a claim's add mixed)
 # The commit that fixed the claim ledger before any v2 Table I evaluation (omcrl.eval.ledger; docs/results.md).
 LEDGER_COMMIT = "2cdf7b5"
+
+
 # What the v1 suite's table measures (docs/scenes.md, "The v2 suite").
-V1_CAVEAT = (
-    "**v1 suite, superseded**: a pilot that flies straight at the goal and senses nothing succeeds in 37–78 % of "
-    "these layouts and box-v0 never asks for a detour, so this table measures goal-seeking under a change of look "
-    "more than navigation from pixels; its runs were lost, so its cells cannot be recomputed."
-)
-
-
 class GlanceError(RuntimeError):
     """The reference tables or the README's markers are missing or malformed; the message names the file."""
 
@@ -142,35 +138,22 @@ def render_glance(table_dir: str | Path, figure: str = "docs/figures/quick/v1/fi
     """The markdown block (without the markers) for the reference Table I in ``table_dir``."""
     sr, record = _read(Path(table_dir))
     seeds, n = int(sr["seeds"].max()), int(sr["episodes"].min())
+    claims = []
+    for claim, g in pd.DataFrame(record.claims).groupby("claim", sort=False) if record.claims else ():
+        parts = []
+        for verdict in ("holds", "reversed", "undecided"):
+            sc = g[g.verdict == verdict]
+            if len(sc):
+                where = ", ".join(
+                    f"{r.scene} {_signed(r.diff)} [{_signed(r.lo)}, {_signed(r.hi)}]" if verdict != "undecided"
+                    else r.scene
+                    for r in sc.itertuples()
+                )  # fmt: skip
+                parts.append(f"**{verdict}** in {where}")
+        claims.append((claim, parts))
     # Planners are code, not trained: a row of one run flies the same episodes once.
-    once = " (the planners, which are not trained: one run of the same episodes)" if (sr["seeds"] < seeds).any() else ""
-    lines = [
-        V1_CAVEAT,
-        "",
-        f"Success rate % over {seeds} training seeds × {n} episodes per scene{once}, mean [95 % CI] (two-stage "
-        "bootstrap); the paper's value (200 episodes, Unity scenes) in *italics*. Trained in box only; every other "
-        "scene unseen.",
-        "",
-        *wide_table(sr),
-    ]
-    claims = pd.DataFrame(record.claims)
-    if len(claims):
-        lines += ["", "The paper's orderings (SR difference in points [95 % CI]; a verdict where the CI excludes 0):"]
-        lines.append("")
-        for claim, g in claims.groupby("claim", sort=False):
-            parts = []
-            for verdict in ("holds", "reversed", "undecided"):
-                sc = g[g.verdict == verdict]
-                if len(sc):
-                    where = ", ".join(
-                        f"{r.scene} {_signed(r.diff)} [{_signed(r.lo)}, {_signed(r.hi)}]" if verdict != "undecided"
-                        else r.scene
-                        for r in sc.itertuples()
-                    )  # fmt: skip
-                    parts.append(f"**{verdict}** in {where}")
-            lines.append(f"- `{claim}`: " + "; ".join(parts) + ".")
-    lines += ["", f"![Fig. 5: training curves]({figure})"]
-    return "\n".join(_wrap(x) for x in lines)
+    return render("table1_v1.md.j2", seeds=seeds, episodes=n, planners_once=bool((sr["seeds"] < seeds).any()),
+                  table=wide_table(sr), claims=claims, figure=figure)  # fmt: skip
 
 
 def render_v1_results(table_dir: str | Path) -> str:
@@ -178,39 +161,22 @@ def render_v1_results(table_dir: str | Path) -> str:
     ordering the v1 check judged in every scene (the README's block lists the decided ones)."""
     sr, record = _read(Path(table_dir))
     seeds, n = int(sr["seeds"].max()), int(sr["episodes"].min())
-    lines = [
-        _wrap(
-            f"SR %, mean [95 % CI] over {seeds} training seeds × {n} episodes (two-stage bootstrap; the planners, "
-            "which are not trained: one run of the same episodes):"
-        ),
-        "",
-        *wide_table(sr, with_paper=False),
-    ]
     claims = pd.DataFrame(record.claims)
-    if len(claims):
-        scenes = list(dict.fromkeys(claims["scene"]))
-        lines += [
-            "",
-            _wrap(
-                "The paper's orderings (the v1 check, since replaced by the claim ledger): SR difference in points "
-                "[95 % CI], *holds* / *reversed* where the CI excludes 0:"
-            ),
-            "",
-            "| claim | " + " | ".join(scenes) + " |",
-            "|---|" + "---|" * len(scenes),
-        ]
-        for claim, g in claims.groupby("claim", sort=False):
-            cells = {r.scene: r for r in g.itertuples()}
-            out = []
-            for sc in scenes:
-                r = cells.get(sc)
-                if r is None:
-                    out.append("")
-                    continue
-                text = f"{_signed(r.diff)} [{_signed(r.lo)}, {_signed(r.hi)}]"
-                out.append(f"**{r.verdict}** {text}" if r.verdict in ("holds", "reversed") else text)
-            lines.append(f"| {claim} | " + " | ".join(out) + " |")
-    return "\n".join(lines)
+    scenes = list(dict.fromkeys(claims["scene"])) if len(claims) else []
+    rows = []
+    for claim, g in claims.groupby("claim", sort=False) if len(claims) else ():
+        cells = {r.scene: r for r in g.itertuples()}
+        out = []
+        for sc in scenes:
+            r = cells.get(sc)
+            if r is None:
+                out.append("")
+                continue
+            text = f"{_signed(r.diff)} [{_signed(r.lo)}, {_signed(r.hi)}]"
+            out.append(f"**{r.verdict}** {text}" if r.verdict in ("holds", "reversed") else text)
+        rows.append((claim, out))
+    return render("table1_v1_full.md.j2", seeds=seeds, episodes=n, table=wide_table(sr, with_paper=False),
+                  scenes=scenes, claims=rows)  # fmt: skip
 
 
 def render_v2(result: Table1Result, confirmation: str | None = None, grid_seeds: int = 5) -> str:
@@ -224,47 +190,28 @@ def render_v2(result: Table1Result, confirmation: str | None = None, grid_seeds:
     confirmation : a line on Table I's confirmation on fresh layouts (:func:`_confirm`), after the ledger's.
     grid_seeds : the training seeds the grid is to have (the issue's five), to say how far it has come.
     """
-    body, layouts, done = _sr_table(result)
-    lines = [
-        f"**Scenes v2** (navigation that needs sight; trained in box-v2 only, every other scene unseen). Success rate "
-        f"% over {layouts} layouts per scene and {done} of the grid's {grid_seeds} training seeds per learned "
-        "method (the column `seeds`), mean [95 % CI] with training seeds and layouts as crossed factors (a row of "
-        "one seed: layouts only); planners fly once. The paper's value (Unity scenes) in *italics* where its scene "
-        "matches. Rebuilt by `python -m omcrl tables --preset quick --from-reference` from "
-        "`reference/quick/table1-v2/`; all six metrics and every hypothesis: [docs/results.md](docs/results.md).",
-        "",
-    ]
-    lines += body
-    v = result.verdicts
+    table, layouts, done = _sr_table(result)
+    v, ledger = result.verdicts, None
     if v is not None and len(v):
-        c = verdict_counts(v)
         n = v["verdict"].value_counts()
-        tally = ", ".join(f"{int(n.get(k, 0))} {k}" for k in ("holds", "reversed", "undecided", "one seed", "not run"))
-        bound = int(((v["verdict"] == "undecided") & (v["seeds_to_decide"] == math.inf)).sum())
-        lines += [
-            "",
-            f"The paper's claims as a ledger fixed before any v2 evaluation (commit {LEDGER_COMMIT}; "
-            f"`omcrl.eval.ledger`; the kit's controls C1–C2 declared before they flew), {len(v)} hypotheses, "
-            f"Holm–Bonferroni within each family (primary, secondary, controls): {tally}. A row of one training "
-            f"seed is shown, not judged. Of the undecided, {bound} are bound by the {layouts} layouts: at the "
-            "measured effect no number of training seeds would decide them, more "
-            "layouts would (each row's power line, in docs/results.md).",
-            "",
-        ]
-        if confirmation:
-            lines += [confirmation, ""]
-        by = {v: list(g["claim"]) for v, g in c.groupby("verdict", sort=False)}
-        lines += [
-            "| claims' verdict | claims |",
-            "|---|---|",
-            *(f"| {v} | {', '.join(by[v])} |" for v in CLAIM_VERDICTS if v in by),
-            "",
-            "Each claim's words, its hypotheses and their estimates: [docs/results.md](docs/results.md#claim-ledger-"
-            "declared-before-the-v2-grid).",
-        ]
-    if "fig5" in result.paths:
-        lines += ["", f"![Fig. 5 on v2: training curves in box-v2, every recorded seed]({V2_FIGURE})"]
-    return "\n".join(_wrap(x) for x in lines)
+        by = {k: list(g["claim"]) for k, g in verdict_counts(v).groupby("verdict", sort=False)}
+        ledger = {
+            "hypotheses": len(v),
+            "tally": ", ".join(f"{int(n.get(k, 0))} {k}" for k in TALLIED),
+            "bound": int(((v["verdict"] == "undecided") & (v["seeds_to_decide"] == math.inf)).sum()),
+            "claims": [(k, by[k]) for k in CLAIM_VERDICTS if k in by],
+        }
+    return render(
+        "table1_v2.md.j2",
+        layouts=layouts,
+        done=done,
+        grid_seeds=grid_seeds,
+        table=table,
+        ledger=ledger,
+        ledger_commit=LEDGER_COMMIT,
+        confirmation=confirmation,
+        figure=V2_FIGURE if "fig5" in result.paths else None,
+    )
 
 
 def _sr_table(result: Table1Result) -> tuple[list[str], int, str]:
@@ -286,14 +233,6 @@ def _sr_table(result: Table1Result) -> tuple[list[str], int, str]:
     for i, m in enumerate(dict.fromkeys(sr["method"]), start=2):
         body[i] = body[i] + f" {int(seeds[m]) if m in learned else 'planner'} |"
     return body, layouts, done
-
-
-def _wrap(line: str, width: int = 120) -> str:
-    """A prose line or list item wrapped at ``width`` (Markdown renders it the same); table rows as they are."""
-    if line.startswith("|") or len(line) <= width:
-        return line
-    indent = "  " if line.startswith("- ") else ""
-    return textwrap.fill(line, width, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
 
 
 def _span(text: str, start: str, end: str, where: str) -> tuple[int, int]:
@@ -328,18 +267,7 @@ def render_transfer(episodes: pd.DataFrame, reps: int = 2000) -> str:
     scenes = sorted(dict.fromkeys(episodes["scene"]), key=lambda s: order.index(scene_spec(s).difficulty))
     train, others = scenes[0], scenes[1:]
     learned = [m for m in TABLE1_METHODS if METHODS[m].learned and m in set(episodes["method"])]
-    head = f"| method | SR in {train} | " + " | ".join(f"{scene_label(s)}" for s in others) + " | seeds |"
-    lines = [
-        _wrap(
-            f"**What transfers** (v2; generated from `reference/quick/table1-v2/`): SR % in {train}, and the change "
-            "in SR points from it in each other scene, mean [95 % CI] with the runs' training seeds resampled "
-            "together in both scenes and each scene's layouts apart. 0 is no loss; a change near minus the training "
-            "SR is no transfer."
-        ),
-        "",
-        head,
-        "|---|" + "---|" * (len(others) + 2),
-    ]
+    rows = []
     for m in learned:
         e = episodes[episodes["method"] == m]
         base = e[e["scene"] == train]
@@ -354,10 +282,8 @@ def render_transfer(episodes: pd.DataFrame, reps: int = 2000) -> str:
                 bounded=100.0,
             )
             cells.append(f"{_signed(est.estimate)} [{_signed(est.lo)}, {_signed(est.hi)}]")
-        lines.append(
-            f"| {METHODS[m].label} | {sr0.mean():.0f} | " + " | ".join(cells) + f" | {base['train_seed'].nunique()} |"
-        )
-    return "\n".join(lines)
+        rows.append((METHODS[m].label, f"{sr0.mean():.0f}", cells, base["train_seed"].nunique()))
+    return render("transfer_v2.md.j2", train=train, others=[scene_label(s) for s in others], rows=rows)
 
 
 def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str]:
@@ -382,45 +308,41 @@ def _confirm(preset: str, grid_verdicts: pd.DataFrame) -> tuple[str, str | None]
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         data = GridData(grid_data_dir(cfg, "table1-confirm"))
         if data.episodes().empty:
-            return f"Not flown yet (no episodes under `reference/{preset}/{data.root.name}/`).", None
+            return render("confirm_v2.md.j2", flown_any=False, preset=preset, folder=data.root.name), None
         res = tables_from_reference(cfg, "table1-confirm")
     learned = list(dict.fromkeys(v.method for v in GRIDS["table1-confirm"]))  # the controls came after it
     flown = data.progress(learned, CONFIRM_SEEDS)
-    body, layouts, done = _sr_table(res)
+    table, layouts, done = _sr_table(res)
     v = res.verdicts
     judged = v[v["verdict"].isin(("holds", "reversed", "undecided"))]
     n = judged["verdict"].value_counts()
-    tally = ", ".join(f"{int(n.get(k, 0))} {k}" for k in ("holds", "reversed", "undecided"))
-    sizes = judged.groupby("family", sort=False).size()
-    families = " and ".join(f"{k} {int(x)}" for k, x in sizes.items())
     both = compare_readings(grid_verdicts, v)
-    lines = [
-        f"**Flown**: {int(flown.to_numpy().sum())} of {flown.size} policies (training seeds "
-        f"{', '.join(map(str, CONFIRM_SEEDS))} of the {len(learned)} learned methods); the planners once.",
-        "",
-        f"Success rate % over {layouts} layouts per scene that Table I never flew, {done} training seeds per "
-        "learned method (the column `seeds`), mean [95 % CI], seeds × layouts crossed; the paper's value in "
-        "*italics*.",
-        "",
-        *body,
-        "",
-        f"Its ledger: {len(judged)} evaluation hypotheses judged, Holm–Bonferroni within the families ({families}): "
-        f"{tally}. Beside the grid's reading above (50 layouts):",
-        "",
-        *readings_markdown(both, "grid", "confirmation").strip().splitlines(),
-    ]
     k = both["agreement"].value_counts()
-    line = (
-        f"A confirmation declared before it was flown, the same runs in {layouts} layouts per scene Table I never "
-        f"flew ({int(flown.to_numpy().sum())} of {flown.size} policies flown so far: training seeds "
-        f"{', '.join(map(str, CONFIRM_SEEDS))}): of {len(both)} hypotheses judged in both readings, "
-        f"{int(k.get('alike', 0))} decided alike, {int(k.get('opposite', 0))} in opposite directions, "
-        f"{int(k.get('second only', 0))} by the confirmation only, {int(k.get('first only', 0))} by the grid only "
-        f"([docs/results.md](docs/results.md#{CONFIRM_ANCHOR}))."
+    counts = {"flown": int(flown.to_numpy().sum()), "policies": flown.size, "seeds": CONFIRM_SEEDS, "layouts": layouts}
+    block = render(
+        "confirm_v2.md.j2",
+        flown_any=True,
+        learned=len(learned),
+        done=done,
+        table=table,
+        judged=len(judged),
+        families=" and ".join(f"{f} {int(x)}" for f, x in judged.groupby("family", sort=False).size().items()),
+        tally=", ".join(f"{int(n.get(x, 0))} {x}" for x in ("holds", "reversed", "undecided")),
+        readings=readings_markdown(both, "grid", "confirmation").strip(),
+        **counts,
     )
-    if flown.to_numpy().all():
-        line = line.replace(" so far", "")
-    return "\n".join(_wrap(x) for x in lines), line
+    line = render(
+        "confirm_line.md.j2",
+        complete=bool(flown.to_numpy().all()),
+        both=len(both),
+        alike=int(k.get("alike", 0)),
+        opposite=int(k.get("opposite", 0)),
+        second=int(k.get("second only", 0)),
+        first=int(k.get("first only", 0)),
+        anchor=CONFIRM_ANCHOR,
+        **counts,
+    )
+    return block, line
 
 
 def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str, str]:
@@ -429,19 +351,14 @@ def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         res = tables_from_reference(cfg)
         confirm, line = _confirm(preset, res.verdicts)
-        full = "\n".join(
-            [
-                *_progress_md(cfg),
-                *_account_md(cfg),
-                "",
-                Path(res.paths["md"]).read_text(encoding="utf-8").strip(),
-                "",
-                "**Claim ledger, every hypothesis** (estimates signed so that the paper's direction is positive)",
-                "",
-                Path(res.paths["verdicts_md"]).read_text(encoding="utf-8").strip(),
-                "",
-                *_changes_md(res.verdicts, preset),
-            ]
+        full = render(
+            "table1_v2_full.md.j2",
+            layout=False,
+            progress="\n".join(_progress_md(cfg)),
+            account="\n".join(_account_md(cfg)),
+            table=Path(res.paths["md"]).read_text(encoding="utf-8").strip(),
+            verdicts=Path(res.paths["verdicts_md"]).read_text(encoding="utf-8").strip(),
+            changes="\n".join(_changes_md(res.verdicts, preset)),
         )
         if figure_to is not None and "fig5" in res.paths:
             Path(figure_to).parent.mkdir(parents=True, exist_ok=True)
@@ -471,7 +388,7 @@ def ladder_block(preset: str = "quick", figures_to: str | Path | None = None) ->
                 if name.startswith("ladder_") and path.suffix == ".png":
                     shutil.copyfile(path, Path(figures_to) / path.name)
         rel = LADDER_FIGURES.removeprefix("docs/")
-        return "\n".join(_wrap(x) for x in ladder_markdown(res, rel))
+        return ladder_markdown(res, rel)
 
 
 def _hours_text(cost: dict[str, float]) -> str:
@@ -497,69 +414,45 @@ def ablation_block(preset: str = "quick", seeds: tuple[int, ...] = ABLATION_SEED
             ep = GridData(grid_data_dir(cfg, g)).episodes()
             if len(ep):
                 episodes[g] = ep[ep["train_seed"].isin(list(seeds))]
-    which = ", ".join(map(str, seeds))
+    common = {"seeds": list(seeds), "preset": preset}
     if not any(len(e) for e in episodes.values()):
-        seed_arg = ",".join(map(str, seeds))
-        return _wrap(
-            f"Not run yet (no ablation grid has episodes of training seeds {which} under `reference/{preset}/`). "
-            f"`scripts/grid_session.sh --grid <grid> --seeds {seed_arg} --by variant` runs a grid and commits each "
-            "variant's rows as it finishes, for each of "
-            + ", ".join(f"`{g}`" for g in ABLATION_GRIDS)
-            + f"; `python -m omcrl sweep all --preset {preset} --seeds {seed_arg} --to-reference --plan` prints their "
-            f"cost: {_hours_text(rest_hours(cfg, ABLATION_GRIDS, seeds))}."
-        )
-    lines = [f"**Recorded** (training seeds of {which} with episodes, per variant of each grid):", ""]
-    lines += ["| grid | variant | seeds |", "|---|---|---|"]
+        cost = _hours_text(rest_hours(cfg, ABLATION_GRIDS, seeds))
+        return render("ablations_v2.md.j2", recorded=[], grids=ABLATION_GRIDS, cost=cost, **common)
+    recorded = []
     for g in ABLATION_GRIDS:
         ep = episodes.get(g, pd.DataFrame(columns=["label", "train_seed"]))
-        for v in GRIDS[g]:
-            n = ep.loc[ep["label"] == v.label, "train_seed"].nunique()
-            lines.append(f"| {g} | {v.label} | {n}/{len(seeds)} |")
+        recorded += [(g, v.label, ep.loc[ep["label"] == v.label, "train_seed"].nunique()) for v in GRIDS[g]]
     findings = ablation_findings(episodes, reps=reps)
-    summary = findings_summary(findings)
-    lines += [
-        "",
-        "Each finding as SR orderings between variants in the unseen scenes (paired layout by layout and seed by "
-        "seed, Holm–Bonferroni over every unseen-scene check; the stress room furniture-v0 counted apart as held / "
-        "reversed / undecided). A verdict holds when every check holds, does not hold when any is reversed and none "
-        "holds:",
-        "",
-        *to_markdown(summary.set_index("finding"), "finding").strip().splitlines(),
-    ]
-    if len(findings):
-        scenes = list(dict.fromkeys(findings["scene"]))
-        lines += _captioned_head(
-            "Every check: SR of the first variant minus the second, percentage points, mean [95 % CI] and verdict "
-            "(`one seed`: shown, not judged):",
-            ["finding", "claim", *scenes],
-        )
+    check_scenes = list(dict.fromkeys(findings["scene"])) if len(findings) else []
 
-        def check(r: pd.Series) -> str:
-            ok = math.isfinite(r["diff"])
-            return f"{_signed(r['diff'])} [{_signed(r['lo'])}, {_signed(r['hi'])}] {r['verdict']}" if ok else ""
+    def check(r: pd.Series) -> str:
+        ok = math.isfinite(r["diff"])
+        return f"{_signed(r['diff'])} [{_signed(r['lo'])}, {_signed(r['hi'])}] {r['verdict']}" if ok else ""
 
-        for (finding, claim), g in findings.groupby(["finding", "claim"], sort=False):
-            lines.append(f"| {finding} | {claim} | {scene_cells(g, scenes, check)} |")
+    by_claim = findings.groupby(["finding", "claim"], sort=False) if len(findings) else ()
+    checks = [f"| {finding} | {claim} | {scene_cells(g, check_scenes, check)} |" for (finding, claim), g in by_claim]
     frames = [e.assign(grid=g) for g, e in episodes.items() if len(e)]
     table = aggregate(pd.concat(frames, ignore_index=True), ("grid", "label", "scene"), reps=reps).reset_index()
     order = {(g, v.label): i for i, (g, v) in enumerate((g, v) for g in ABLATION_GRIDS for v in GRIDS[g])}
     rank = [order.get(k, len(order)) for k in zip(table["grid"], table["label"])]  # the grids' own order
     table = table.assign(_rank=rank).sort_values("_rank", kind="stable").drop(columns="_rank")
-    scenes = list(dict.fromkeys(table["scene"]))
-    lines += _captioned_head(
-        "Success rate % per variant, mean [95 % CI] over its seeds × the layouts (the ablation budgets: a variant is "
-        "not its Table I run):",
-        ["grid", "variant", "seeds", *scenes],
+    sr_scenes = list(dict.fromkeys(table["scene"]))
+    sr = [
+        f"| {g} | {label} | {int(t['seeds'].max())} | "
+        + scene_cells(t, sr_scenes, lambda r: ci_text(r["SR"], r["SR_lo"], r["SR_hi"]))
+        + " |"
+        for (g, label), t in table.groupby(["grid", "label"], sort=False)
+    ]
+    return render(
+        "ablations_v2.md.j2",
+        recorded=recorded,
+        findings=to_markdown(findings_summary(findings).set_index("finding"), "finding").strip(),
+        checks=checks,
+        check_scenes=check_scenes,
+        sr=sr,
+        sr_scenes=sr_scenes,
+        **common,
     )
-    for (g, label), t in table.groupby(["grid", "label"], sort=False):
-        sr = scene_cells(t, scenes, lambda r: ci_text(r["SR"], r["SR_lo"], r["SR_hi"]))
-        lines.append(f"| {g} | {label} | {int(t['seeds'].max())} | {sr} |")
-    return "\n".join(_wrap(x) for x in lines)
-
-
-def _captioned_head(caption: str, columns: list[str]) -> list[str]:
-    """Markdown lines opening a table: a blank line, ``caption``, a blank line, the header and its rule."""
-    return ["", caption, "", "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
 
 
 def _progress_md(cfg: Any, seeds: int = 5) -> list[str]:
@@ -567,15 +460,9 @@ def _progress_md(cfg: Any, seeds: int = 5) -> list[str]:
     record = GridData(grid_data_dir(cfg, "table1"))
     learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
     p = record.progress(learned, range(seeds))
-    lines = [
-        f"**Grid progress**: {int(p.to_numpy().sum())} of {p.size} training runs recorded (✓; the planners fly "
-        "once and are all recorded).",
-        "",
-        "| method | " + " | ".join(p.columns) + " |",
-        "|---|" + "---|" * len(p.columns),
-    ]
-    lines += [f"| {METHODS[m].label} | " + " | ".join("✓" if x else "" for x in p.loc[m]) + " |" for m in p.index]
-    return lines
+    rows = [(METHODS[m].label, ["✓" if x else "" for x in p.loc[m]]) for m in p.index]
+    text = render("progress_v2.md.j2", recorded=int(p.to_numpy().sum()), runs=p.size, seeds=list(p.columns), rows=rows)
+    return text.splitlines()
 
 
 def _account_md(cfg: Any) -> list[str]:
@@ -588,46 +475,38 @@ def _account_md(cfg: Any) -> list[str]:
     rl = a[a["stage"] == "rl"]
     kind = rl["method"].map(lambda m: METHODS[m].features if m in METHODS else "other")
     hours = (rl.groupby(kind)["train_s"].sum() / 3600).round(1)
-    text = (
-        f"**How the grid ran** (from its run records): {len(rl)} training runs recorded, "
-        f"{rl['train_s'].sum() / 3600:.1f} machine-hours of RL training (each run's logged rollout and update time: "
-        + ", ".join(f"{k} {v:.1f}" for k, v in hours.items())
-        + ")"
-    )
+    timed = []
     jobs_csv = record.root / "jobs.csv"
     if jobs_csv.is_file():
         jobs = pd.read_csv(jobs_csv)
         done = jobs[jobs["status"] == "done"].groupby("kind")["seconds"].agg(["sum", "size"])
         names = {"pretrain": "pretraining", "evaluate": "evaluation"}
-        parts = [f"{name} {done.loc[k, 'sum'] / 3600:.1f} h ({int(done.loc[k, 'size'])} jobs)"
+        timed = [f"{name} {done.loc[k, 'sum'] / 3600:.1f} h ({int(done.loc[k, 'size'])} jobs)"
                  for k, name in names.items() if k in done.index]  # fmt: skip
-        if parts:
-            text += "; as the grid's jobs.csv timed them, " + " and ".join(parts)
     students = rl.dropna(subset=["encoder"])
-    if len(students):
-        sharing = students.groupby("encoder")["label"].agg(lambda x: ", ".join(sorted(set(x)))).value_counts()
-        text += (
-            f". Reused: {students['encoder'].nunique()} encoders serve {len(students)} frozen-encoder students ("
-            # Encoders that serve several students first.
-            + "; ".join(
-                _sharing_words(labels.split(", "), n)
-                for labels, n in sorted(sharing.items(), key=lambda kv: "," not in kv[0])
-            )
-            + ")"
-        )
-    taught = rl.dropna(subset=["oracle"])
-    if len(taught):
-        text += f", {int((rl['method'] == 'oracle').sum())} oracles teach {len(taught)} students"
-    text += ", and the planners fly once"
+    sharing = students.groupby("encoder")["label"].agg(lambda x: ", ".join(sorted(set(x)))).value_counts()
+    # Encoders that serve several students first.
+    sharing = [
+        _sharing_words(labels.split(", "), n) for labels, n in sorted(sharing.items(), key=lambda kv: "," not in kv[0])
+    ]
     seg = rl["segments"].dropna()
-    if len(seg):
-        text += (
-            f". Resumed after a stop: {int((seg > 1).sum())} of the {len(seg)} runs that record their stretches of "
-            "training (kept since 2026-12-05)"
-        )
     cpu = rl["cpu"].replace("", "not recorded").value_counts()
-    text += ". Machines per run (torch's CPU capability): " + ", ".join(f"{k} {n}" for k, n in cpu.items()) + "."
-    return ["", _wrap(text)]
+    text = render(
+        "account_v2.md.j2",
+        runs=len(rl),
+        hours=rl["train_s"].sum() / 3600,
+        hours_by_kind=[f"{k} {v:.1f}" for k, v in hours.items()],
+        timed=timed,
+        encoders=students["encoder"].nunique(),
+        students=len(students),
+        sharing=sharing if len(students) else [],
+        oracles=int((rl["method"] == "oracle").sum()),
+        taught=len(rl.dropna(subset=["oracle"])),
+        resumed=int((seg > 1).sum()),
+        segments=len(seg),
+        machines=[f"{k} {n}" for k, n in cpu.items()],
+    )
+    return text.splitlines()
 
 
 def _sharing_words(labels: list[str], seeds: int) -> str:
@@ -646,20 +525,13 @@ def _changes_md(verdicts: pd.DataFrame, preset: str) -> list[str]:
     if ch.empty:
         return []
     n = ch["changed"].dropna()
-    lines = [
-        "**Which verdicts changed from v1**: the v1 reference's orderings (SR points, 95 % CI per cell, no "
-        "multiplicity correction, a two-stage bootstrap) beside the ledger's hypothesis on the same ordering and "
-        f"scene family on v2 (Holm-adjusted). {int(n.sum())} of {len(n)} judged on both changed; "
-        f"{int(ch['changed'].isna().sum())} not judged on v2 yet.",
-        "",
-        "| ordering | family | v1 scene | v1 | v1 verdict | v2 scene | v2 | v2 verdict | changed |",
-        "|---|---|---|---|---|---|---|---|---|",
+    rows = [
+        {**r._asdict(), "mark": "–" if r.changed is None else ("**yes**" if r.changed else "no")}
+        for r in ch.itertuples()
     ]
-    for r in ch.itertuples():
-        changed = "–" if r.changed is None else ("**yes**" if r.changed else "no")
-        lines.append(f"| {r.ordering} | {r.family} | {r.v1_scene} | {r.v1} | {r.v1_verdict} | {r.v2_scene} | {r.v2} | "
-                     f"{r.v2_verdict} | {changed} |")  # fmt: skip
-    return [_wrap(x) for x in lines]
+    text = render("changes_v2.md.j2", changed=int(n.sum()), judged=len(n), not_judged=int(ch["changed"].isna().sum()),
+                  rows=rows)  # fmt: skip
+    return text.splitlines()
 
 
 def _rewrite(path: Path, blocks: list[tuple[str, str, str]]) -> bool:

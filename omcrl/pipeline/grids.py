@@ -1,8 +1,8 @@
 """Sweep grids: named lists of :class:`Variant` s (a method of :mod:`omcrl.rl.methods` with config overrides),
 the paper's ablations (VI-C), the zero-shot remedies and the precision comparison.
 
-Definitions only, no PyTorch: the CLI lists the grids in its help from here. :mod:`omcrl.pipeline.plan` turns
-a grid into jobs; :mod:`omcrl.pipeline.sweep` runs them.
+Definitions only (Table I's grid is derived from the method table, :data:`omcrl.rl.methods.METHODS`).
+:mod:`omcrl.pipeline.plan` turns a grid into jobs; :mod:`omcrl.pipeline.sweep` runs them.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from omcrl.config import ConfigError
+from omcrl.rl.methods import METHODS, TABLE1_METHODS
 
 
 @dataclass(frozen=True)
@@ -123,26 +124,11 @@ PRECISION_VARIANTS = (
 GRIDS["precision"] = PRECISION_VARIANTS
 
 
-# Table I's training on a cluster: every learned method of the comparison at the preset's budgets, with the same
-# run keys as ``python -m omcrl train``, so `python -m omcrl tables` then finds them finished (and the evaluations
-# cached) and adds the planners. The names are :data:`omcrl.rl.methods.TABLE1_METHODS`' learned ones (a test keeps
-# them equal; this module stays free of PyTorch for the CLI's help).
-GRIDS["table1"] = tuple(
-    Variant(m, m)
-    for m in (
-        "oracle",
-        "ours",
-        "ours-noOT",
-        "npe",
-        "npe-ot",
-        "ours-lapf",
-        "ours-random",
-        "ours-blind",
-        "curl",
-        "curl-phi",
-        "ppo",
-    )
-)
+# Table I's training on a cluster: every learned method of the comparison at the preset's budgets, in the method
+# table's order (:data:`omcrl.rl.methods.TABLE1_METHODS`: a new Table I method is one row there), with the same run
+# keys as ``python -m omcrl train``, so `python -m omcrl tables` then finds them finished (and the evaluations cached)
+# and adds the planners.
+GRIDS["table1"] = tuple(Variant(m, m) for m in TABLE1_METHODS if METHODS[m].learned)
 
 # Table I again on fresh layouts: the same training runs (the same jobs, so a machine that holds them trains
 # nothing), flown in 200 layouts of each scene that the grid never flew (evaluation seeds 50-249: disjoint from
@@ -151,7 +137,7 @@ GRIDS["table1"] = tuple(
 # only: the runs' records and the oracle's weights are Table I's.
 CONFIRM_EVAL = ("eval.episodes=200", "eval.seed_offset=1000050")
 # The controls (ours-random, ours-blind; issue 75) were declared after the confirmation: they are not re-flown there.
-CONTROL_METHODS = ("ours-random", "ours-blind")
+CONTROL_METHODS = tuple(n for n in TABLE1_METHODS if METHODS[n].control)
 GRIDS["table1-confirm"] = tuple(
     Variant(v.label, v.method, CONFIRM_EVAL) for v in GRIDS["table1"] if v.method not in CONTROL_METHODS
 )

@@ -44,6 +44,7 @@ from omcrl.interpret.encoder_report import REPORT, read_report, suite_settings, 
 from omcrl.interpret.transfer import setting_samples
 from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.pipeline.grids import GRIDS
+from omcrl.pipeline.pages import render
 from omcrl.pipeline.reference import config_suite
 from omcrl.pipeline.sweep import rest_plan
 from omcrl.planners import PLANNERS
@@ -532,112 +533,78 @@ def _stability_line(wide: pd.DataFrame) -> str:
     return " ".join(out)
 
 
-def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequence[int] = LADDER_SEEDS) -> list[str]:
-    """Markdown lines of the ladder for docs/results.md: which points have which seeds, SR per point and scene
-    (mean [95 % CI], seeds × layouts), the encoders per pretraining point, the verdicts' tally per point and every
-    hypothesis that some point decides or whose verdict moves; with ``figures`` (a folder relative to the page),
-    the per-scene figures :func:`ladder_stage` wrote, as images under that folder."""
+def ladder_markdown(res: LadderResult, figures: str | None = None, seeds: Sequence[int] = LADDER_SEEDS) -> str:
+    """The ladder's Markdown for docs/results.md (``templates/ladder.md.j2``): which points have which seeds, SR per
+    point and scene (mean [95 % CI], seeds × layouts), the encoders per pretraining point, the verdicts' tally per
+    point and every hypothesis that some point decides or whose verdict moves; with ``figures`` (a folder relative
+    to the page), the per-scene figures :func:`ladder_stage` wrote, as images under that folder."""
     points = ladder_points()
     t = res.table
-    which = ", ".join(map(str, seeds))
-    lines = [f"**Points recorded** (training seeds of {which} with episodes; ×1 is Table I's run):", ""]
+    recorded = []
     for axis in LADDERS:
         p = points[points["axis"] == axis]
         scales = sorted(p["scale"].unique())
-        lines += [f"| {axis} ladder | " + " | ".join(f"×{s:g}" for s in scales) + " |", "|---|" + "---|" * len(scales)]
+        rows = []
         for method in dict.fromkeys(p["method"]):
             cells = []
             for s in scales:
                 got = t[(t["axis"] == axis) & (t["method"] == method) & (t["scale"] == s)]
                 cells.append(f"{int(got['seeds'].max())}/{len(seeds)}" if len(got) else f"0/{len(seeds)}")
-            lines.append(f"| {method} | " + " | ".join(cells) + " |")
-        lines.append("")
+            rows.append((method, cells))
+        recorded.append((axis, [f"×{s:g}" for s in scales], rows))
     scenes = list(dict.fromkeys(t["scene"]))
-    lines += [
-        "Success rate % per point, mean [95 % CI] over the point's seeds × Table I's 50 layouts (the planners have no "
-        "budget and are in Table I):",
-        "",
-        "| ladder | method | budget | seeds | " + " | ".join(scenes) + " |",
-        "|---|---|---|---|" + "---|" * len(scenes),
+    sr = [
+        f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | "
+        + scene_cells(g, scenes, lambda r: ci_text(r["SR"], r["SR_lo"], r["SR_hi"]))
+        + " |"
+        for (axis, method, scale), g in t.groupby(["axis", "method", "scale"], sort=False)
     ]
-    for (axis, method, scale), g in t.groupby(["axis", "method", "scale"], sort=False):
-        sr = scene_cells(g, scenes, lambda r: ci_text(r["SR"], r["SR_lo"], r["SR_hi"]))
-        lines.append(f"| {axis} | {method} | ×{scale:g} | {int(g['seeds'].max())} | {sr} |")
+    probe, shift = [], []
     if len(res.encoders):
         enc = res.encoders
         # Two tables, not one of thirteen columns: each fits a page's width, its columns named by scene alone.
-        probe = ["top1", *(c for c in enc.columns if c.startswith("R2 "))]
-        shift = [c for c in enc.columns if c.startswith("MMD ")]
-        lines += [
-            "",
-            "Encoders per pretraining point (mean over the seeds reported): `top1` the pretraining objective's top-1 "
-            "over its last 10 % of iterations (ours: a masked position's prediction picks its own key among the "
-            "batch's; curl: an augmented stack picks its pair; different tasks, so compare a method across budgets, "
-            "not the two methods), then per scene the linear probe's R² of the privileged state from the frozen "
-            "features:",
-        ]
-        lines += _encoder_rows(enc, probe)
-        if shift:
-            lines += ["", "Their features' shift from the training scene (MMD², 0 = none):"]
-            lines += _encoder_rows(enc, shift)
+        probe = _encoder_rows(enc, ["top1", *(c for c in enc.columns if c.startswith("R2 "))])
+        mmd = [c for c in enc.columns if c.startswith("MMD ")]
+        shift = _encoder_rows(enc, mmd) if mmd else []
     v = res.verdicts
+    tallies, stability, shown, others, hypotheses = [], None, 0, 0, ""
     if len(v):
-        lines += ["", "The claim ledger judged at each point (Holm within each family, over the rows it judges):", ""]
         for (axis, scale), g in v.groupby(["axis", "scale"], sort=False):
             n = g["verdict"].value_counts()
             tally = ", ".join(f"{int(n.get(k, 0))} {k}" for k in ("holds", "reversed", "undecided"))
             one = int(n.get("one seed", 0))
-            lines.append(f"- {axis} ×{scale:g}: {len(g)} hypotheses, {tally}" + (f", {one} one seed" if one else ""))
+            tallies.append(f"{axis} ×{scale:g}: {len(g)} hypotheses, {tally}" + (f", {one} one seed" if one else ""))
         wide = verdicts_wide(v)
         stability = _stability_line(wide)
-        if stability:
-            lines += ["", stability]
         point_cols = [c for c in wide.columns if " ×" in c]
         decided = wide[point_cols].apply(lambda col: col.str.startswith(("holds", "reversed"))).any(axis=1)
         moved = (wide[[c for c in wide.columns if c.startswith("stable ")]] == "no").any(axis=1)
-        shown = wide[decided | moved]
-        lines += [
-            "",
-            f"The {len(shown)} hypotheses that some point decides or whose verdict moves with budget (`stable`: the "
-            f"same verdict at every budget that judged it); the other {len(wide) - len(shown)} are undecided wherever "
-            "judged:",
-            "",
-        ]
-        if len(shown):
-            lines += to_markdown(shown.set_index("claim"), "claim").strip().splitlines()
-    if len(res.effects):
-        lines += [
-            "",
-            "SR change from ×1, percentage points, mean [95 % CI] (the same seeds and layouts at both budgets; ↑ / ↓: "
-            "resolved after Holm over the ladder's cells). A ledger verdict above may also move because each point's "
-            "Holm family holds the rows that point judges; this table is the direct test of a change with budget:",
-            "",
-            *_effects_md(res.effects),
-        ]
+        rows = wide[decided | moved]
+        shown, others = len(rows), len(wide) - len(rows)
+        hypotheses = to_markdown(rows.set_index("claim"), "claim").strip() if len(rows) else ""
+    cost = []
     if len(res.cost):
         c = res.cost
-        lines += [
-            "",
-            "Cost: the plan's prediction (its rates, kept beside the grid's data) against the measured time, for the "
-            "jobs each ladder's grid ran (hours on this 2-core machine; a training or pretraining resumed from a "
-            "checkpoint counts the part after it):",
-            "",
-            "| ladder | kind | jobs | work | planned h | measured h | measured / planned |",
-            "|---|---|---|---|---|---|---|",
-        ]
         for r in _each_with_total(c, _cost_totals(c)):
             ratio = r.measured_h / r.planned_h if r.planned_h > 0 else math.nan
             work = "–" if r.rate_key == "all" else f"{r.work:,}"  # (the kinds' units differ)
-            lines.append(f"| {r.ladder} | {r.rate_key} | {r.jobs} | {work} | {r.planned_h:.2f} | "
-                         f"{r.measured_h:.2f} | {ratio:.2f} |".replace("nan", "–"))  # fmt: skip
-    if len(res.rest):
-        lines += ["", *_rest_md(res.rest)]
-    if figures is not None:
-        lines += [
-            "",
-            "SR against budget, one figure per scene (log axis; the intervals as in the table; the small dots beside "
-            "each point: each training seed's SR over the layouts):",
-            "",
-        ]
-        lines += [f"![ladder, {s}]({figures}/ladder_{s}.png)" for s in scenes]
-    return lines
+            cost.append(f"| {r.ladder} | {r.rate_key} | {r.jobs} | {work} | {r.planned_h:.2f} | "
+                        f"{r.measured_h:.2f} | {ratio:.2f} |".replace("nan", "–"))  # fmt: skip
+    return render(
+        "ladder.md.j2",
+        seeds=list(seeds),
+        recorded=recorded,
+        scenes=scenes,
+        sr=sr,
+        probe=probe,
+        shift=shift,
+        points=tallies,
+        stability=stability,
+        shown=shown,
+        others=others,
+        hypotheses=hypotheses,
+        effects=_effects_md(res.effects) if len(res.effects) else [],
+        cost=cost,
+        rest=_rest_md(res.rest) if len(res.rest) else [],
+        figures=figures,
+    )

@@ -22,18 +22,12 @@ from omcrl.eval.metrics import glossary_markdown
 from omcrl.eval.table1 import read_table1_csv
 from omcrl.pipeline.expected import expected_time
 from omcrl.pipeline.glance import update_readme, wide_table
+from omcrl.pipeline.pages import render
 from omcrl.pipeline.records import DataRecord, DeployRecord, OracleRecord, PretrainRecord, StudentRecord, Table1Record
 from omcrl.scenes import PAPER_SUITE
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import format_duration
 from omcrl.utils.runtime import code_commit, machine_info
-
-SMOKE_NOTE = (
-    "**Smoke preset: these numbers only check the plumbing.** Every learned method trained a few hundred env "
-    "steps and is evaluated on a handful of episodes, so success rates near 0 and wide intervals are expected. "
-    "For numbers that mean something run the `quick` preset (`./reproduce.sh --quick`, a few hours on a laptop "
-    "CPU; `docs/results.md` has a reference run), or `paper` on a GPU machine."
-)
 
 
 def preset_banner(preset: str, notebook: str | None = None) -> str:
@@ -136,23 +130,12 @@ def table1_long(csv_path: Path, metrics: tuple[str, ...] = ("SR", "SPL", "CR", "
 
 
 def summary_text(cfg: Config) -> str:
-    """The Markdown text of ``results/<preset>/summary.md`` for ``cfg.preset``."""
+    """The Markdown text of ``results/<preset>/summary.md`` for ``cfg.preset`` (``templates/summary/``)."""
     root = cfg.run_root
     tables, figures = root / "tables", root / "figures"
-    out = [f"# OMC-RL kit: results summary, preset `{cfg.preset}`", ""]
-    if cfg.preset == "smoke":
-        out += [SMOKE_NOTE, ""]
-    out += [
-        f"Written {time.strftime('%Y-%m-%d %H:%M %Z')} · commit {code_commit()} · {_machine()}",
-        f"Results folder: `{root}` · training seeds {cfg.seeds} · {cfg.rl.total_steps:,} env steps per learned "
-        f"method · {cfg.pretrain.iterations:,} pretraining iterations · {cfg.eval.episodes} evaluation episodes "
-        "per scene",
-        "",
-        "## Wall time per stage",
-        "",
-    ]
     walls = _read_json(root / "executed" / "wall_times.json") or {}
     peaks = _read_json(root / "executed" / "peak_rss_mb.json") or {}
+    table = ""
     if walls:
         rows = [
             {
@@ -171,33 +154,43 @@ def summary_text(cfg: Config) -> str:
                 "peak memory": f"{max(peaks.values()):,.0f} MB" if peaks else "",
             }
         )
-        out += [_md_table(rows), ""]
-        out += [
-            "(last run of each notebook; a stage that reused finished runs is fast. Peak memory: the summed "
-            "resident memory of the notebook's processes, sampled every 0.25 s.)",
-            "",
-        ]
-    else:
-        out += ["No notebook has run through `python -m omcrl notebooks` yet.", ""]
-
+        table = _md_table(rows)
+    sections = []
     for heading, source, what, notebook, body in SECTIONS:
         # A stage's record (its JSON, read through its type) or, for a table, just the file's presence.
         path = tables / (source.FILE if isinstance(source, type) else source)
-        out += [heading, ""]
         if not path.exists():
-            out += [f"_{what}: not run yet (notebook {notebook})._", ""]
+            sections.append((heading, _page("missing", what=what, notebook=notebook)))
             continue
         try:
-            out += body(source.read(tables) if isinstance(source, type) else {}, tables)
+            sections.append((heading, body(source.read(tables) if isinstance(source, type) else {}, tables)))
         except (OSError, ValueError, KeyError, TypeError, pd.errors.ParserError) as e:
             # A damaged table is one line in its section, never a crash of the whole summary.
-            out += [f"_{what}: cannot be read ({type(e).__name__}: {' '.join(str(e).split())[:160]})._", ""]
+            error = f"{type(e).__name__}: {' '.join(str(e).split())[:160]}"
+            sections.append((heading, _page("unreadable", what=what, error=error)))
+    text = _page(
+        "page",
+        preset=cfg.preset,
+        written=time.strftime("%Y-%m-%d %H:%M %Z"),
+        commit=code_commit(),
+        machine=_machine(),
+        root=root,
+        seeds=cfg.seeds,
+        steps=cfg.rl.total_steps,
+        iterations=cfg.pretrain.iterations,
+        episodes=cfg.eval.episodes,
+        walls=table,
+        sections=sections,
+        figures=sorted(figures.glob("*.png")) if figures.is_dir() else [],
+        glossary=glossary_markdown(),
+    )
+    return text + "\n"
 
-    out += ["## Figures", ""]
-    figs = sorted(figures.glob("*.png")) if figures.is_dir() else []
-    out += [f"- [{f.stem}](figures/{f.name})" for f in figs] or ["No figures yet."]
-    out += ["", "## Metrics", "", glossary_markdown(), ""]
-    return "\n".join(out)
+
+def _page(name: str, **data: Any) -> str:
+    """``templates/summary/<name>.md.j2`` filled with ``data``, as written (summary.md is not wrapped), without the
+    blank line that ends it (the page puts one after every section)."""
+    return render(f"summary/{name}.md.j2", layout=False, **data).rstrip("\n")
 
 
 def _duration(s: float) -> str:
@@ -205,16 +198,12 @@ def _duration(s: float) -> str:
 
 
 # Each section renders what one stage left in tables/: (d = its record, or {} for a table; tables folder).
-def _section_data(d: DataRecord, tables: Path) -> list[str]:
+def _section_data(d: DataRecord, tables: Path) -> str:
     sr = d.pilot_success_rate
-    return [
-        f"{d.episodes} episodes, {d.steps:,} steps in `{d.file}` ({d.file_mb:.1f} MB); "
-        f"scripted pilot success rate {_fmt(None if sr is None else 100 * sr)} %.",
-        "",
-    ]
+    return _page("data", d=d, sr=_fmt(None if sr is None else 100 * sr))
 
 
-def _section_pretrain(d: PretrainRecord, tables: Path) -> list[str]:
+def _section_pretrain(d: PretrainRecord, tables: Path) -> str:
     probe = d.probe_r2
     rows = []
     for name, r in d.encoders.items():
@@ -230,28 +219,17 @@ def _section_pretrain(d: PretrainRecord, tables: Path) -> list[str]:
         )
     if "random" in probe:
         rows.append({"encoder": "random (floor)", "probe R² (mean)": probe["random"].get("mean_r2")})
-    return [
-        _md_table(rows),
-        "",
-        "Masked top-1 acc: the share of masked frames whose reconstructed latent picks its own frame among the "
-        "batch's candidates (chance: 1 / candidates). Probe R²: a linear map from the frozen features to the drone's "
-        "state on held-out episodes (1 = perfect, 0 = no better than the mean); a random encoder gives the floor.",
-        "",
-    ]
+    return _page("pretrain", table=_md_table(rows))
 
 
-def _section_oracle(d: OracleRecord, tables: Path) -> list[str]:
+def _section_oracle(d: OracleRecord, tables: Path) -> str:
     ev = d.eval_box
-    return [
-        f"{_fmt(d.steps)} env steps at {_fmt(d.steps_per_s)} steps/s; training SR (last updates) "
-        f"{_fmt(100 * d.final_success_rate if d.final_success_rate is not None else None)} %; "
-        f"evaluation in box: SR {_fmt(ev.get('SR'))} %, SPL {_fmt(ev.get('SPL'))}, CR {_fmt(ev.get('CR'))} % "
-        f"({_fmt(ev.get('episodes'))} episodes).",
-        "",
-    ]
+    sr = _fmt(100 * d.final_success_rate if d.final_success_rate is not None else None)
+    box = {k: _fmt(ev.get(k)) for k in ("SR", "SPL", "CR", "episodes")}
+    return _page("oracle", steps=_fmt(d.steps), rate=_fmt(d.steps_per_s), sr=sr, box=box)
 
 
-def _section_student(d: StudentRecord, tables: Path) -> list[str]:
+def _section_student(d: StudentRecord, tables: Path) -> str:
     rows = []
     for label, r in (("ours", d.guided), ("ours-noOT", d.unguided)):
         rows.append(
@@ -263,70 +241,43 @@ def _section_student(d: StudentRecord, tables: Path) -> list[str]:
                 "box SR % (eval)": d.box_SR.get(label),
             }
         )
-    return [_md_table(rows), ""]
+    return _page("table", table=_md_table(rows))
 
 
-def _section_table1(d: dict, tables: Path) -> list[str]:
+def _section_table1(d: dict, tables: Path) -> str:
     try:
         long = read_table1_csv(tables / "table1.csv")
     except ValueError as e:
-        return [f"_Table I cannot be read: {e}._", ""]
-    out = [
-        "Mean [95% CI] over training seeds and evaluation layouts (crossed factors); the paper's value in "
-        "*italics*. Every method trained in box only; every other scene is zero-shot (furniture-v0: the stress "
-        "test). Every metric (NE, OS, SR, SPL, CR, TTS): [tables/table1.md](tables/table1.md); beside the paper's: "
-        "[tables/table1_vs_paper.md](tables/table1_vs_paper.md).",
-        "",
-        "Success rate (SR, %):",
-        "",
-        *wide_table(long[long.metric == "SR"]),
-        "",
-        "Collision rate (CR, %):",
-        "",
-        *wide_table(long[long.metric == "CR"]),
-        "",
-    ]
+        return _page("table1", error=e)
     s = Table1Record.read(tables) or Table1Record()
-    claims = s.claims
-    if s.ledger:
-        out += ["### The paper's claims: the ledger's verdicts (Holm within the primary and the secondary family)", ""]
-        cols = ("claim", "family", "hypotheses", "holds", "reversed", "undecided", "one seed", "not run", "verdict")
-        out += [_md_table([{k: c.get(k, "") for k in cols} for c in s.ledger]), ""]
-        out += ["Every hypothesis: [tables/ledger_verdicts.md](tables/ledger_verdicts.md).", ""]
-    if claims:
-        out += ["### The paper's orderings, checked here (SR, percentage points)", ""]
-        out += [
-            _md_table(
-                [
-                    {
-                        "claim": c["claim"],
-                        "scene": c["scene"],
-                        "difference": f"{c['diff']:.1f} [{c['lo']:.1f}, {c['hi']:.1f}]",
-                        "verdict": c["verdict"],
-                    }
-                    for c in claims
-                ]
-            ),
-            "",
-        ]
-    if s.missing_runs:
-        out += [f"Runs not found (not in the table): {', '.join(map(str, s.missing_runs))}.", ""]
-    return out
-
-
-def _section_deploy(d: DeployRecord, tables: Path) -> list[str]:
-    lat, par, fl = d.latency, d.parity, d.sim_flight
-    return [
-        f"`{d.method}` exported to ONNX: parity max |Δ| {_fmt(par.get('max_abs_diff'))} over "
-        f"{par.get('observations')} observations; latency median / p99 (ms): "
-        + ", ".join(f"{k} {_fmt(v.get('median_ms'))} / {_fmt(v.get('p99_ms'))}" for k, v in lat.items())
-        + f"; simulated flight ended by `{fl.get('reason')}` after {fl.get('ticks')} ticks, "
-        f"{_fmt(fl.get('final_distance'))} m from the goal.",
-        "",
+    cols = ("claim", "family", "hypotheses", "holds", "reversed", "undecided", "one seed", "not run", "verdict")
+    claims = [
+        {
+            "claim": c["claim"],
+            "scene": c["scene"],
+            "difference": f"{c['diff']:.1f} [{c['lo']:.1f}, {c['hi']:.1f}]",
+            "verdict": c["verdict"],
+        }
+        for c in s.claims
     ]
+    return _page(
+        "table1",
+        error=None,
+        sr=wide_table(long[long.metric == "SR"]),
+        cr=wide_table(long[long.metric == "CR"]),
+        ledger=_md_table([{k: c.get(k, "") for k in cols} for c in s.ledger]) if s.ledger else None,
+        claims=_md_table(claims) if claims else None,
+        missing=[str(m) for m in s.missing_runs or []],
+    )
 
 
-def _section_interpret(d: dict, tables: Path) -> list[str]:
+def _section_deploy(d: DeployRecord, tables: Path) -> str:
+    latency = [f"{k} {_fmt(v.get('median_ms'))} / {_fmt(v.get('p99_ms'))}" for k, v in d.latency.items()]
+    return _page("deploy", d=d, parity=_fmt(d.parity.get("max_abs_diff")), latency=latency,
+                 distance=_fmt(d.sim_flight.get("final_distance")))  # fmt: skip
+
+
+def _section_interpret(d: dict, tables: Path) -> str:
     import pandas as pd
 
     dist = pd.read_csv(tables / "disturbance.csv")
@@ -339,42 +290,24 @@ def _section_interpret(d: dict, tables: Path) -> list[str]:
         }
         for r in dist.itertuples()
     ]
-    out = ["Disturbance tests in the simulated room (SR %):", "", _md_table(rows), ""]
-    explain = {
-        "gradcam_mass.csv": "share: the Grad-CAM map's mass on obstacle pixels; obstacle_fraction: the part of the "
-        "image obstacles cover (a uniform map's share); lift = share / obstacle_fraction (1: no more than uniform); "
-        "frames_used: frames with both map mass and obstacles.",
-        "stability.csv": "rel_distance: clean-to-disturbed cosine distance of the features over that between "
-        "unrelated frames (0: the features did not move); knn_acc: the share of disturbed frames whose nearest "
-        "clean feature is their own frame; clean_disturbed, unrelated: the two mean distances.",
-    }
+    extra = []
     for name, label in (("gradcam_mass.csv", "Grad-CAM mass on obstacles"), ("stability.csv", "Feature stability")):
         if (tables / name).exists():
-            t = pd.read_csv(tables / name).round(3)
-            out += [f"{label}:", "", _md_table(t.to_dict("records")), "", explain[name], ""]
-    return out
+            extra.append((label, _md_table(pd.read_csv(tables / name).round(3).to_dict("records")), name))
+    return _page("interpret", disturbance=_md_table(rows), extra=extra)
 
 
-def _section_ablations(d: dict, tables: Path) -> list[str]:
+def _section_ablations(d: dict, tables: Path) -> str:
     import pandas as pd
 
     verdicts = findings_summary(pd.read_csv(tables / "ablation_findings.csv"))
-    if verdicts.empty:
-        out = ["None of the paper's ablation grids has run (a smoke grid checks the machinery only).", ""]
-    else:
-        out = [
-            "The paper's six ablation findings, checked in SR in the paper's unseen scenes; the stress test "
-            "(furniture-v0) is counted apart, held / reversed / undecided (`tables/ablation_findings.md`):"
-        ]
-        out += ["", _md_table(verdicts.to_dict("records")), ""]
     names = sorted(p.name for p in tables.glob("*.md") if p.stem.startswith(("ablation_", "table2", "table3")))
     names = [n for n in names if n != "ablation_findings.md"]
-    if names:
-        out += ["Tables (Table II = `table2.md`, Table III = `table3.md`): " + ", ".join(f"`{n}`" for n in names), ""]
-    return out
+    findings = None if verdicts.empty else _md_table(verdicts.to_dict("records"))
+    return _page("ablations", findings=findings, names=names)
 
 
-def _section_transfer(d: dict, tables: Path) -> list[str]:
+def _section_transfer(d: dict, tables: Path) -> str:
     import pandas as pd
 
     look = pd.read_csv(tables / "transfer_appearance.csv")
@@ -387,38 +320,33 @@ def _section_transfer(d: dict, tables: Path) -> list[str]:
         }
         for r in look.itertuples()
     ]
-    out = ["Student `ours` with each scene's layouts in its own look and in another (`tables/transfer_*.md`):", ""]
-    out += [_md_table(rows), ""]
+    blind = None
     if (tables / "transfer_blind.csv").exists():
-        blind = pd.read_csv(tables / "transfer_blind.csv")
-        wide = blind.pivot(index="method", columns="scene", values="SR")
-        wide = wide.loc[list(dict.fromkeys(blind.method)), list(dict.fromkeys(blind.scene))]
-        out += ["SR with vision and with the training scene's mean feature instead (goal seeking without vision):", ""]
-        out += [_md_table(wide.round(0).reset_index().to_dict("records")), ""]
-    for p in sorted(tables.glob("remedy_*.md")):
-        out += [f"Remedies, `{p.name}`:", "", p.read_text(encoding="utf-8").strip(), ""]
-    return out
+        b = pd.read_csv(tables / "transfer_blind.csv")
+        wide = b.pivot(index="method", columns="scene", values="SR")
+        wide = wide.loc[list(dict.fromkeys(b.method)), list(dict.fromkeys(b.scene))]
+        blind = _md_table(wide.round(0).reset_index().to_dict("records"))
+    remedies = [(p.name, p.read_text(encoding="utf-8").strip()) for p in sorted(tables.glob("remedy_*.md"))]
+    return _page("transfer", look=_md_table(rows), blind=blind, remedies=remedies)
+
+
+def _section_gradient(_: Any, tables: Path) -> str:
+    order = tables / "scene_gradient_order.md"
+    extra = [
+        (what, name, (tables / name).read_text(encoding="utf-8").strip())
+        for name, what in (("scene_navigation.md", "Navigation per suite"), ("scene_criteria.md", "Suite criteria"))
+        if (tables / name).exists()
+    ]
+    return _page(
+        "gradient",
+        suite=list(PAPER_SUITE),
+        gradient=(tables / "scene_gradient.md").read_text(encoding="utf-8").strip(),
+        order=order.read_text().strip() if order.exists() else None,
+        extra=extra,
+    )
 
 
 # (heading, file in tables/ whose presence means the stage ran, what, notebook, renderer)
-def _section_gradient(_: Any, tables: Path) -> list[str]:
-    suite = ", ".join(PAPER_SUITE)
-    out = [
-        f"Scenes as versioned specs; the paper's suite is {suite}, with furniture-v0 (an unseen room) as a stress "
-        "test. Shift from box with nothing learned, and navigation (`tables/scene_gradient.md`):",
-        "",
-        (tables / "scene_gradient.md").read_text(encoding="utf-8").strip(),
-        "",
-    ]
-    order = tables / "scene_gradient_order.md"
-    if order.exists():
-        out += [f"Does each measure rise {' < '.join(PAPER_SUITE)}?", "", order.read_text().strip(), ""]
-    for name, what in (("scene_navigation.md", "Navigation per suite"), ("scene_criteria.md", "Suite criteria")):
-        if (tables / name).exists():
-            out += [f"{what} (`tables/{name}`):", "", (tables / name).read_text(encoding="utf-8").strip(), ""]
-    return out
-
-
 SECTIONS = (
     (
         "## Scenes and their gradient of difficulty (notebook 00, `gradient`)",
@@ -478,7 +406,6 @@ def summary_stage(cfg: Config, readme: bool = False) -> None:
 
 
 __all__ = [
-    "SMOKE_NOTE",
     "code_commit",
     "preset_banner",
     "summary_text",

@@ -805,8 +805,13 @@ def sweep_stage(
     progress: bool = True,
     plan: bool = False,
     rates: str | None = None,
+    rates_out: str | None = None,
     release: bool = False,
-    **kw: Any,
+    backend: str = "ray",
+    address: str | None = None,
+    num_cpus: int | None = None,
+    to_reference: bool = False,
+    variants: Sequence[str] | None = None,
 ) -> str:
     """CLI stage ``sweep``: ``python -m omcrl sweep <grid|all> --preset P [--seeds 0,1,2] [--address A]
     [--backend B]``; writes each grid's table (:func:`run_ablations`) and returns its account. ``--plan`` prints
@@ -825,7 +830,6 @@ def sweep_stage(
             return "no teacher weights to release (none kept, a student still to record, or not yet committed)"
         return "\n".join(["released teacher weights (now read from git history):", *map(str, released)])
     if plan:
-        rates_out = kw.get("rates_out")
         if rates_out is not None and Path(rates_out).exists():
             raise ConfigError(
                 f"--rates-out {rates_out}: the file exists; a plan's rates are written once, to a new file"
@@ -838,10 +842,9 @@ def sweep_stage(
         else:
             median, quartile = rate_maps(measured_rates(cfg))
             r, fast = median or None, quartile or None
-        variants = kw.get("variants")
         only = None if variants is None else {j.id for g in grids for j in only_variants(expand(cfg, g, seeds),
                                                                                           variants, g)}  # fmt: skip
-        recorded = recorded_jobs(cfg, grids, seeds) if kw.get("to_reference") else set()
+        recorded = recorded_jobs(cfg, grids, seeds) if to_reference else set()
         text = describe_plan(cfg, grids, seeds, r, recorded=recorded, only=only, fast_rates=fast)
         if rates_out is not None:
             Path(rates_out).parent.mkdir(parents=True, exist_ok=True)
@@ -850,7 +853,8 @@ def sweep_stage(
                 f"\nrates written to {rates_out} (units per second per rate_key; --rates {rates_out} plans the same)"
             )
         return text
-    out = run_ablations(cfg, grids, seeds, progress=progress, **kw)
+    out = run_ablations(cfg, grids, seeds, progress=progress, backend=backend, address=address, num_cpus=num_cpus,
+                        to_reference=to_reference, variants=variants)  # fmt: skip
     text = "\n".join(repr(v["result"]) for v in out.values())
     bad = {g: v["result"].counts() for g, v in out.items() if set(v["result"].status.values()) & {"failed", "blocked"}}
     if bad:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import tempfile
-import textwrap
 
 import pandas as pd
 
@@ -18,6 +17,7 @@ from omcrl.config import load_config
 from omcrl.eval.stats import Term, cell_rng, contrast, term
 from omcrl.interpret.transfer import DETOUR_BINS, layout_stats, with_detour_bins
 from omcrl.pipeline.griddata import GridData, grid_data_dir
+from omcrl.pipeline.pages import render
 from omcrl.planners import LABELS as PLANNER_LABELS
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
 from omcrl.scenes import SUITES
@@ -66,29 +66,17 @@ def detour_block(preset: str = "quick", table: pd.DataFrame | None = None) -> st
     """The block: per scene, one row per method, each detour bin's ``SR / CR / TO`` in % (seeds × layouts pooled;
     :func:`detour_table`) and the share of the scene's layouts in the bin."""
     t = detour_table(preset) if table is None else table
-    if t.empty:
-        return f"Not run yet (no episodes under `reference/{preset}/table1-v2/`)."
-    bins = list(dict.fromkeys(t["detour"]))
-    edges = list(DETOUR_BINS)
-    caption = (
-        f"SR / CR / TO % by the detour of the layout (shortest path / straight line; bin edges {edges[1:-1]}): "
-        "reached the goal / collided / ran out of steps (the rest left the arena), every Table I method over its "
-        "training seeds × the grid's 50 layouts per scene, episodes pooled. Generated from "
-        f"`reference/{preset}/table1-v2/` and the layouts' geometry (rebuilt from their seeds; nothing flown)."
-    )
-    lines = [*textwrap.wrap(caption, 120), ""]
-    for scene, g in t.groupby("scene", sort=False):
+    bins = list(dict.fromkeys(t["detour"])) if len(t) else []
+    scenes = []
+    for scene, g in t.groupby("scene", sort=False) if len(t) else ():
         share = g.drop_duplicates("detour").set_index("detour")["layouts"]
-        head = " | ".join(f"{b} ({share.get(b, 0):.0f} % of layouts)" for b in bins)
-        lines += [f"**{scene}**", "", f"| method | {head} |", "|---" * (len(bins) + 1) + "|"]
+        rows = []
         for method, m in g.groupby("method", sort=False):
             cells = m.set_index("detour")
-            row = [
-                f"{cells.SR[b]:.0f} / {cells.CR[b]:.0f} / {cells.TO[b]:.0f}" if b in cells.index else "–" for b in bins
-            ]
-            lines.append(f"| {_label(method)} | " + " | ".join(row) + " |")
-        lines.append("")
-    return "\n".join(lines).rstrip("\n")
+            rows.append((_label(method), [f"{cells.SR[b]:.0f} / {cells.CR[b]:.0f} / {cells.TO[b]:.0f}"
+                                          if b in cells.index else "–" for b in bins]))  # fmt: skip
+        scenes.append((scene, [f"{b} ({share.get(b, 0):.0f} % of layouts)" for b in bins], rows))
+    return render("why_detour_v2.md.j2", preset=preset, edges=list(DETOUR_BINS)[1:-1], scenes=scenes)
 
 
 def _sr_term(episodes: pd.DataFrame, method: str, scene: str, pool: str, coef: float) -> Term | None:
@@ -162,11 +150,6 @@ def attribution_block(preset: str = "quick", table: pd.DataFrame | None = None) 
     """The block: per unseen scene, one row per learned method, SR box-v2 → on the scene's layouts in box-v2's look
     → in its own look, and the two differences (:func:`attribution_table`), each mean [95 % CI]."""
     t = attribution_table(preset) if table is None else table
-    if t.empty:
-        return (
-            f"Not flown yet (no episodes under `reference/{preset}/table1-boxlook-v2/`: `scripts/grid_session.sh "
-            "--grid table1-boxlook`)."
-        )
 
     def ci(r: pd.Series, name: str, sign: bool = False) -> str:
         v, lo, hi = r[name], r[f"{name}_lo"], r[f"{name}_hi"]
@@ -175,25 +158,9 @@ def attribution_block(preset: str = "quick", table: pd.DataFrame | None = None) 
         f = "{:+.0f}" if sign else "{:.0f}"
         return f"{f.format(v)} [{f.format(lo)}, {f.format(hi)}]"
 
-    caption = (
-        f"SR % in {TRAIN_SCENE} → on each unseen scene's own layouts drawn in {TRAIN_SCENE}'s look → in the scene's "
-        "own look, and the two steps: *geometry* (the layouts, the look held at the training one; seeds paired, the "
-        "two scenes' layouts independent) and *look* (the scene's own look on the same layouts; seeds and layouts "
-        "paired). Mean [95 % CI], seeds × layouts crossed; `seeds`: training seeds flown in both grids. Generated "
-        f"from `reference/{preset}/table1-v2/` and `reference/{preset}/table1-boxlook-v2/`."
-    )
-    lines = [*textwrap.wrap(caption, 120), ""]
-    for scene, g in t.groupby("scene", sort=False):
-        lines += [
-            f"**{scene}**",
-            "",
-            f"| method | seeds | SR {TRAIN_SCENE} | SR in {TRAIN_SCENE}'s look | SR own look | geometry | look |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for _, r in g.iterrows():
-            lines.append(
-                f"| {_label(r['method'])} | {r['seeds']} | {ci(r, 'box')} | {ci(r, 'box_look')} | {ci(r, 'own')} | "
-                f"{ci(r, 'geometry', True)} | {ci(r, 'look', True)} |"
-            )
-        lines.append("")
-    return "\n".join(lines).rstrip("\n")
+    scenes = [
+        (scene, [[_label(r["method"]), str(r["seeds"]), ci(r, "box"), ci(r, "box_look"), ci(r, "own"),
+                  ci(r, "geometry", True), ci(r, "look", True)] for _, r in g.iterrows()])
+        for scene, g in (t.groupby("scene", sort=False) if len(t) else ())
+    ]  # fmt: skip
+    return render("why_look_v2.md.j2", preset=preset, train=TRAIN_SCENE, scenes=scenes)

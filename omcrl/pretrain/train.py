@@ -21,8 +21,10 @@ import json
 import logging
 import math
 import warnings
+from contextlib import closing
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -33,9 +35,8 @@ from omcrl.data.sampler import SequenceSampler
 from omcrl.envs.render import env_identity
 from omcrl.models.artifact import encoder_payload
 from omcrl.pretrain.learner import ContrastiveLearner, objective, transformer_lr_factor
-from omcrl.runs import MetricsLog, Run, StopAfter, checkpoint_due, keep_going, make_run, read_identity
+from omcrl.runs import Run, StopAfter, make_run, read_identity
 from omcrl.utils.precision import section_precision
-from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import resolve_device, set_threads
 
 log = logging.getLogger(__name__)
@@ -85,9 +86,7 @@ def untrained_encoder(cfg: Config, run_rec: Run) -> PretrainResult:
     done = read_identity(out) or {}
     if done.get("artifact_digest") and run_rec.finished("encoder.pt") is not None:
         return PretrainResult(name, out, enc_path, out / "metrics.csv", 0, math.nan, "", True)
-    run_rec.claim()
-    try:
-        run_rec.write_config(cfg)
+    with run_rec.claimed(cfg):
         torch.manual_seed(cfg.seed)
         learner = ContrastiveLearner(replace(p, method="omc"), cfg.env.frame_stack)
         if p.method == "blind":
@@ -103,8 +102,6 @@ def untrained_encoder(cfg: Config, run_rec: Run) -> PretrainResult:
             dataset="",
             dataset_fingerprint="",
         )
-    finally:
-        run_rec.release()
     log.info("pretrain %s: untrained encoder written to %s", name, enc_path)
     return PretrainResult(name, out, enc_path, out / "metrics.csv", 0, math.nan, "")
 
@@ -183,43 +180,15 @@ def pretrain_encoder(
     run_rec.check()
     if p.method in UNTRAINED_ENCODERS:
         return untrained_encoder(cfg, run_rec)
-    out = run_rec.dir
+    done, ds = _finished_or_data(cfg, run_rec, path)
+    if done is not None:
+        return done
+    out, fp = run_rec.dir, ds.fingerprint
     enc_path, metrics_path = out / "encoder.pt", out / "metrics.csv"
-    # Finished: run.json holds the digest of the encoder it wrote (Run.finish) and what it was made of.
-    done = read_identity(out) or {}
-    done = done if done.get("artifact_digest") and enc_path.exists() else None
-    if done is not None and not path.exists():
-        # A finished run needs its dataset only to notice re-collected data; without the file, the fingerprint
-        # recorded at the end of training stands in for it.
-        fp = str(done.get("dataset_fingerprint", ""))
-        ds = None
-    else:
-        if not path.exists():
-            raise DatasetError(
-                f"dataset {path}: file does not exist; run first: python -m omcrl collect --preset {cfg.preset}"
-                + (f" --seed {cfg.seed}" if cfg.data.policy == "oracle" else "")
-            )
-        ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
-        fp = ds.fingerprint
-    # A finished encoder that changed since it was written is not trusted: finished() moves it aside with a
-    # warning, and it is rebuilt below (from the final checkpoint when there is one, else by training again).
-    if done is not None and done.get("dataset_fingerprint") == fp and run_rec.finished("encoder.pt") is not None:
-        log.info("pretrain %s: finished run with the same config found in %s, skipping", name, out)
-        if ds is not None:
-            ds.close()
-        loss = done.get("final_loss")
-        return PretrainResult(
-            name, out, enc_path, metrics_path, done["iterations"], math.nan if loss is None else loss, fp, True
-        )
-    if ds is None:  # the finished run cannot be reused and there is no dataset to train again from
-        ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
-        fp = ds.fingerprint
     made_of = _made_of(run_rec, fp)
     state = run_rec.load("pretraining checkpoint")  # before anything is written: a damaged one is refused
-    run_rec.claim()
-    try:
-        run_rec.write_config(cfg)
-
+    callbacks = () if stop_after is None else (StopAfter(stop_after),)
+    with closing(ds), run_rec.claimed(cfg):
         torch.manual_seed(cfg.seed)
         # The objective, chosen once: OMC reconstructs masked latents of a sequence; CURL matches two views of a
         # stack, and sees as many stacks per iteration as OMC (B·T), so the two compare at equal data throughput.
@@ -229,48 +198,16 @@ def pretrain_encoder(
         learner.precision = section_precision(p)
         opt = torch.optim.Adam(learner.param_groups())
         # Keep all episodes in memory when the frames are small (quick/smoke presets); else stream from disk.
-        rgb_bytes = ds.n_steps * 3 * ds.image_size**2
-        cache = len(ds) if rgb_bytes <= _CACHE_BYTES else 0
-        sampler = SequenceSampler(
-            ds,
-            p.batch_size,
-            p.seq_len,
-            L,
-            crop=(p.crop_from, p.crop_to),
-            seed=cfg.seed,
-            cache_episodes=cache,
-            seq_stride=obj.sequence_stride(p),
-        )
+        cache = len(ds) if ds.n_steps * 3 * ds.image_size**2 <= _CACHE_BYTES else 0
+        sampler = SequenceSampler(ds, p.batch_size, p.seq_len, L, crop=(p.crop_from, p.crop_to), seed=cfg.seed,
+                                  cache_episodes=cache, seq_stride=obj.sequence_stride(p))  # fmt: skip
         gen = torch.Generator().manual_seed(cfg.seed + 1)
-        start, rows = 0, []
-        if state is not None:
-            if _made_by(state, made_of) and state["step"] <= p.iterations:
-                learner.load_state_dict(state["learner"])
-                opt.load_state_dict(state["optim"])
-                sampler.rng.bit_generator.state = json.loads(state["sampler_rng"])
-                gen.set_state(state["mask_rng"])
-                torch.set_rng_state(state["torch_rng"])
-                start = int(state["step"])
-                rows = _read_metrics(metrics_path, start)
-                logged = {step for step, _, _ in rows}
-                if len(logged) < start:
-                    msg = (
-                        f"{metrics_path}: {start - len(logged)} of the {start} iterations before the resume point have "
-                        "no metrics (the file was deleted or cut); their history is lost, training goes on"
-                    )
-                    log.warning("pretrain %s: %s", name, msg)
-                    warnings.warn(msg, stacklevel=2)
-                log.info("pretrain %s: resuming from iteration %d", name, start)
-            else:
-                log.warning("pretrain %s: checkpoint in %s is from other data or code; starting over", name, out)
-        callbacks = () if stop_after is None else (StopAfter(stop_after),)
-        metrics_log = MetricsLog(out, start if start > 0 else None, digits=None)
-        bar = Progress(p.iterations, f"pretrain/{name} seed{cfg.seed}", unit="it", initial=start, enabled=progress)
+        start, rows = _resume(state, made_of, p.iterations, learner, opt, sampler, gen, metrics_path, name)
         it, loss_val = start, float("nan")
         learner.train()
-        for cb in callbacks:
-            cb.on_start(run_rec, it)
-        try:
+        with run_rec.session(
+            total=p.iterations, start=start, unit="it", progress=progress, callbacks=callbacks, digits=None
+        ) as s:
             while it < p.iterations:
                 it += 1
                 lrs = {"lr_encoder": p.lr_encoder}
@@ -284,36 +221,18 @@ def pretrain_encoder(
                 learner.momentum_update()
                 loss_val = metrics["loss"]
                 row = {**metrics, **lrs}
-                metrics_log.log(it, row)
-                bar.update(1, loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
+                s.log(it, row, 1, loss=f"{loss_val:.3f}", acc=f"{metrics['accuracy']:.2f}")
                 # Checkpoints also at the end: the encoder can be rebuilt from the final one.
-                if it >= p.iterations or checkpoint_due(it - 1, it, p.checkpoint_every):
-                    ckpt = run_rec.save(
-                        {
-                            "step": it,
-                            **made_of,
-                            "learner": learner.state_dict(),
-                            "optim": opt.state_dict(),
-                            "sampler_rng": json.dumps(sampler.rng.bit_generator.state),
-                            "mask_rng": gen.get_state(),
-                            "torch_rng": torch.get_rng_state(),
-                        }
-                    )
-                    for cb in callbacks:
-                        cb.on_checkpoint(run_rec, it, ckpt)
-                if not keep_going(callbacks, run_rec, it, row) and it < p.iterations:
+                if it >= p.iterations or s.due(it - 1, it, p.checkpoint_every):
+                    s.checkpoint(it, {"step": it, **made_of, "learner": learner.state_dict(), "optim": opt.state_dict(),
+                                      "sampler_rng": json.dumps(sampler.rng.bit_generator.state),
+                                      "mask_rng": gen.get_state(), "torch_rng": torch.get_rng_state()})  # fmt: skip
+                if not s.keep_going(it, row):
                     break
-        finally:
-            bar.close()
-            metrics_log.close()
-        finished = it >= p.iterations
-        for cb in callbacks:
-            cb.on_end(run_rec, it, finished)
-        if not finished:
-            ds.close()
+        if not s.ended:
             return PretrainResult(name, out, enc_path, metrics_path, it, loss_val, fp, start=start)
         if start >= p.iterations:  # resumed from a final checkpoint whose artifact was not written
-            loss_val = next((v for s, m, v in reversed(rows) if m == "loss"), float("nan"))
+            loss_val = next((v for _, m, v in reversed(rows) if m == "loss"), float("nan"))
         run_rec.finish(
             encoder_payload(learner.f, learner.phi, cfg, fp),
             "encoder.pt",
@@ -323,7 +242,78 @@ def pretrain_encoder(
             dataset=str(path),
             dataset_fingerprint=fp,
         )
-        ds.close()
-        return PretrainResult(name, out, enc_path, metrics_path, p.iterations, loss_val, fp, start=start)
-    finally:
-        run_rec.release()
+    return PretrainResult(name, out, enc_path, metrics_path, p.iterations, loss_val, fp, start=start)
+
+
+def _finished_or_data(cfg: Config, run_rec: Run, path: Path) -> tuple[PretrainResult | None, Any]:
+    """``(result, None)`` when the run is finished on the data at ``path`` (skipped), else ``(None, dataset)``.
+
+    Finished: ``run.json`` holds the digest of the encoder it wrote (:meth:`~omcrl.runs.Run.finish`) and the
+    fingerprint of the data it was made of. Without the file, that recorded fingerprint stands in for it (a finished
+    run needs its dataset only to notice re-collected data). A finished encoder that changed since it was written is
+    not trusted: :meth:`~omcrl.runs.Run.finished` moves it aside with a warning, and the run is made again (from its
+    final checkpoint when there is one, else by training)."""
+    p = cfg.pretrain
+    out, name = run_rec.dir, method_name(p)
+    enc_path = out / "encoder.pt"
+    done = read_identity(out) or {}
+    done = done if done.get("artifact_digest") and enc_path.exists() else None
+    if done is not None and not path.exists():
+        fp, ds = str(done.get("dataset_fingerprint", "")), None
+    else:
+        if not path.exists():
+            raise DatasetError(
+                f"dataset {path}: file does not exist; run first: python -m omcrl collect --preset {cfg.preset}"
+                + (f" --seed {cfg.seed}" if cfg.data.policy == "oracle" else "")
+            )
+        ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
+        fp = ds.fingerprint
+    if done is not None and done.get("dataset_fingerprint") == fp and run_rec.finished("encoder.pt") is not None:
+        log.info("pretrain %s: finished run with the same config found in %s, skipping", name, out)
+        if ds is not None:
+            ds.close()
+        loss = done.get("final_loss")
+        loss = math.nan if loss is None else loss
+        return PretrainResult(name, out, enc_path, out / "metrics.csv", done["iterations"], loss, fp, True), None
+    if ds is None:  # the finished run cannot be reused and there is no dataset to train again from
+        ds = open_dataset(path, image_size=p.crop_from, frame_stack=cfg.env.frame_stack)
+    return None, ds
+
+
+def _resume(
+    state: dict | None,
+    made_of: dict,
+    iterations: int,
+    learner: ContrastiveLearner,
+    opt: torch.optim.Optimizer,
+    sampler: SequenceSampler,
+    gen: torch.Generator,
+    metrics_path: Path,
+    name: str,
+) -> tuple[int, list[tuple[int, str, float]]]:
+    """Restore a checkpoint's learner, optimiser and random generators when it was made of this run's key and data:
+    ``(start iteration, the metrics rows up to it)``; ``(0, [])`` without one, or with one of other data or code."""
+    if state is None:
+        return 0, []
+    if not (_made_by(state, made_of) and state["step"] <= iterations):
+        log.warning(
+            "pretrain %s: checkpoint in %s is from other data or code; starting over", name, metrics_path.parent
+        )
+        return 0, []
+    learner.load_state_dict(state["learner"])
+    opt.load_state_dict(state["optim"])
+    sampler.rng.bit_generator.state = json.loads(state["sampler_rng"])
+    gen.set_state(state["mask_rng"])
+    torch.set_rng_state(state["torch_rng"])
+    start = int(state["step"])
+    rows = _read_metrics(metrics_path, start)
+    logged = {step for step, _, _ in rows}
+    if len(logged) < start:
+        msg = (
+            f"{metrics_path}: {start - len(logged)} of the {start} iterations before the resume point have "
+            "no metrics (the file was deleted or cut); their history is lost, training goes on"
+        )
+        log.warning("pretrain %s: %s", name, msg)
+        warnings.warn(msg, stacklevel=3)
+    log.info("pretrain %s: resuming from iteration %d", name, start)
+    return start, rows

@@ -2,8 +2,9 @@
 paper's comparison (oracle, ours, ours-noOT, ppo, curl, curl-phi, npe, npe-ot; paper IV-C, V-C).
 
 The methods are specs (:mod:`omcrl.rl.methods`); ``omcrl.pipeline.train_method(cfg, "curl")`` trains one by
-name, finding its encoder and oracle. The trainers here (``train_oracle``, ``train_student``, ``train_pixel``,
-``train_ppo``) take explicit inputs.
+name, finding its encoder and oracle. The trainers here take explicit inputs, one per kind of learning:
+``train_oracle`` (privileged depth and state), ``train_visuomotor`` (the camera: a frozen encoder, or pixels end to
+end) and ``train_ppo`` (a caller's Box-observation env); all three run the one PPO loop, :func:`train`.
 """
 
 from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_at, alpha_from_config, info_at, obs_at
@@ -23,7 +24,7 @@ from omcrl.rl.ppo import (
     ppo_update,
 )
 from omcrl.rl.rollout import Runner
-from omcrl.rl.train import Result, RunConfigMismatch, train, train_oracle, train_pixel, train_ppo, train_student
+from omcrl.rl.train import Result, RunConfigMismatch, train, train_oracle, train_ppo, train_visuomotor
 
 __all__ = [
     "METHODS",
@@ -55,7 +56,6 @@ __all__ = [
     "ppo_update",
     "train",
     "train_oracle",
-    "train_pixel",
     "train_ppo",
-    "train_student",
+    "train_visuomotor",
 ]

@@ -24,7 +24,8 @@ import copy
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,11 +54,8 @@ from omcrl.rl.ppo import NonFiniteLossError, compute_gae, ppo_update
 from omcrl.rl.rollout import Runner
 from omcrl.runs import (
     Callback,
-    MetricsLog,
     Run,
     RunConfigMismatch,
-    checkpoint_due,
-    keep_going,
     make_run,
     read_identity,
     read_metrics,
@@ -66,7 +64,6 @@ from omcrl.runs import (
 )
 from omcrl.utils.io import file_digest, load_torch
 from omcrl.utils.precision import section_precision
-from omcrl.utils.progress import Progress
 from omcrl.utils.runtime import cpu_count, resolve_device, seed_everything, set_threads
 
 __all__ = [
@@ -80,9 +77,7 @@ __all__ = [
     "rollout_geometry",
     "train",
     "train_oracle",
-    "train_pixel",
     "train_ppo",
-    "train_student",
     "train_visuomotor",
 ]
 
@@ -181,8 +176,9 @@ def train(
     Each iteration sets the schedules (guide weight α, learning rate), collects ``rl.buffer_size`` env steps with
     the current policy (and the guide's action distributions while α > 0), computes GAE, runs PPO's minibatch
     epochs (:func:`omcrl.rl.ppo.ppo_update`; the guide KL is a term of :func:`omcrl.rl.ppo.ppo_loss`), logs, and
-    checkpoints every ``rl.checkpoint_every`` env steps (``run.save``). The finished policy is ``run.finish``'s
-    ``final.pt``.
+    checkpoints every ``rl.checkpoint_every`` env steps. The finished policy is ``run.finish``'s ``final.pt``. The
+    run's bookkeeping is not in the loop: :meth:`~omcrl.runs.Run.claimed` holds the folder and writes the config,
+    :meth:`~omcrl.runs.Run.session` keeps the metrics, the progress bar, the checkpoints and the callbacks.
 
     Parameters
     ----------
@@ -211,13 +207,11 @@ def train(
     ckpt = run.load("checkpoint", CheckpointError)
     if ckpt is None:
         seed_everything(cfg.seed)
-
     length, per_update, _, final_step = rollout_geometry(rl)
     resumes = 0 if ckpt is None else ckpt["resumes"] + 1
     # An episode in flight cannot be checkpointed: a resumed run restarts its envs with a seed of its own.
     env_seed = cfg.seed * 1000 + 100 * resumes
-    env = make_env(env_seed)
-    try:
+    with closing(make_env(env_seed)) as env:
         obs_space = env.single_observation_space
         features = build_features(obs_space)
         act_dim = int(np.prod(env.single_action_space.shape))
@@ -227,126 +221,124 @@ def train(
         guide = make_guide(env) if (make_guide is not None and rl.alpha_schedule != "none") else None
         if guide is not None and hasattr(guide, "to"):
             guide.to(device)
-        # Only now, with encoder / oracle / env known to fit, does the run folder appear: a failed start
-        # (missing or mismatched checkpoint) leaves nothing behind that looks like a run.
-        run.claim(overwrite=overwrite)
-        run.write_config(cfg)
         step, update = 0, 0
-        if ckpt is not None:
-            agent.load_state_dict(ckpt["model"])
-            optimizer.load_state_dict(ckpt["optimizer"])
-            step, update = int(ckpt["step"]), int(ckpt["update"])
-            set_rng_state(ckpt["rng"])
-        start = step
-        # Each stretch of training and the env seed it flew, in run.json: a resumed run's episodes follow from these,
-        # not from its config alone (scripts/render_fault_audit.py replays them).
-        earlier = (read_identity(run.dir) or {}).get("segments", []) if ckpt is not None else []
-        run.record(segments=[*earlier, {"from_step": step, "env_seed": env_seed}])
-        runner = Runner(env, agent, guide, seed=env_seed)
-        log = MetricsLog(run.dir, step if ckpt is not None else None)
-        bar = Progress(
-            final_step, f"{run.stage}/{run.method} seed{cfg.seed}", unit="step", initial=step, enabled=progress
-        )
-        recent: deque = deque(maxlen=50)  # the last 50 episodes, for the progress bar
-        for cb in callbacks:
-            cb.on_start(run, step)
-        try:
-            while step < final_step:
-                # Schedules: α decays from the run's start (paper Eq. 8); the learning rate linearly to 0.
-                alpha = alpha_from_config(step, rl) if guide is not None else 0.0
-                lr = rl.lr * max(0.0, 1.0 - step / max(final_step, 1))
-                for g in optimizer.param_groups:
-                    g["lr"] = lr
+        with run.claimed(cfg, overwrite):  # only now, with encoder, oracle and env known to fit
+            if ckpt is not None:
+                agent.load_state_dict(ckpt["model"])
+                optimizer.load_state_dict(ckpt["optimizer"])
+                step, update = int(ckpt["step"]), int(ckpt["update"])
+                set_rng_state(ckpt["rng"])
+            _record_segment(run, step, env_seed, resumed=ckpt is not None)
+            runner = Runner(env, agent, guide, seed=env_seed)
+            recent: deque = deque(maxlen=50)  # the last 50 episodes, for the progress bar
+            with run.session(total=final_step, start=step, unit="step", progress=progress, callbacks=callbacks) as s:
+                while step < final_step:
+                    # Schedules: α decays from the run's start (paper Eq. 8); the learning rate linearly to 0.
+                    alpha = alpha_from_config(step, rl) if guide is not None else 0.0
+                    lr = rl.lr * max(0.0, 1.0 - step / max(final_step, 1))
+                    for g in optimizer.param_groups:
+                        g["lr"] = lr
 
-                # Collect: rl.buffer_size env steps; the guide is queried only while its term has weight.
-                t0 = time.perf_counter()
-                n_done = len(runner.episodes)
-                agent.eval()
-                batch = runner.collect(length, rl.horizon, use_guide=alpha > 0.0)
-                t_rollout = time.perf_counter() - t0
+                    # Collect: rl.buffer_size env steps; the guide is queried only while its term has weight.
+                    t0 = time.perf_counter()
+                    n_done = len(runner.episodes)
+                    agent.eval()
+                    batch = runner.collect(length, rl.horizon, use_guide=alpha > 0.0)
+                    t_rollout = time.perf_counter() - t0
 
-                # Advantages (GAE), then the PPO epochs. The env workers sleep during the update, so the learner
-                # may use their cores (the rollout's batch-of-n_envs forwards do not gain from threads).
-                set_threads(update_threads)
-                try:
-                    batch.advantages, batch.returns = compute_gae(
-                        batch.rewards,
-                        batch.values,
-                        batch.next_values,
-                        batch.terminated,
-                        batch.ends,
-                        float(rl.gamma),
-                        float(rl.gae_lambda),
-                    )
-                    agent.train()
-                    stats = ppo_update(agent, optimizer, batch, rl, alpha=alpha, step=step)
-                except NonFiniteLossError as e:
-                    ckpt_path = run.checkpoint_path
-                    where = f"last good checkpoint: {ckpt_path}" if ckpt_path.exists() else "no checkpoint was written"
-                    raise NonFiniteLossError(f"{run.method} seed {run.seed}: {e}; {where}") from None
-                finally:
-                    set_threads(rollout_threads)
-                before, step, update = step, step + per_update, update + 1
+                    # Advantages (GAE), then the PPO epochs. The env workers sleep during the update, so the
+                    # learner may use their cores (the rollout's batch-of-n_envs forwards do not gain from threads).
+                    with _threads(update_threads, rollout_threads), _named_nonfinite(run):
+                        batch.advantages, batch.returns = compute_gae(
+                            batch.rewards,
+                            batch.values,
+                            batch.next_values,
+                            batch.terminated,
+                            batch.ends,
+                            float(rl.gamma),
+                            float(rl.gae_lambda),
+                        )
+                        agent.train()
+                        stats = ppo_update(agent, optimizer, batch, rl, alpha=alpha, step=step)
+                    before, step, update = step, step + per_update, update + 1
 
-                # Log: the update's losses, the schedules, speed and the episodes that ended in this rollout.
-                dt = time.perf_counter() - t0
-                eps = runner.episodes[n_done:]
-                recent.extend(eps)
-                row = {
-                    **stats,
-                    "alpha": alpha,
-                    "lr": lr,
-                    "steps_per_s": per_update / max(dt, 1e-9),
-                    "rollout_s": t_rollout,
-                    "update_s": dt - t_rollout,
-                }
-                if eps:
-                    row["episodic_return"] = float(np.mean([e["return"] for e in eps]))
-                    row["episode_length"] = float(np.mean([e["length"] for e in eps]))
-                    succ = [float(e["success"]) for e in eps if "success" in e]
-                    if succ:
-                        row["success_rate"] = float(np.mean(succ))
-                log.log(step, row)
-                rs = [float(e["success"]) for e in recent if "success" in e]
-                bar.update(
-                    per_update,
-                    sr=f"{np.mean(rs):.2f}" if rs else "-",
-                    ret=f"{np.mean([e['return'] for e in recent]):.2f}" if recent else "-",
-                    steps_per_s=f"{row['steps_per_s']:.0f}",
-                )
+                    # Log: the update's losses, the schedules, speed and the episodes that ended in this rollout.
+                    dt = time.perf_counter() - t0
+                    eps = runner.episodes[n_done:]
+                    recent.extend(eps)
+                    row = {**stats, "alpha": alpha, "lr": lr, "steps_per_s": per_update / max(dt, 1e-9),
+                           "rollout_s": t_rollout, "update_s": dt - t_rollout, **episode_means(eps)}  # fmt: skip
+                    s.log(step, row, per_update, **_shown(recent), steps_per_s=f"{row['steps_per_s']:.0f}")
 
-                # Checkpoint: everything a resume needs (the env's episodes in flight excepted, see above).
-                if step < final_step and checkpoint_due(before, step, rl.checkpoint_every):
-                    state = {
-                        "model": agent.state_dict(),
-                        "optimizer": optimizer.state_dict(),
-                        "step": step,
-                        "update": update,
-                        "rng": rng_state(),
-                        "resumes": resumes,
-                        "schedule": {"alpha": alpha, "lr": lr},
-                        "key": run.key,
-                    }
-                    path = run.save(state)
-                    for cb in callbacks:
-                        cb.on_checkpoint(run, step, path)
-                if not keep_going(callbacks, run, step, row) and step < final_step:
-                    break
-        finally:
-            bar.close()
-            log.close()
-        finished = step >= final_step
-        for cb in callbacks:
-            cb.on_end(run, step, finished)
-        if not finished:
-            return Result(run, run.checkpoint_path, step, False, start)
-        meta = {"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})}
-        payload = {**policy_payload(agent, space_shapes(obs_space), step, meta=meta), "key": run.key}
-        final = run.finish(payload)
+                    # Checkpoint: everything a resume needs (the env's episodes in flight excepted, see above).
+                    if s.due(before, step, rl.checkpoint_every):
+                        s.checkpoint(step, {"model": agent.state_dict(), "optimizer": optimizer.state_dict(),
+                                            "step": step, "update": update, "rng": rng_state(), "resumes": resumes,
+                                            "schedule": {"alpha": alpha, "lr": lr}, "key": run.key})  # fmt: skip
+                    if not s.keep_going(step, row):
+                        break
+            if not s.ended:
+                return Result(run, run.checkpoint_path, step, False, _start(ckpt))
+            meta = {"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})}
+            final = run.finish({**policy_payload(agent, space_shapes(obs_space), step, meta=meta), "key": run.key})
+    return Result(run, final, step, False, _start(ckpt))
+
+
+def _start(ckpt: dict | None) -> int:
+    """The env step a training call began at: its checkpoint's, or 0."""
+    return 0 if ckpt is None else int(ckpt["step"])
+
+
+def _record_segment(run: Run, step: int, env_seed: int, *, resumed: bool) -> None:
+    """Each stretch of training and the env seed it flew, in run.json: a resumed run's episodes follow from these,
+    not from its config alone (scripts/render_fault_audit.py replays them)."""
+    earlier = (read_identity(run.dir) or {}).get("segments", []) if resumed else []
+    run.record(segments=[*earlier, {"from_step": step, "env_seed": env_seed}])
+
+
+@contextmanager
+def _threads(inside: int, after: int) -> Iterator[None]:
+    """torch's intra-op threads set to ``inside`` for the block, then to ``after``."""
+    set_threads(inside)
+    try:
+        yield
     finally:
-        env.close()
-        run.release()
-    return Result(run, final, step, False, start)
+        set_threads(after)
+
+
+@contextmanager
+def _named_nonfinite(run: Run) -> Iterator[None]:
+    """A :class:`~omcrl.rl.ppo.NonFiniteLossError` raised in the block names the run and its last good checkpoint."""
+    try:
+        yield
+    except NonFiniteLossError as e:
+        path = run.checkpoint_path
+        where = f"last good checkpoint: {path}" if path.exists() else "no checkpoint was written"
+        raise NonFiniteLossError(f"{run.method} seed {run.seed}: {e}; {where}") from None
+
+
+def episode_means(eps: Sequence[dict]) -> dict[str, float]:
+    """Mean return and length of finished episodes (``{"return", "length", ...}`` rows), and their success rate
+    when they report one; {} when there are none."""
+    if not eps:
+        return {}
+    row = {
+        "episodic_return": float(np.mean([e["return"] for e in eps])),
+        "episode_length": float(np.mean([e["length"] for e in eps])),
+    }
+    succ = [float(e["success"]) for e in eps if "success" in e]
+    if succ:
+        row["success_rate"] = float(np.mean(succ))
+    return row
+
+
+def _shown(recent: Sequence[dict]) -> dict[str, str]:
+    """Success rate and return of the recent episodes, as the progress bar shows them."""
+    rs = [float(e["success"]) for e in recent if "success" in e]
+    return {
+        "sr": f"{np.mean(rs):.2f}" if rs else "-",
+        "ret": f"{np.mean([e['return'] for e in recent]):.2f}" if recent else "-",
+    }
 
 
 # ---------------------------------------------------------------- trainers
@@ -487,70 +479,6 @@ def _custom(custom_env: bool) -> dict:
     return {"custom_env": True} if custom_env else {}
 
 
-def train_student(
-    cfg: Config,
-    encoder_path: str | Path,
-    oracle_path: str | Path | None = None,
-    *,
-    name: str = "ours",
-    planner_factory: Callable[[], Any] | None = None,
-    make_env: Callable[[int], Any] | None = None,
-    overwrite: bool = False,
-    progress: bool = True,
-    callbacks: Sequence[Callback] = (),
-) -> Result:
-    """Visuomotor policy on a frozen pretrained encoder: PPO on [f(rgb stack), v, ω, θ, Δp_goal] (paper IV-C).
-
-    Guide: the oracle at ``oracle_path`` (its mean and learned std on the privileged obs), else a planner from
-    ``planner_factory`` with fixed std ``rl.guide_std``, else none (``ours-noOT``, ``curl``). ``rl.alpha_schedule
-    ='none'`` also trains without the KL term. Encoder and oracle are checked against the env before any
-    training step.
-    """
-    if not Path(encoder_path).exists():
-        raise CheckpointError(f"encoder checkpoint {encoder_path} does not exist (run the pretraining stage first)")
-    return train_visuomotor(
-        cfg,
-        encoder_path,
-        oracle_path,
-        name=name,
-        planner_factory=planner_factory,
-        make_env=make_env,
-        overwrite=overwrite,
-        progress=progress,
-        callbacks=callbacks,
-    )
-
-
-def train_pixel(
-    cfg: Config,
-    oracle_path: str | Path | None = None,
-    *,
-    name: str = "ppo",
-    planner_factory: Callable[[], Any] | None = None,
-    make_env: Callable[[int], Any] | None = None,
-    overwrite: bool = False,
-    progress: bool = True,
-    callbacks: Sequence[Callback] = (),
-) -> Result:
-    """End-to-end visuomotor PPO: the pixel encoder f (same architecture, trained with the policy) (V-C).
-
-    No guide: the ``ppo`` baseline; a planner guide (Hybrid APF, fixed std): ``npe``; the oracle: ``npe-ot``.
-    f sees the centre ``pretrain.crop_to`` px of the env's frames (what the frozen encoders see) and has
-    ``pretrain.feature_dim`` outputs, so both fields are part of the run's identity.
-    """
-    return train_visuomotor(
-        cfg,
-        None,
-        oracle_path,
-        name=name,
-        planner_factory=planner_factory,
-        make_env=make_env,
-        overwrite=overwrite,
-        progress=progress,
-        callbacks=callbacks,
-    )
-
-
 def train_visuomotor(
     cfg: Config,
     encoder_path: str | Path | None,
@@ -563,10 +491,19 @@ def train_visuomotor(
     progress: bool = True,
     callbacks: Sequence[Callback] = (),
 ) -> Result:
-    """The one trainer of every visuomotor policy: on the frozen encoder at ``encoder_path`` (``ours``, ``curl``,
-    ...: :func:`train_student`), or on a pixel encoder trained end to end when it is None (``ppo``, ``npe``, ...:
-    :func:`train_pixel`); guided by the oracle at ``oracle_path``, else by ``planner_factory``'s planner, else by
-    nothing. The method recipes call it directly (:mod:`omcrl.rl.methods`)."""
+    """The one trainer of every visuomotor policy (paper IV-C, V-C): PPO on [f(rgb stack), v, ω, θ, Δp_goal].
+
+    Features: the frozen pretrained encoder (f and φ) at ``encoder_path`` (``ours``, ``curl``, ...), or, when it is
+    None, a pixel encoder f of the same architecture trained end to end with the policy (``ppo``, ``npe``, ...),
+    which sees the centre ``pretrain.crop_to`` px of the env's frames (what the frozen encoders see) and has
+    ``pretrain.feature_dim`` outputs (both then part of the run's identity). Guide: the oracle at ``oracle_path`` (its
+    mean and learned std on the privileged obs), else a planner from ``planner_factory`` with fixed std
+    ``rl.guide_std`` (``npe``), else none (``ours-noOT``, ``curl``, ``ppo``); ``rl.alpha_schedule='none'`` also
+    trains without the KL term. Encoder and oracle are checked against the env before any training step. The
+    method recipes call it (:mod:`omcrl.rl.methods`); ``make_env``: a caller's ``seed -> vector env`` in place of
+    the config's scene."""
+    if encoder_path is not None and not Path(encoder_path).exists():
+        raise CheckpointError(f"encoder checkpoint {encoder_path} does not exist (run the pretraining stage first)")
     if encoder_path is not None:
         build = lambda space: make_student_features(encoder_path, space)  # noqa: E731
     else:
