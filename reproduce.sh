@@ -181,6 +181,9 @@ case "$mode" in
     if [[ "$preset" == paper ]] && ! "$PY" -c 'import sys, torch; sys.exit(not torch.cuda.is_available())' 2>/dev/null; then
       say "warning: no CUDA device visible to torch; the paper preset on a CPU takes days"
     fi
+    # A notebook that --only or --skip does not name is refused now, not after the unpack and the set-up.
+    "$PY" -c 'import sys; from omcrl.pipeline.notebooks import check_choice; sys.exit(check_choice(sys.argv[1:]))' "$@" ||
+      exit 2
     if [[ -n "$from_ref" ]]; then
       say "unpacking the reference runs of preset $preset (verified against their manifest)"
       "$PY" -m omcrl reference --preset "$preset" ${ref_path:+--from "$ref_path"}

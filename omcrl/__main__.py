@@ -299,6 +299,13 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
     )
 
 
+# What a user who pressed Ctrl-C needs to know: nothing finished is lost, and the same command goes on.
+INTERRUPTED = (
+    "what finished is kept (trained runs, their last checkpoint, cached evaluations, executed notebooks); "
+    "run the same command again to resume"
+)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -338,7 +345,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"\ninterrupted: stage {args.stage}", file=sys.stderr)
+        print(f"\ninterrupted: stage {args.stage}; {INTERRUPTED}", file=sys.stderr)
         return 130
     except _expected_errors() as e:
         # Expected failures (a prerequisite missing, a corrupt or foreign file, a run of another configuration):

@@ -200,3 +200,27 @@ def test_the_chain_prints_its_plan_with_each_notebooks_estimate_and_the_total():
     grid = chain_plan("quick", ["03_train_oracle", "04_train_student"], 450_000, {"oracle": 100.0, "ours": 60.0})
     assert "~1m40s" in grid[1] and "grid's measured" in grid[1]  # oracle: its measured time
     assert "scaled" in grid[2]  # ours-noOT has no measured time: 04 falls back to its wall time, scaled
+
+
+def test_ctrl_c_says_what_is_kept_and_that_the_same_command_resumes(monkeypatch, capsys):
+    """Ctrl-C in any stage ends with one line: what was kept and that running the command again goes on (exit 130)."""
+    import omcrl.__main__ as cli
+
+    def interrupted(cfg, **kw):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "load_stage", lambda name: interrupted)
+    assert cli.main(["collect", "--preset", "smoke"]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("interrupted: stage collect; what finished is kept") and "again to resume" in err[-1]
+
+
+def test_a_notebook_number_may_drop_its_zero_and_a_wrong_one_is_refused_before_any_work(capsys):
+    """``--only 7`` is ``07``; ``reproduce.sh`` checks --only/--skip (check_choice) before it unpacks or runs anything."""
+    from omcrl.pipeline.notebooks import check_choice, select_notebooks
+
+    assert select_notebooks(["7", "08"]) == ["07_tables", "08_interpretability"]
+    assert select_notebooks(skip=["6"]) == [n for n in select_notebooks() if n != "06_ablations"]
+    assert check_choice(["--set", "x=1", "--only", "7,9"]) == 0
+    assert check_choice(["--only", "7", "--skip=77"]) == 2
+    assert "--skip 77" in capsys.readouterr().err

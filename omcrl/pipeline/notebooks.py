@@ -90,7 +90,11 @@ def notebook_path(name_or_path: str | Path) -> Path:
             raise NotebookNotFoundError(f"notebook {text!r} does not exist")
         return p
     names = discover_notebooks()
-    matches = [n for n in names if n == text] or [n for n in names if n.split("_", 1)[0] == text]
+    # A number prefix may be written without its zero: 7 is 07.
+    number = (lambda t: str(int(t))) if text.isdigit() else (lambda t: t)
+    matches = [n for n in names if n == text] or [
+        n for n in names if n.split("_", 1)[0].isdigit() and number(n.split("_", 1)[0]) == number(text)
+    ]
     if len(matches) != 1:
         listed = ", ".join(names) if names else "none"
         why = "is ambiguous" if matches else "was not found"
@@ -323,9 +327,11 @@ def run_notebook(
                 cwd=str(workdir),
                 progress_bar=False,
                 execution_timeout=timeout,
-                # The kernel's own start-up warnings (e.g. "running over TCP without encryption", which is
-                # how every local kernel runs) are noise on the console of a headless run.
-                extra_arguments=["--IPKernelApp.log_level=ERROR"],
+                # The kernel's own log is noise on the console of a headless run: its start-up warnings ("running
+                # over TCP without encryption", how every local kernel runs), and on Ctrl-C a 20-line ZMQ traceback
+                # of a reply to a client that has gone. A cell's error reaches us as PapermillExecutionError and a
+                # dead kernel as the exception below, so nothing a user needs is in it.
+                extra_arguments=["--IPKernelApp.log_level=CRITICAL"],
             )
         except PapermillExecutionError as err:
             msg, cell = _error_message(name, nb, err, out)
@@ -469,6 +475,25 @@ def select_notebooks(only: Sequence[str] | None = None, skip: Sequence[str] | No
     if not chain:
         raise NotebookNotFoundError(f"--only {list(only or [])} --skip {list(skip or [])} leaves no notebook to run")
     return chain
+
+
+def check_choice(argv: Sequence[str]) -> int:
+    """Exit status for the ``--only`` / ``--skip`` of a command line (``reproduce.sh``'s, checked before any work):
+    0 when every entry names one notebook, else 2 with the error on stderr."""
+    import argparse
+    import sys
+
+    ap = argparse.ArgumentParser(add_help=False)
+    ap.add_argument("--only", default=None)
+    ap.add_argument("--skip", default=None)
+    args, _ = ap.parse_known_args(list(argv))
+    items = {k: [t.strip() for t in v.split(",") if t.strip()] for k, v in vars(args).items() if v is not None}
+    try:
+        select_notebooks(items.get("only"), items.get("skip"))
+    except NotebookNotFoundError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
 
 
 def notebooks_stage(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[str] | None = None) -> None:
