@@ -334,3 +334,18 @@ def test_cli_merges_a_folder_of_parts_and_names_an_empty_one(tmp_path, capsys):
     assert "no bundle folders" in capsys.readouterr().err
     assert main(["reference", "--preset", "smoke", "--pack", "--methods", "hybrid-apf", "--from", str(out)]) != 0
     assert "not learned methods" in capsys.readouterr().err
+
+
+def test_pages_that_quote_the_bundles_rounding_agree_with_its_manifest(repo_root):
+    """DEVIATIONS, reproducibility and usage each give the rounding's effect on Table I: the counts must be the ones
+    the v2 bundle's manifest recorded when it was packed (they once said 2 of 2,000, the v1 bundle's)."""
+    import json
+    import re
+
+    r = json.loads((repo_root / "reference" / "quick" / "bundle" / "MANIFEST.json").read_text())["rounding"]
+    want = (r["changed_success"], r["changed_collision"], r["episodes"])
+    for page in ("docs/DEVIATIONS.md", "docs/reproducibility.md", "docs/usage.md"):
+        text = " ".join((repo_root / page).read_text(encoding="utf-8").split())
+        got = re.findall(r"(\d+) success and (\d+) collision outcomes of (?:Table I's )?([\d,]+)", text)
+        assert got, f"{page} does not quote the rounding's effect"
+        assert {(int(s), int(c), int(n.replace(",", ""))) for s, c, n in got} == {want}, (page, got, want)

@@ -548,13 +548,17 @@ def read_manifest(bundle: str | Path, preset: str | None = None) -> dict[str, An
     """The manifest of a bundle folder, checked for its form (and its preset when given)."""
     path = Path(bundle) / MANIFEST
     if not path.is_file():
-        raise ReferenceError(f"{path}: no reference manifest there (expected a folder made by pack_reference)")
+        raise ReferenceError(
+            f"{path}: no reference manifest there (expected a bundle folder: `python -m omcrl reference --pack`)"
+        )
     try:
         m = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as e:
         raise ReferenceError(f"{path}: not a readable manifest ({e})") from None
     if not isinstance(m, dict) or not isinstance(m.get("files"), dict):
-        raise ReferenceError(f"{path}: field 'files' missing; expected a manifest made by pack_reference")
+        raise ReferenceError(
+            f"{path}: field 'files' missing; expected a manifest made by `python -m omcrl reference --pack`"
+        )
     if m.get("format") != FORMAT:
         raise ReferenceError(f"{path}: field 'format' is {m.get('format')!r}, expected {FORMAT}")
     if preset is not None and m.get("preset") != preset:
