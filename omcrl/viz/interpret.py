@@ -18,20 +18,24 @@ def plot_disturbance(table: pd.DataFrame) -> plt.Figure:
     """SR (%) with 95 % CI per condition (groups) and method (bars); the paper's real-world SR as black ticks."""
     conds = list(dict.fromkeys(table.condition))
     methods = list(dict.fromkeys(table.method))
-    fig, ax = plt.subplots(figsize=(1.6 + 1.5 * len(conds), 3.4))
+    fig, ax = plt.subplots(figsize=(2.8 + 1.5 * len(conds), 3.4))
     w = 0.8 / max(1, len(methods))
+    # The paper's value of each method in a marker of its own, in the colour of its bars, so two methods' values
+    # never look alike; the legend sits outside the axes, clear of the bars.
+    markers = ("D", "^", "s", "v", "P", "X", "o")
     for i, m in enumerate(methods):
         t = table[table.method == m].set_index("condition").reindex(conds)
         x = np.arange(len(conds)) + (i - (len(methods) - 1) / 2) * w
         err = np.vstack([t.SR - t.lo, t.hi - t.SR])
-        ax.bar(x, t.SR, w, yerr=err, capsize=3, label=m)
+        bars = ax.bar(x, t.SR, w, yerr=err, capsize=3, label=m)
         paper = t.paper_SR.astype(float)
         if paper.notna().any():
-            ax.plot(x, paper, "_", color="k", ms=14, mew=2, label=f"{m}, paper (real Tello)")
+            ax.plot(x, paper, markers[i % len(markers)], color=bars.patches[0].get_facecolor(), mec="k", ms=7,
+                    ls="none", label=f"{m}, paper (real Tello)")  # fmt: skip
     ax.set_xticks(np.arange(len(conds)), conds)
     ax.set_ylabel("SR (%)")
     ax.set_ylim(0, 105)
-    ax.legend(fontsize=7, ncol=2, loc="lower left")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     ax.set_title("Disturbance tests in the simulated room (95 % CI)")
     fig.tight_layout()
     return fig
@@ -90,11 +94,13 @@ def plot_gradcam(frames: np.ndarray, cams: Mapping[str, np.ndarray], titles: Seq
         for j, (m, cam) in enumerate(cams.items(), start=1):
             c = cam[i] / cam[i].max() if cam[i].max() > 0 else cam[i]
             axes[i, j].imshow(img)
-            axes[i, j].imshow(c, cmap="jet", alpha=0.45, vmin=0, vmax=1)
+            overlay = axes[i, j].imshow(c, cmap="jet", alpha=0.45, vmin=0, vmax=1)
             axes[i, j].set_title(m, fontsize=8)
     for ax in axes.flat:
         ax.axis("off")
     fig.tight_layout()
+    if cams:
+        fig.colorbar(overlay, ax=axes[:, 1:].ravel().tolist(), shrink=0.6, label="Grad-CAM, each frame's max = 1")
     return fig
 
 

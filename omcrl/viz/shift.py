@@ -5,6 +5,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from matplotlib.colors import TwoSlopeNorm
 
 
 def plot_feature_shift(table: pd.DataFrame, metrics: tuple[str, ...] = ("mmd", "frechet", "saturated")) -> plt.Figure:
@@ -34,12 +35,13 @@ def plot_feature_shift(table: pd.DataFrame, metrics: tuple[str, ...] = ("mmd", "
     return fig
 
 
-def plot_probe_across(table: pd.DataFrame, target: str | None = None, floor: float = -2.0) -> plt.Figure:
+def plot_probe_across(table: pd.DataFrame, target: str | None = None) -> plt.Figure:
     """Heatmap of the box-fitted probe's R² per encoder (rows) and setting (columns), the value printed in each cell.
 
     ``table`` is :func:`omcrl.interpret.shift.probe_across`'s output with an ``encoder`` column added. ``target``
-    picks one probe target; None averages the five. Colours are clipped at ``floor`` (R² is unbounded below),
-    the printed numbers are not.
+    picks one probe target; None averages the five. The colour scale spans the data: R² is unbounded below, so its
+    negative side runs from the lowest value to 0 and its positive side from 0 to 1, each with its own slope
+    (0, no better than the mean, is the middle colour), and the colour bar shows both.
     """
     sub = table if target is None else table[table["target"] == target]
     if sub.empty:
@@ -47,12 +49,16 @@ def plot_probe_across(table: pd.DataFrame, target: str | None = None, floor: flo
     wide = sub.groupby(["encoder", "setting"], sort=False)["r2"].mean().unstack("setting")
     wide = wide[list(dict.fromkeys(sub["setting"]))]
     fig, ax = plt.subplots(figsize=(1.5 + 1.3 * wide.shape[1], 1.0 + 0.5 * wide.shape[0]))
-    im = ax.imshow(wide.clip(lower=floor).to_numpy(), cmap="RdYlGn", vmin=floor, vmax=1.0, aspect="auto")
+    low = min(float(np.nanmin(wide.to_numpy())), -1e-3)
+    norm = TwoSlopeNorm(vmin=low, vcenter=0.0, vmax=1.0)
+    im = ax.imshow(wide.to_numpy(), cmap="RdYlGn", norm=norm, aspect="auto")
     for (i, j), v in np.ndenumerate(wide.to_numpy()):
         ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=8)
     ax.set_xticks(range(wide.shape[1]), wide.columns, rotation=30, ha="right", fontsize=8)
     ax.set_yticks(range(wide.shape[0]), wide.index, fontsize=8)
     ax.set_title(f"probe fitted in the reference, R² ({target or 'mean of the targets'})", fontsize=9)
-    fig.colorbar(im, ax=ax, fraction=0.03)
+    bar = fig.colorbar(im, ax=ax, fraction=0.03)
+    bar.set_ticks(sorted({low, low / 2, 0.0, 0.5, 1.0}))
+    bar.set_label("R²")
     fig.tight_layout()
     return fig
