@@ -80,6 +80,19 @@ if [[ "$bundle_seed" == default ]]; then
   [[ "$grid" == table1 ]] && bundle_seed=2 || bundle_seed=none
 fi
 py="$root/.venv/bin/python"
+
+# git add / commit in this checkout, waiting out another writer's index lock (a second grid session, or a person
+# committing by hand, holds .git/index.lock for a moment): a lock that outlasts 60 s, or any other failure, fails.
+git_write() {
+  local i
+  for i in $(seq 30); do
+    git -C "$root" "$@" && return 0
+    [[ -e "$(git -C "$root" rev-parse --git-dir)/index.lock" ]] || return 1
+    echo "grid_session: git $1 waits for another writer's index lock ($i)" >&2
+    sleep 2
+  done
+  return 1
+}
 [[ -x "$py" ]] || { echo "grid_session: $py not found; run ./reproduce.sh --test once to make .venv" >&2; exit 2; }
 if [[ -z "$variants" ]]; then
   if [[ "$grid" == table1 ]]; then
@@ -110,7 +123,7 @@ ship() {  # $1: what finished, $2: the grid whose record it is (default: --grid)
     sub="${src#"$dir"/}"
     mkdir -p "$root/$sub"
     cp -a "$src". "$root/$sub"
-    git -C "$root" add -- "$sub"
+    git_write add -- "$sub"
     drop_stale_copies "$sub"
     if ! git -C "$root" diff --cached --quiet -- "$sub"; then
       # Name what the commit holds (<variant>/seed<k>), not only what just ran: a variant interrupted by the end of
@@ -118,7 +131,7 @@ ship() {  # $1: what finished, $2: the grid whose record it is (default: --grid)
       local held
       held="$(git -C "$root" diff --cached --name-only -- "$sub" | awk -F/ 'NF > 5 {print $4 "/" $5}' | sort -u |
         paste -sd, -)"
-      git -C "$root" commit -q -m "$g grid: $1 recorded ($sub${held:+: $held})" -- "$sub"
+      git_write commit -q -m "$g grid: $1 recorded ($sub${held:+: $held})" -- "$sub"
       echo "grid_session: committed $1 ($sub${held:+: $held})"
     fi
   done
@@ -153,9 +166,9 @@ summary() {  # $1: after what; rebuilds and commits the generated blocks and fig
   fi
   (cd "$root" && "$py" -m omcrl summary --preset "$preset" --readme) ||
     { echo "grid_session: summary --readme failed (the blocks stay as they were)"; return 0; }
-  git -C "$root" add -- "${docs[@]}"
+  git_write add -- "${docs[@]}"
   if ! git -C "$root" diff --cached --quiet -- "${docs[@]}"; then
-    git -C "$root" commit -q -m "README and docs/results.md blocks and figures rebuilt after $1 (summary --readme)" -- "${docs[@]}"
+    git_write commit -q -m "README and docs/results.md blocks and figures rebuilt after $1 (summary --readme)" -- "${docs[@]}"
     echo "grid_session: committed the rebuilt README and docs/results.md blocks"
   fi
 }
@@ -166,9 +179,9 @@ release() {  # $1: after what, $2: which grid; commits the teacher weights that 
     { echo "grid_session: release of teacher weights failed (they stay; the grid goes on)"; return 0; }
   # A grid's first session has no folder yet, and git add fails on a pathspec that matches nothing.
   compgen -G "$root/$sub" >/dev/null || return 0
-  git -C "$root" add -- "$sub"
+  git_write add -- "$sub"
   if ! git -C "$root" diff --cached --quiet -- "$sub"; then
-    git -C "$root" commit -q -m "$2 grid: teacher weights released after $1 (read from git history)" -- "$sub"
+    git_write commit -q -m "$2 grid: teacher weights released after $1 (read from git history)" -- "$sub"
     echo "grid_session: committed the release of teacher weights"
   fi
 }
@@ -185,12 +198,12 @@ bundle_part() {  # $1: seed, $2: variant that just finished; packs, commits and 
   mkdir -p "$root/$sub"
   cp -a "$dir/$sub/." "$root/$sub"
   rm -rf "${dir:?}/$sub"
-  git -C "$root" add -- "$sub"
-  git -C "$root" commit -q -m "reference bundle: part $2 (seed $1) packed" -- "$sub"
+  git_write add -- "$sub"
+  git_write commit -q -m "reference bundle: part $2 (seed $1) packed" -- "$sub"
   (cd "$root" && "$py" -m omcrl reference --preset "$preset" --retire --from "$sub") ||
     { echo "grid_session: retiring $sub failed (it stays in the checkout)"; return 0; }
-  git -C "$root" add -A -- "$sub"
-  git -C "$root" commit -q -m "reference bundle: part $2 (seed $1) retired to git history (a pointer stays)" -- "$sub"
+  git_write add -A -- "$sub"
+  git_write commit -q -m "reference bundle: part $2 (seed $1) retired to git history (a pointer stays)" -- "$sub"
   echo "grid_session: committed and retired the bundle part $2"
 }
 

@@ -115,3 +115,20 @@ def test_without_variants_an_ablation_grid_runs_all_its_variants_in_order(checko
     assert all(" sweep decay " in s for s in sweeps)
     bad, _ = _run(checkout, "--grid", "no-such-grid", "--seeds", "0")
     assert bad.returncode == 2 and "known grids are" in bad.stderr
+
+
+def test_a_ship_waits_for_another_writers_index_lock(checkout: Path) -> None:
+    """Two grid sessions (or a person committing) share the checkout: a ship that meets .git/index.lock waits for it
+    to go instead of ending the session."""
+    import threading
+    import time
+
+    lock = checkout / ".git" / "index.lock"
+    lock.write_text("")
+    threading.Timer(5.0, lock.unlink).start()  # the other writer finishes after 5 s
+    t0 = time.monotonic()
+    out, _ = _run(checkout, "--seeds", "4", "--variants", "npe", "--bundle-seed", "none")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "waits for another writer's index lock" in out.stderr and time.monotonic() - t0 >= 5.0
+    log = _git(checkout, "log", "--format=%s").splitlines()
+    assert log[0].startswith("table1 grid: seed 4, npe recorded")
