@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from omcrl.config import load_config
-from omcrl.pipeline.records import RECORDS, DataRecord, OracleRecord, PretrainRecord
+from omcrl.pipeline.records import RECORDS, DataRecord, OracleRecord, PretrainRecord, Table1Record
 
 
 def _fake_results(root: Path) -> None:
@@ -347,3 +347,18 @@ def test_a_templates_paragraphs_are_joined_and_a_value_it_lacks_is_an_error():
     )
     with pytest.raises(jinja2.UndefinedError, match="notebook"):
         render("summary/missing.md.j2", what="data")
+
+
+def test_a_table_of_one_seed_points_to_the_grids_verdicts(tmp_path):
+    """A chain on the reference bundle (one training seed) ends with every claim `one seed`; its summary then says
+    where the five-seed verdicts are (tables --from-reference), and says nothing of it when a claim was judged."""
+    from omcrl.pipeline.summary import _section_table1
+
+    cfg = load_config("quick", overrides=[f"results_dir={tmp_path}"])
+    _fake_results(cfg.run_root)
+    tables = cfg.run_root / "tables"
+    for verdicts, pointed in ((["one seed", "not run"], True), (["one seed", "holds"], False)):
+        ledger = [{"claim": f"E{i}", "family": "primary", "verdict": v} for i, v in enumerate(verdicts)]
+        Table1Record(ledger=ledger).write(tables)
+        text = _section_table1({}, tables)
+        assert ("python -m omcrl tables --preset quick --from-reference" in text) == pointed, verdicts

@@ -266,6 +266,9 @@ def _section_table1(d: dict, tables: Path) -> str:
         sr=wide_table(long[long.metric == "SR"]),
         cr=wide_table(long[long.metric == "CR"]),
         ledger=_md_table([{k: c.get(k, "") for k in cols} for c in s.ledger]) if s.ledger else None,
+        # A chain on one seed (the reference bundle's) judges nothing: say where the grid's verdicts are.
+        one_seed={c.get("verdict") for c in s.ledger} in ({"one seed"}, {"one seed", "not run"}),
+        preset=tables.parent.name,
         claims=_md_table(claims) if claims else None,
         missing=[str(m) for m in s.missing_runs or []],
     )
