@@ -216,7 +216,7 @@ def test_ctrl_c_says_what_is_kept_and_that_the_same_command_resumes(monkeypatch,
 
 
 def test_a_notebook_number_may_drop_its_zero_and_a_wrong_one_is_refused_before_any_work(capsys):
-    """``--only 7`` is ``07``; ``reproduce.sh`` checks --only/--skip (check_choice) before it unpacks or runs anything."""
+    """``--only 7`` is ``07``; ``reproduce.sh`` checks --only and --skip (check_choice) before it unpacks or runs."""
     from omcrl.pipeline.notebooks import check_choice, select_notebooks
 
     assert select_notebooks(["7", "08"]) == ["07_tables", "08_interpretability"]
