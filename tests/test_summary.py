@@ -362,3 +362,26 @@ def test_a_table_of_one_seed_points_to_the_grids_verdicts(tmp_path):
         Table1Record(ledger=ledger).write(tables)
         text = _section_table1({}, tables)
         assert ("python -m omcrl tables --preset quick --from-reference" in text) == pointed, verdicts
+
+
+def test_the_readmes_power_sentence_counts_what_the_power_lines_say():
+    """The README's sentence on the undecided rows is computed from their power lines: which no number of seeds
+    decides (and the layouts they would need), which more seeds would, and where the seeds' spread is the larger
+    part."""
+    import math
+
+    import pandas as pd
+
+    from omcrl.pipeline.glance import _power
+
+    inf = math.inf
+    v = pd.DataFrame({
+        "verdict": ["undecided", "undecided", "undecided", "undecided", "holds"],
+        "seeds_to_decide": [inf, inf, 12.0, 30.0, math.nan],
+        "layouts_to_decide": [100.0, inf, math.nan, math.nan, math.nan],
+        "var_seed": [1.0, 0.1, 2.0, 3.0, 9.0],
+        "var_layout": [0.5, 0.2, 1.0, 1.0, 1.0],
+    })  # fmt: skip
+    p = _power(v)
+    assert (p["undecided"], p["bound"], p["no_layouts"], p["by_seeds"], p["seed_heavy"]) == (4, 2, 1, 2, 3)
+    assert p["layouts_needed"] == ("100", "100", "100") and p["seeds_needed"] == ("12", "21", "30")

@@ -198,7 +198,7 @@ def render_v2(result: Table1Result, confirmation: str | None = None, grid_seeds:
         ledger = {
             "hypotheses": len(v),
             "tally": ", ".join(f"{int(n.get(k, 0))} {k}" for k in TALLIED),
-            "bound": int(((v["verdict"] == "undecided") & (v["seeds_to_decide"] == math.inf)).sum()),
+            **_power(v),
             "claims": [(k, by[k]) for k in CLAIM_VERDICTS if k in by],
         }
     return render(
@@ -212,6 +212,32 @@ def render_v2(result: Table1Result, confirmation: str | None = None, grid_seeds:
         confirmation=confirmation,
         figure=V2_FIGURE if "fig5" in result.paths else None,
     )
+
+
+def _power(v: pd.DataFrame) -> dict[str, Any]:
+    """What the undecided hypotheses' power lines say (:func:`omcrl.eval.verdicts.holm_verdicts`): ``bound``, those no
+    number of training seeds decides at the grid's layouts, and the layouts their lines ask for (``layouts``: min,
+    median, max of the finite ones; ``no_layouts``: those with none); ``by_seeds``, the others, and the training seeds
+    theirs ask for (``seeds``: min, median, max); ``seed_heavy``, those whose spread between training seeds is larger
+    than their layouts' (``var_seed`` > ``var_layout``)."""
+    und = v[v["verdict"] == "undecided"]
+    bound = und[und["seeds_to_decide"] == math.inf]
+    need = bound["layouts_to_decide"]
+    finite = need[need.map(math.isfinite)]
+    by_seeds = und["seeds_to_decide"][und["seeds_to_decide"].map(math.isfinite)]
+
+    def spread(x: pd.Series) -> tuple[str, str, str] | None:
+        return None if x.empty else (f"{x.min():,.0f}", f"{x.median():,.0f}", f"{x.max():,.0f}")
+
+    return {
+        "undecided": len(und),
+        "bound": len(bound),
+        "layouts_needed": spread(finite),
+        "no_layouts": int(len(need) - len(finite)),
+        "by_seeds": len(by_seeds),
+        "seeds_needed": spread(by_seeds),
+        "seed_heavy": int((und["var_seed"] > und["var_layout"]).sum()),
+    }
 
 
 def _sr_table(result: Table1Result) -> tuple[list[str], int, str]:
