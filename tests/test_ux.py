@@ -224,3 +224,28 @@ def test_a_notebook_number_may_drop_its_zero_and_a_wrong_one_is_refused_before_a
     assert check_choice(["--set", "x=1", "--only", "7,9"]) == 0
     assert check_choice(["--only", "7", "--skip=77"]) == 2
     assert "--skip 77" in capsys.readouterr().err
+
+
+def test_a_notebooks_banner_gives_the_estimate_the_chains_plan_gives():
+    """Each notebook's first line and the chain's plan estimate alike, from the suite in use: training and Table I
+    notebooks from the grid's measured jobs (jobs.csv), 08 and 09 from their v2 measurement, not the v1 table."""
+    from omcrl.config import load_config
+    from omcrl.pipeline.expected import (
+        EXPECTED_WALL_S,
+        chain_plan,
+        expected_time,
+        grid_evaluation_seconds,
+        grid_training_seconds,
+    )
+    from omcrl.utils.progress import format_duration
+
+    cfg = load_config("quick")
+    steps = cfg.rl.total_steps
+    train_s, eval_s = grid_training_seconds("quick", "v2", steps), grid_evaluation_seconds("quick", "v2")
+    chain = ["03_train_oracle", "07_tables", "08_interpretability"]
+    plan = chain_plan("quick", chain, steps, train_s, eval_s, "v2")
+    for n, line in zip(chain, plan[1:], strict=False):
+        est = line.split("~", 1)[1].split()[0]
+        assert f"about {est} on a 2-core CPU" in expected_time("quick", n), n
+    assert format_duration(EXPECTED_WALL_S["quick"]["08_interpretability"]) not in plan[3]  # the v1 figure is gone
+    assert "grid's measured" in plan[1] and "grid's measured evaluation" in plan[2]

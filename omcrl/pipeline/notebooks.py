@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from omcrl.config import PRESETS, ConfigError, overrides_from_config, resolve_path
-from omcrl.pipeline.expected import EXPECTED_WALL_S, chain_plan, grid_training_seconds
+from omcrl.pipeline.expected import chain_plan, grid_evaluation_seconds, grid_training_seconds, notebook_estimate
 from omcrl.pipeline.summary import write_summary
 from omcrl.scenes import suite_of
 from omcrl.utils.io import atomic_write_text
@@ -357,24 +357,27 @@ def run_chain(
     verbose: bool = True,
     rl_steps: int | None = None,
     train_s: dict[str, float] | None = None,
+    eval_s: dict[str, float] | None = None,
+    suite: str | None = None,
 ) -> list[Path]:
     """Run ``names`` (default: all of :data:`NOTEBOOKS`) in the given order; stop at the first failure.
 
     Later notebooks read artifacts written by earlier ones, so the default order is the numeric one. First it prints
     its plan (``verbose``): each notebook with its estimate and the total (:func:`~omcrl.pipeline.expected.chain_plan`;
-    ``rl_steps``: the runs' env steps; ``train_s``: measured training seconds per method at that budget).
+    ``rl_steps``: the runs' env steps; ``train_s`` and ``eval_s``: measured training seconds per method at that
+    budget and evaluation seconds per method; ``suite``: the scene suite in use).
     """
     chain = list(names) if names is not None else discover_notebooks()
     if not chain:
         raise NotebookNotFoundError(f"no notebooks NN_*.ipynb in {NOTEBOOK_DIR}")
     if verbose:
-        for line in chain_plan(preset, chain, rl_steps, train_s):
+        for line in chain_plan(preset, chain, rl_steps, train_s, eval_s, suite):
             print(f"[notebooks] {line}", flush=True)
     done = []
     for n in chain:
         t0 = time.perf_counter()
         if verbose:
-            want = EXPECTED_WALL_S.get(preset, {}).get(n)  # measured (omcrl.pipeline.expected)
+            want, _ = notebook_estimate(preset, n, suite, rl_steps, train_s, eval_s)  # as the plan above
             hint = f", about {format_duration(want)} from nothing trained on 2 cores" if want else ""
             print(f"[notebooks] {n} (preset {preset}{hint}) ...", flush=True)
         # Peak memory of the kernel and the workers it starts, every 0.25 s (an upper bound: see PeakRSS).
@@ -501,14 +504,16 @@ def notebooks_stage(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[
     passing on every non-default field, then write and print the summary (:mod:`omcrl.pipeline.summary`)."""
     chain = select_notebooks(only, skip)
     overrides = [o for o in overrides_from_config(cfg) if not o.startswith("results_dir=")]
-    train_s = grid_training_seconds(cfg.preset, suite_of(cfg.env.scene), cfg.rl.total_steps)
+    suite = suite_of(cfg.env.scene)
     run_chain(
         cfg.preset,
         names=chain,
         results_dir=cfg.results_root,
         overrides=overrides,
         rl_steps=cfg.rl.total_steps,
-        train_s=train_s,
+        train_s=grid_training_seconds(cfg.preset, suite, cfg.rl.total_steps),
+        eval_s=grid_evaluation_seconds(cfg.preset, suite),
+        suite=suite,
     )
     path = write_summary(cfg)
     print(path.read_text(encoding="utf-8"))
