@@ -8,7 +8,8 @@ from __future__ import annotations
 import csv
 import statistics
 
-from omcrl.config import project_root
+from omcrl.config import load_config, project_root
+from omcrl.scenes import suite_of
 from omcrl.utils.progress import format_duration
 
 # Wall time (s) of each notebook from nothing trained, one seed, on the reference machine (2 CPU cores, no GPU),
@@ -61,9 +62,6 @@ def expected_time(preset: str, notebook: str) -> str:
     """One line: how long ``notebook`` (``"03_train_oracle"``) takes at ``preset`` on the reference machine, estimated
     as the chain's plan estimates it (:func:`notebook_estimate`: for the preset's scene suite and RL budget, from the
     Table I grid's measured jobs where they make up the notebook)."""
-    from omcrl.config import load_config
-    from omcrl.scenes import suite_of
-
     cfg = load_config(preset)
     suite = suite_of(cfg.env.scene)
     wall, _ = notebook_estimate(preset, notebook, suite, cfg.rl.total_steps,
