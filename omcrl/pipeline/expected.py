@@ -152,26 +152,23 @@ def grid_training_seconds(preset: str, suite: str | None, rl_steps: int) -> dict
     """``{method: s}``: the median seconds of the Table I grid's finished training jobs of ``suite`` at ``rl_steps``
     env steps (``reference/<preset>/table1-<suite>/jobs.csv``, measured on the 2-core machine, often beside other
     work); empty when there is no such file or no job at that budget."""
-    path = project_root() / "reference" / preset / f"table1-{suite}" / "jobs.csv"
-    if suite is None or not path.exists():
-        return {}
-    times: dict[str, list[float]] = {}
-    with path.open(newline="") as fh:
-        for r in csv.DictReader(fh):
-            if r["kind"] == "train" and r["status"] == "done" and int(float(r["work"])) == rl_steps:
-                times.setdefault(r["method"], []).append(float(r["seconds"]))
-    return {m: statistics.median(v) for m, v in times.items()}
+    return _grid_job_seconds(preset, suite, "train", rl_steps)
 
 
 def grid_evaluation_seconds(preset: str, suite: str | None) -> dict[str, float]:
     """``{method: s}``: the median seconds of the Table I grid's finished evaluation jobs of ``suite`` (every scene of
     Table I at its layouts; ``reference/<preset>/table1-<suite>/jobs.csv``); empty when there is no such file."""
+    return _grid_job_seconds(preset, suite, "evaluate")
+
+
+def _grid_job_seconds(preset: str, suite: str | None, kind: str, work: int | None = None) -> dict[str, float]:
+    """Median seconds per method of the Table I grid's finished jobs of ``kind`` (of ``work`` units, when given)."""
     path = project_root() / "reference" / preset / f"table1-{suite}" / "jobs.csv"
     if suite is None or not path.exists():
         return {}
     times: dict[str, list[float]] = {}
     with path.open(newline="") as fh:
         for r in csv.DictReader(fh):
-            if r["kind"] == "evaluate" and r["status"] == "done":
+            if r["kind"] == kind and r["status"] == "done" and (work is None or int(float(r["work"])) == work):
                 times.setdefault(r["method"], []).append(float(r["seconds"]))
     return {m: statistics.median(v) for m, v in times.items()}
