@@ -228,6 +228,7 @@ def train(
                 optimizer.load_state_dict(ckpt["optimizer"])
                 step, update = int(ckpt["step"]), int(ckpt["update"])
                 set_rng_state(ckpt["rng"])
+            start = step  # where this call began: a resumed run's earlier part is not timed
             _record_segment(run, step, env_seed, resumed=ckpt is not None)
             runner = Runner(env, agent, guide, seed=env_seed)
             recent: deque = deque(maxlen=50)  # the last 50 episodes, for the progress bar
@@ -278,15 +279,10 @@ def train(
                     if not s.keep_going(step, row):
                         break
             if not s.ended:
-                return Result(run, run.checkpoint_path, step, False, _start(ckpt))
+                return Result(run, run.checkpoint_path, step, False, start)
             meta = {"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})}
             final = run.finish({**policy_payload(agent, space_shapes(obs_space), step, meta=meta), "key": run.key})
-    return Result(run, final, step, False, _start(ckpt))
-
-
-def _start(ckpt: dict | None) -> int:
-    """The env step a training call began at: its checkpoint's, or 0."""
-    return 0 if ckpt is None else int(ckpt["step"])
+    return Result(run, final, step, False, start)
 
 
 def _record_segment(run: Run, step: int, env_seed: int, *, resumed: bool) -> None:
