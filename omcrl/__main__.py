@@ -230,7 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
                 "--grid",
                 default="table1",
                 help="with --from-reference: the grid of Table I's runs to read (table1-confirm: the same runs in "
-                "200 layouts Table I never flew; its tables go to results/<preset>/tables/table1-confirm/)",
+                "200 layouts Table I never flew; its tables go to results/<preset>/tables/table1-confirm/), or "
+                "ablations: Tables II-III, Figs. 7-10 and the six findings from the ablation grids' data",
             )
         if name == "ladder":
             sp.add_argument(

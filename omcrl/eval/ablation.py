@@ -2,7 +2,8 @@
 
 :func:`write_ablation` writes ``tables/ablation_<grid>.{csv,md,tex}`` in Table I's layout (variants as rows,
 mean ± CI half-width over seeds and episodes); the ``sequential`` grid is also written as ``table2.*`` (paper
-Table II) and the ``decay`` grid as ``table3.*`` (Table III).
+Table II) and the ``decay`` grid as ``table3.*`` (Table III), each with ``<table>_vs_paper.{csv,md}``: the paper's
+values (``paper_ablations.csv`` in this package) beside the kit's.
 """
 
 from __future__ import annotations
@@ -14,12 +15,25 @@ import pandas as pd
 from omcrl.eval.metrics import episode_values
 from omcrl.eval.stage import to_markdown
 from omcrl.eval.stats import BOUNDED, aggregate, cell_rng, compare_sr
-from omcrl.eval.table1 import _latex, _markdown, table1_frames
+from omcrl.eval.table1 import _latex, _markdown, table1_frames, vs_paper, vs_paper_markdown
 from omcrl.eval.verdicts import cell, holm_verdicts, judge
 from omcrl.scenes import is_stress, is_unseen
 from omcrl.utils.io import atomic_write_text
 
 PAPER_TABLES = {"sequential": "table2", "decay": "table3"}
+PAPER_ABLATIONS = Path(__file__).with_name("paper_ablations.csv")
+# The paper's caption of each table, for the files that set its values beside the kit's.
+PAPER_CAPTIONS = {
+    "sequential": "Table II of the OMC-RL paper (sequential input; evaluation scenes, Unity)",
+    "decay": "Table III of the OMC-RL paper (decay strategies; its Ours, Ours-exp, Ours-fixed are linear, exp, fixed)",
+}
+
+
+def paper_ablations(grid: str | None = None) -> pd.DataFrame:
+    """The paper's Tables II and III (long: ``grid, label, scene, NE OS SR SPL CR TTS``), labels as in the grids
+    of :mod:`omcrl.pipeline.grids`; ``grid``: only that grid's rows (none for a grid the paper gives no numbers)."""
+    df = pd.read_csv(PAPER_ABLATIONS, comment="#")
+    return df if grid is None else df[df["grid"] == grid].reset_index(drop=True)
 
 
 def ablation_table(episodes: pd.DataFrame, reps: int = 2000) -> pd.DataFrame:
@@ -42,6 +56,13 @@ def write_ablation(episodes: pd.DataFrame, directory: str | Path, grid: str, rep
         "episodes. NE m, OS/SR/CR %, SPL 0-1, TTS steps. Bold: best variant.\n\n"
     )
     paths: dict[str, Path] = {}
+    if grid in PAPER_TABLES:
+        # The paper's values where it prints numbers (Tables II and III), the kit's mean [95 % CI] beside each.
+        vp = vs_paper(table, paper_ablations(grid).drop(columns="grid").rename(columns={"label": "method"}))
+        name = f"{PAPER_TABLES[grid]}_vs_paper"
+        for suffix, text in (("csv", vp.to_csv(index=False)), ("md", vs_paper_markdown(vp, PAPER_CAPTIONS[grid]))):
+            paths[f"{name}.{suffix}"] = d / f"{name}.{suffix}"
+            atomic_write_text(paths[f"{name}.{suffix}"], text)
     for name in (f"ablation_{grid}", PAPER_TABLES.get(grid)):
         if name is None:
             continue

@@ -260,12 +260,13 @@ def _latex(wide: pd.DataFrame, labels: dict[str, str]) -> str:
     return "\n".join(lines)
 
 
-def vs_paper(table: pd.DataFrame) -> pd.DataFrame:
+def vs_paper(table: pd.DataFrame, paper: pd.DataFrame | None = None) -> pd.DataFrame:
     """Long table: method, scene, metric, paper (reported), kit (mean), kit_lo, kit_hi — where the paper has a value.
 
     ``scene`` is the kit's scene that stands for the paper's (:attr:`~omcrl.scenes.SceneSpec.paper_scene`:
-    ``furniture-v1`` for the paper's furniture); stress tests have no paper value."""
-    paper = paper_table1().set_index(["method", "scene"])
+    ``furniture-v1`` for the paper's furniture); stress tests have no paper value. ``paper``: the paper's values in
+    :func:`paper_table1`'s long form (``method, scene, <metric>...``; default: Table I's)."""
+    paper = (paper_table1() if paper is None else paper).set_index(["method", "scene"])
     # The kit's scene that stands for each of the paper's (furniture-v1 for "furniture"; a stress test for none).
     kit_scene = {}
     for s in dict.fromkeys(table.index.get_level_values("scene")):
@@ -287,6 +288,23 @@ def vs_paper(table: pd.DataFrame) -> pd.DataFrame:
                 }
             )
     return pd.DataFrame(rows)
+
+
+def vs_paper_markdown(vp: pd.DataFrame, source: str, labels: dict[str, str] | None = None) -> str:
+    """:func:`vs_paper`'s rows as a Markdown table, the paper's value beside the kit's mean [95 % CI]; ``source``
+    names the paper's table in the caption, ``labels`` the rows' display names."""
+    labels = labels or {}
+    md = ["| method | scene | metric | paper | kit (mean [95% CI]) |", "|---|---|---|---|---|"]
+    for r in vp.itertuples():
+        if r.kit is None:
+            kit = "not evaluated"
+        elif pd.isna(r.kit):
+            kit = "– (no success)" if r.metric == "TTS" else "–"
+        else:
+            kit = f"{r.kit:.2f} [{r.kit_lo:.2f}, {r.kit_hi:.2f}]"
+        paper = "–" if pd.isna(r.paper) else f"{r.paper:g}"
+        md.append(f"| {labels.get(r.method, r.method)} | {r.scene} | {r.metric} | {paper} | {kit} |")
+    return f"Paper: {source}. Kit: this run.\n\n" + "\n".join(md) + "\n"
 
 
 def write_table1(
@@ -331,21 +349,9 @@ def write_table1(
     atomic_write_text(paths["md"], note + _markdown(wide, labels))
     atomic_write_text(paths["tex"], _latex(wide, labels))
     atomic_write_text(paths["vs_paper_csv"], vp.to_csv(index=False))
-    md = ["| method | scene | metric | paper | kit (mean [95% CI]) |", "|---|---|---|---|---|"]
-    for r in vp.itertuples():
-        if r.kit is None:
-            kit = "not evaluated"
-        elif pd.isna(r.kit):
-            kit = "– (no success)" if r.metric == "TTS" else "–"
-        else:
-            kit = f"{r.kit:.2f} [{r.kit_lo:.2f}, {r.kit_hi:.2f}]"
-        paper = "–" if pd.isna(r.paper) else f"{r.paper:g}"
-        md.append(f"| {labels.get(r.method, r.method)} | {r.scene} | {r.metric} | {paper} | {kit} |")
     atomic_write_text(
         paths["vs_paper_md"],
-        "Paper: Table I of the OMC-RL paper (200 episodes per scene, Unity scenes). Kit: this run.\n\n"
-        + "\n".join(md)
-        + "\n",
+        vs_paper_markdown(vp, "Table I of the OMC-RL paper (200 episodes per scene, Unity scenes)", labels),
     )
     atomic_write_text(paths["significance"], sig.to_csv(index=False))
     atomic_write_text(paths["episodes"], episodes.drop(columns=["trajectory"], errors="ignore").to_csv(index=False))

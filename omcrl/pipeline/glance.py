@@ -21,12 +21,13 @@ import pandas as pd
 
 from omcrl import planners
 from omcrl.config import load_config, project_root
-from omcrl.eval.ablation import ablation_findings, findings_summary
+from omcrl.eval.ablation import PAPER_TABLES, paper_ablations
 from omcrl.eval.metrics import glossary_markdown
 from omcrl.eval.stage import scene_cells, to_markdown
 from omcrl.eval.stats import aggregate, cell_rng, contrast, term
 from omcrl.eval.table1 import Table1Result, ci_text, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, compare_readings, readings_markdown, verdict_counts
+from omcrl.pipeline.ablations import ABLATION_SEEDS, AblationResult, ablations_from_reference, account_markdown
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
 from omcrl.pipeline.grids import ABLATION_GRIDS, GRIDS
 from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
@@ -72,8 +73,6 @@ ABLATION_START = (
     "<!-- results-ablations-v2: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 )
 ABLATION_END = "<!-- results-ablations-v2: end -->"
-# The issue's seeds for the v2 ablations (notebook 06's six findings over three training seeds).
-ABLATION_SEEDS = (0, 1, 2)
 # A claim's verdict over its hypotheses (omcrl.eval.verdicts.verdict_counts), in the README's order.
 CLAIM_VERDICTS = ("holds", "reversed", "mixed", "undecided", "one seed", "not run")
 TALLIED = ("holds", "reversed", "undecided", "one seed", "not run")  # a hypothesis's verdicts (a claim's add mixed)
@@ -427,37 +426,67 @@ def _hours_text(cost: dict[str, float]) -> str:
     )
 
 
-def ablation_block(preset: str = "quick", seeds: tuple[int, ...] = ABLATION_SEEDS, reps: int = 2000) -> str:
-    """docs/results.md's block on the paper's six ablation findings (VI-C) on the preset's scene suite, rebuilt from
-    the grids of :data:`omcrl.pipeline.grids.ABLATION_GRIDS` under ``reference/<preset>/<grid>-<suite>/`` at the
-    training ``seeds``: which variants are recorded, each finding's verdict (:func:`omcrl.eval.ablation.
-    findings_summary`), each check's SR difference with its 95 % CI and verdict (paired, Holm over the unseen-scene
-    checks; the stress room a family apart), and SR per variant and scene (Table I's intervals)."""
+# The paper's numbering of the ablation tables the kit writes (omcrl.eval.ablation.PAPER_TABLES).
+PAPER_NAMES = {"table2": "Table II", "table3": "Table III"}
+
+
+def _paper_rows(res: AblationResult, grid: str) -> list[str]:
+    """Markdown rows of one of the paper's ablation tables (II, III): per variant and scene, SR and CR as the kit
+    measured them (mean [95 % CI]) beside the paper's values."""
+    table = res.tables.get(grid)
+    paper = paper_ablations(grid)
+    rows = []
+    for r in paper.itertuples():
+        sc = next((s for s in table.index.get_level_values("scene").unique() if scene_spec(s).paper_scene == r.scene),
+                  None) if table is not None else None  # fmt: skip
+        k = table.loc[(r.label, sc)] if sc is not None and (r.label, sc) in table.index else None
+        cells = [ci_text(k[m], k[f"{m}_lo"], k[f"{m}_hi"]) if k is not None else "not recorded" for m in ("SR", "CR")]
+        rows.append(f"| {r.label} | {sc or r.scene} | {cells[0]} | {r.SR:g} | {cells[1]} | {r.CR:g} |")
+    return rows
+
+
+def ablation_block(
+    preset: str = "quick",
+    seeds: tuple[int, ...] = ABLATION_SEEDS,
+    reps: int = 2000,
+    figures_to: str | Path | None = None,
+) -> str:
+    """docs/results.md's block on the paper's ablations (VI-C) on the preset's scene suite, rebuilt from the grids of
+    :data:`omcrl.pipeline.grids.ABLATION_GRIDS` under ``reference/<preset>/<grid>-<suite>/`` at the training
+    ``seeds`` (:func:`omcrl.pipeline.ablations.ablations_from_reference`): which variants are recorded, each
+    finding's verdict (:func:`omcrl.eval.ablation.findings_summary`), each check's SR difference with its 95 % CI,
+    Holm-adjusted p and verdict (paired; Holm over the unseen-scene checks, the stress room a family apart), Tables
+    II and III beside the paper's values, SR per variant and scene, Figs. 7–10, and the grids' account. With
+    ``figures_to`` (a folder), the figures are copied there (linked from docs/ as :data:`LADDER_FIGURES`)."""
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
-        episodes = {}
-        for g in ABLATION_GRIDS:
-            ep = GridData(grid_data_dir(cfg, g)).episodes()
-            if len(ep):
-                episodes[g] = ep[ep["train_seed"].isin(list(seeds))]
-    common = {"seeds": list(seeds), "preset": preset}
-    if not any(len(e) for e in episodes.values()):
-        cost = _hours_text(rest_hours(cfg, ABLATION_GRIDS, seeds))
-        return render("ablations_v2.md.j2", recorded=[], grids=ABLATION_GRIDS, cost=cost, **common)
+        common = {"seeds": list(seeds), "preset": preset}
+        try:
+            res = ablations_from_reference(cfg, seeds, reps)
+        except FileNotFoundError:
+            cost = _hours_text(rest_hours(cfg, ABLATION_GRIDS, seeds))
+            return render("ablations_v2.md.j2", recorded=[], grids=ABLATION_GRIDS, cost=cost, **common)
+        figures = [path.name for name, path in res.paths.items() if path.suffix == ".png"]
+        if figures_to is not None:
+            Path(figures_to).mkdir(parents=True, exist_ok=True)
+            for name in figures:
+                shutil.copyfile(cfg.run_root / "figures" / name, Path(figures_to) / name)
     recorded = []
     for g in ABLATION_GRIDS:
-        ep = episodes.get(g, pd.DataFrame(columns=["label", "train_seed"]))
+        ep = res.episodes.get(g, pd.DataFrame(columns=["label", "train_seed"]))
         recorded += [(g, v.label, ep.loc[ep["label"] == v.label, "train_seed"].nunique()) for v in GRIDS[g]]
-    findings = ablation_findings(episodes, reps=reps)
+    findings = res.findings
     check_scenes = list(dict.fromkeys(findings["scene"])) if len(findings) else []
 
     def check(r: pd.Series) -> str:
-        ok = math.isfinite(r["diff"])
-        return f"{_signed(r['diff'])} [{_signed(r['lo'])}, {_signed(r['hi'])}] {r['verdict']}" if ok else ""
+        if not math.isfinite(r["diff"]):
+            return ""
+        p = f", p {r['p_holm']:.2g}" if math.isfinite(r["p_holm"]) else ""
+        return f"{_signed(r['diff'])} [{_signed(r['lo'])}, {_signed(r['hi'])}] {r['verdict']}{p}"
 
     by_claim = findings.groupby(["finding", "claim"], sort=False) if len(findings) else ()
     checks = [f"| {finding} | {claim} | {scene_cells(g, check_scenes, check)} |" for (finding, claim), g in by_claim]
-    frames = [e.assign(grid=g) for g, e in episodes.items() if len(e)]
+    frames = [e.assign(grid=g) for g, e in res.episodes.items()]
     table = aggregate(pd.concat(frames, ignore_index=True), ("grid", "label", "scene"), reps=reps).reset_index()
     order = {(g, v.label): i for i, (g, v) in enumerate((g, v) for g in ABLATION_GRIDS for v in GRIDS[g])}
     rank = [order.get(k, len(order)) for k in zip(table["grid"], table["label"])]  # the grids' own order
@@ -469,14 +498,19 @@ def ablation_block(preset: str = "quick", seeds: tuple[int, ...] = ABLATION_SEED
         + " |"
         for (g, label), t in table.groupby(["grid", "label"], sort=False)
     ]
+    paper = [(PAPER_NAMES[PAPER_TABLES[g]], PAPER_TABLES[g], g, _paper_rows(res, g)) for g in PAPER_TABLES]
+    rel = LADDER_FIGURES.removeprefix("docs/")
     return render(
         "ablations_v2.md.j2",
         recorded=recorded,
-        findings=to_markdown(findings_summary(findings).set_index("finding"), "finding").strip(),
+        findings=to_markdown(res.summary.set_index("finding"), "finding").strip(),
         checks=checks,
         check_scenes=check_scenes,
         sr=sr,
         sr_scenes=sr_scenes,
+        paper=paper,
+        figures=[f"{rel}/{name}" for name in figures],
+        account=account_markdown(res.ran, res.rest).strip(),
         **common,
     )
 
@@ -581,8 +615,9 @@ def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bo
     short, full, confirm = _v2(preset, figure_to=root / V2_FIGURE)
     v1 = render_v1_results(reference_table_dir(preset))
     ladder = ladder_block(preset, figures_to=root / LADDER_FIGURES)
+    ablations = ablation_block(preset, figures_to=root / LADDER_FIGURES)
     blocks = [(full, FULL_START, FULL_END), (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END),
-              (ladder, LADDER_START, LADDER_END), (ablation_block(preset), ABLATION_START, ABLATION_END),
+              (ladder, LADDER_START, LADDER_END), (ablations, ABLATION_START, ABLATION_END),
               (detour_block(preset), WHY_DETOUR_START, WHY_DETOUR_END),
               (attribution_block(preset), WHY_LOOK_START, WHY_LOOK_END)]  # fmt: skip
     _rewrite(root / "docs" / "results.md", blocks)

@@ -38,12 +38,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import pandas as pd
 
-from omcrl.config import Config, ConfigError, project_root
+from omcrl.config import Config, project_root
 from omcrl.eval.stage import portable_checkpoint
 from omcrl.eval.table1 import Table1Result, write_table1
-from omcrl.eval.table1 import tables_stage as evaluate_tables
 from omcrl.eval.verdicts import write_verdicts
-from omcrl.pipeline.grids import TABLE1_GRIDS
 from omcrl.pipeline.reference import config_suite
 from omcrl.pipeline.released import POINTER, available, read_kept, release
 from omcrl.runs import (
@@ -334,18 +332,3 @@ def tables_from_reference(cfg: Config, grid: str = "table1", reps: int = 2000) -
         paths["fig5"] = save_figure(fig, cfg.run_root / "figures", "fig5_training_curves")
         plt.close(fig)
     return Table1Result(episodes, table, sig, [], paths | vpaths, time.perf_counter() - t0, verdicts)
-
-
-def tables_stage(
-    cfg: Config, *, from_reference: bool = False, grid: str = "table1", progress: bool = True
-) -> Table1Result:
-    """CLI stage ``tables``: evaluate every finished run and write Table I (:func:`omcrl.eval.table1.tables_stage`),
-    or with ``--from-reference`` rebuild it from the data of ``grid`` in the checkout (:func:`tables_from_reference`).
-    """
-    if grid not in TABLE1_GRIDS:
-        raise ConfigError(f"tables: got grid {grid!r}, expected one of Table I's grids {list(TABLE1_GRIDS)}")
-    if grid != "table1" and not from_reference:
-        raise ConfigError(f"tables: --grid {grid} reads that grid's recorded data; add --from-reference")
-    if from_reference:
-        return tables_from_reference(cfg, grid)
-    return evaluate_tables(cfg, progress=progress)

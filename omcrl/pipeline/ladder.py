@@ -27,7 +27,7 @@ import json
 import math
 import re
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -180,8 +180,11 @@ def scale_effects(episodes: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 
     return out[cols]
 
 
-def cost_table(cfg: Config) -> pd.DataFrame:
+def cost_table(cfg: Config, groups: Mapping[str, str] | None = None, column: str = "ladder") -> pd.DataFrame:
     """The plan's predicted cost against the measured time, per ladder and kind of job, for the jobs its grid ran.
+
+    ``groups``: ``{row name: grid}`` (default: each ladder's grid, :data:`LADDERS`), the name in ``column``; the
+    ablations' account passes their grids.
 
     Reads what a ladder's grid keeps beside its data (:func:`grid_data_dir`): ``jobs.csv`` (each job this grid ran,
     its work and seconds; a training or pretraining resumed from a checkpoint counts the part after it) and
@@ -194,7 +197,7 @@ def cost_table(cfg: Config) -> pd.DataFrame:
     (NaN for a kind the plan had no rate for, or no plan kept), ``measured_h`` = Σ seconds, both in hours.
     """
     rows = []
-    for axis, (grid, _) in LADDERS.items():
+    for axis, grid in (groups or {a: g for a, (g, _) in LADDERS.items()}).items():
         folder = grid_data_dir(cfg, grid)
         if not (folder / "jobs.csv").is_file():
             continue
@@ -203,10 +206,10 @@ def cost_table(cfg: Config) -> pd.DataFrame:
         rates = json.loads((folder / PLAN_RATES).read_text()) if (folder / PLAN_RATES).is_file() else {}
         for key, g in jobs.groupby("rate_key", sort=False):
             rate = rates.get(key)
-            rows.append({"ladder": axis, "rate_key": key, "jobs": len(g), "work": int(g["work"].sum()),
+            rows.append({column: axis, "rate_key": key, "jobs": len(g), "work": int(g["work"].sum()),
                          "planned_h": g["work"].sum() / rate / 3600 if rate else math.nan,
                          "measured_h": g["seconds"].sum() / 3600})  # fmt: skip
-    return pd.DataFrame(rows, columns=["ladder", "rate_key", "jobs", "work", "planned_h", "measured_h"])
+    return pd.DataFrame(rows, columns=[column, "rate_key", "jobs", "work", "planned_h", "measured_h"])
 
 
 def rest_cost(cfg: Config, cost: pd.DataFrame, seeds: Sequence[int] = LADDER_SEEDS) -> pd.DataFrame:

@@ -103,7 +103,7 @@ STAGES: dict[str, Stage] = {
         ),
     ),
     "tables": Stage(
-        "omcrl.pipeline.griddata:tables_stage",
+        "omcrl.pipeline.tables:tables_stage",
         "evaluate every method at cfg.seeds and write Table I with CIs",
         (
             "tables/table1.{csv,md,tex}, table1_vs_paper.{csv,md}, table1_significance.csv, table1_episodes.csv; "
