@@ -2,8 +2,8 @@
 # Run what is left of a grid over seeds, one variant at a time, and commit each finished variant's grid data.
 #
 #   scripts/grid_session.sh [--grid table1] [--seeds 0,1,2,3,4] [--variants oracle,ours,...] [--dir ../omcrl-grid]
-#                           [--backend local|ray] [--bundle-seed 2|none] [--by seed|variant] [--also GRID]
-#                           [--set FIELD=VALUE ...]
+#                           [--backend local|ray] [--bundle-seed 2|none] [--parts bundle-parts] [--by seed|variant]
+#                           [--also GRID] [--set FIELD=VALUE ...]
 #
 # A session is shorter than the grid (about 6 machine-hours a seed at the quick preset), so this is what a session
 # starts first, in the background, with its log on disk:
@@ -28,6 +28,10 @@
 # committed, and retired to git history (a pointer stays) in the next commit. Once every part is in:
 #
 #   python -m omcrl reference --preset quick --merge reference/quick/bundle-parts --from reference/quick/bundle
+#
+# --parts NAME: the folder under reference/<preset>/ the parts go to (default bundle-parts, the published bundle's).
+# Another seed's weights kept the same way (e.g. the look attribution's retrained seeds, issue 75) get a folder of
+# their own: --bundle-seed 3 --parts bundle-parts-seed3.
 #
 # --also GRID: after each variant of each seed is shipped, GRID's same variant and seed run and are shipped too. It is
 # for a grid that re-flies this grid's runs in other layouts (table1-confirm): a policy's weights live only on the
@@ -54,6 +58,7 @@ variants=""  # default: Table I's order above for table1 (less the controls for 
 preset=quick
 backend=local
 bundle_seed=default
+parts=bundle-parts
 by=seed
 also=""
 sets=()
@@ -68,6 +73,7 @@ while [[ $# -gt 0 ]]; do
     --dir) dir="$2"; shift 2 ;;
     --backend) backend="$2"; shift 2 ;;
     --bundle-seed) bundle_seed="$2"; shift 2 ;;
+    --parts) parts="$2"; shift 2 ;;
     --by) by="$2"; shift 2 ;;
     --also) also="$2"; shift 2 ;;
     --set) sets+=(--set "$2"); shift 2 ;;  # e.g. --set sweep.storage=/shared/omcrl (an embedded Ray resumes from it)
@@ -188,7 +194,7 @@ release() {  # $1: after what, $2: which grid; commits the teacher weights that 
 
 bundle_part() {  # $1: seed, $2: variant that just finished; packs, commits and retires its bundle part
   [[ "$1" == "$bundle_seed" ]] || return 0
-  local sub="reference/$preset/bundle-parts/$2"
+  local sub="reference/$preset/$parts/$2"
   [[ -f "$root/$sub/MANIFEST.json" ]] && return 0
   echo "grid_session: packing $2 seed $1 as a part of the reference bundle ($sub)"
   # Packed in the worktree (its staging folder is large), then copied here whole.

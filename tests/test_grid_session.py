@@ -31,6 +31,11 @@ if [[ "$3" == sweep && " $* " == *" --to-reference "* ]]; then
   mkdir -p "reference/quick/$4-v2/$v/seed$s"
   echo "$4 $v $s" > "reference/quick/$4-v2/$v/seed$s/episodes.csv.gz"
 fi
+# reference --pack ... --from DIR: a part where the real packing writes one; --retire: the pointer it leaves.
+if [[ "$3" == reference && " $* " == *" --pack "* ]]; then
+  mkdir -p "${@: -1}" && echo "$*" > "${@: -1}/MANIFEST.json"
+fi
+if [[ "$3" == reference && " $* " == *" --retire "* ]]; then echo "$*" > "${@: -1}/runs.tar.xz.git.json"; fi
 """
 
 
@@ -132,3 +137,18 @@ def test_a_ship_waits_for_another_writers_index_lock(checkout: Path) -> None:
     assert "waits for another writer's index lock" in out.stderr and time.monotonic() - t0 >= 5.0
     log = _git(checkout, "log", "--format=%s").splitlines()
     assert log[0].startswith("table1 grid: seed 4, npe recorded")
+
+
+def test_a_bundle_seed_packs_each_variant_into_the_parts_folder_named(checkout: Path) -> None:
+    """--bundle-seed 3 --parts bundle-parts-seed3: each finished variant of seed 3 is packed into that folder (not
+    the published bundle's bundle-parts), committed, then retired; a seed other than the bundle seed packs nothing."""
+    out, calls = _run(checkout, "--seeds", "1,3", "--variants", "npe", "--bundle-seed", "3", "--parts",
+                      "bundle-parts-seed3")  # fmt: skip
+    assert out.returncode == 0, out.stdout + out.stderr
+    packs = [c.split("|", 1)[1] for c in calls if " --pack " in c]
+    assert len(packs) == 1 and "--set seeds=[3]" in packs[0] and "--methods npe" in packs[0]
+    assert packs[0].endswith("reference/quick/bundle-parts-seed3/npe")
+    log = _git(checkout, "log", "--format=%s").splitlines()
+    assert "reference bundle: part npe (seed 3) packed" in log
+    assert "reference/quick/bundle-parts-seed3/npe/MANIFEST.json" in _git(checkout, "ls-files")
+    assert not (checkout / "reference" / "quick" / "bundle-parts").exists()
