@@ -44,7 +44,7 @@ from omcrl.pipeline.why import (
     detour_block,
 )
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
-from omcrl.scenes import scene_label, scene_spec
+from omcrl.scenes import scene_id, scene_label, scene_spec
 from omcrl.utils.io import atomic_write_text
 
 START = "<!-- results-at-a-glance: start (python -m omcrl summary --preset quick --readme writes this block) -->"
@@ -441,7 +441,7 @@ def _paper_rows(res: AblationResult, grid: str) -> list[str]:
                   None) if table is not None else None  # fmt: skip
         k = table.loc[(r.label, sc)] if sc is not None and (r.label, sc) in table.index else None
         cells = [ci_text(k[m], k[f"{m}_lo"], k[f"{m}_hi"]) if k is not None else "not recorded" for m in ("SR", "CR")]
-        rows.append(f"| {r.label} | {sc or r.scene} | {cells[0]} | {r.SR:g} | {cells[1]} | {r.CR:g} |")
+        rows.append(f"| {r.label} | {sc or scene_id(r.scene)} | {cells[0]} | {r.SR:g} | {cells[1]} | {r.CR:g} |")
     return rows
 
 
