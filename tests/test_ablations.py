@@ -77,6 +77,9 @@ def test_tables_from_reference_writes_the_ablations_from_the_grid_records(tmp_pa
     assert (cfg.run_root / "figures" / "ablation_decay.png").is_file()
     assert set(res.episodes) == {"decay"} and set(res.episodes["decay"]["train_seed"]) == {0, 1, 2}
 
+    # Rows in the paper's order of the variants (the grid's), not the alphabet's.
+    assert list(res.tables["decay"].index.get_level_values(0).unique()) == ["linear", "exp", "fixed"]
+    assert list(pd.read_csv(tables / "table3.csv")["method"].unique()) == ["linear", "exp", "fixed"]
     vp = pd.read_csv(tables / "table3_vs_paper.csv")
     sr = vp[(vp["metric"] == "SR") & (vp["scene"] == "tree-v2")].set_index("method")
     assert sr.loc["linear", "paper"] == 78.5 and sr.loc["exp", "paper"] == 72.5

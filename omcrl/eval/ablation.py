@@ -8,6 +8,7 @@ values (``paper_ablations.csv`` in this package) beside the kit's.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
@@ -36,19 +37,26 @@ def paper_ablations(grid: str | None = None) -> pd.DataFrame:
     return df if grid is None else df[df["grid"] == grid].reset_index(drop=True)
 
 
-def ablation_table(episodes: pd.DataFrame, reps: int = 2000) -> pd.DataFrame:
+def ablation_table(episodes: pd.DataFrame, reps: int = 2000, order: Sequence[str] = ()) -> pd.DataFrame:
     """Metrics with 95 % CIs per variant (``label``) and scene: :func:`omcrl.eval.stats.aggregate` by
-    (label, scene), index renamed (method, scene) so Table I's writers apply."""
+    (label, scene), index renamed (method, scene) so Table I's writers apply. ``order``: the variants' labels in
+    the grid's order (the paper's: linear, exp, fixed), which the rows then follow; labels not in it come after."""
     ep = episodes.drop(columns=["method"]).rename(columns={"label": "method"})
-    return aggregate(ep, ("method", "scene"), reps=reps)
+    table = aggregate(ep, ("method", "scene"), reps=reps)
+    rank = {label: i for i, label in enumerate(order)}
+    rows = sorted(range(len(table)), key=lambda i: (rank.get(table.index[i][0], len(rank)), i))
+    return table.iloc[rows]
 
 
-def write_ablation(episodes: pd.DataFrame, directory: str | Path, grid: str, reps: int = 2000) -> dict[str, Path]:
-    """Write the ablation table of ``grid`` (and its paper-table copy); returns the paths by suffix."""
+def write_ablation(
+    episodes: pd.DataFrame, directory: str | Path, grid: str, reps: int = 2000, order: Sequence[str] = ()
+) -> dict[str, Path]:
+    """Write the ablation table of ``grid`` (and its paper-table copy); returns the paths by suffix. ``order``:
+    :func:`ablation_table`'s."""
 
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    table = ablation_table(episodes, reps)
+    table = ablation_table(episodes, reps, order)
     long, wide = table1_frames(table)
     seeds = int(table["seeds"].max()) if len(table) else 0
     note = (

@@ -32,7 +32,7 @@ from omcrl.config import Config
 from omcrl.eval.ablation import ablation_table, write_ablation, write_findings
 from omcrl.eval.stats import DEFAULT_REPS
 from omcrl.pipeline.griddata import GridData, grid_data_dir
-from omcrl.pipeline.grids import ABLATION_GRIDS
+from omcrl.pipeline.grids import ABLATION_GRIDS, GRIDS
 from omcrl.pipeline.ladder import PLAN_RATES, cost_table
 from omcrl.pipeline.sweep import rest_plan
 from omcrl.utils.io import atomic_write_text
@@ -169,8 +169,9 @@ def ablations_from_reference(
     out, figs = cfg.run_root / "tables", cfg.run_root / "figures"
     tables, paths = {}, {}
     for g, ep in episodes.items():
-        tables[g] = ablation_table(ep, reps)
-        paths.update(write_ablation(ep, out, g, reps))
+        order = [v.label for v in GRIDS[g]]  # the paper's order of the variants, in tables and figures alike
+        tables[g] = ablation_table(ep, reps, order)
+        paths.update(write_ablation(ep, out, g, reps, order))
         name, fig = plot_ablation(g, tables[g])
         paths[name] = save_figure(fig, figs, name)
         plt.close(fig)

@@ -947,8 +947,9 @@ def run_ablations(
             # finds these runs and their evaluations cached).
             table, paths = pd.DataFrame(), {}
         elif len(res.episodes):
-            table = ablation_table(res.episodes)
-            paths = write_ablation(res.episodes, cfg.run_root / "tables", g)
+            order = [v.label for v in grid_variants(g)]  # the grid's order of its variants, not the alphabet's
+            table = ablation_table(res.episodes, order=order)
+            paths = write_ablation(res.episodes, cfg.run_root / "tables", g, order=order)
             if g in REMEDY_GRIDS and DEFAULT_VARIANT.label in set(res.episodes["label"]):
                 paths.update(write_remedies(res.episodes, cfg.run_root / "tables", g)[2])
             if g == "precision":
