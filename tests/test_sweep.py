@@ -807,3 +807,19 @@ def test_progress_takes_the_callers_time_left_and_falls_back_to_counting(capsys,
     bar.update(1)
     lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("[omcrl]")]
     assert "left" not in lines[0] and "left" in lines[1] and lines[-1].endswith("~1h00m00s left")
+
+
+def test_a_job_two_grids_share_is_left_to_run_while_either_grid_still_needs_it(tmp_path, monkeypatch):
+    """decay's linear and dual-transformer's Ours are one training run: recorded under decay alone, it is done for
+    decay's plan, but a plan of both grids still counts it (a fresh machine trains it again for Ours)."""
+    from omcrl.pipeline.griddata import GridData, grid_data_dir
+    from omcrl.pipeline.sweep import recorded_jobs
+
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    cfg = load_config("smoke")
+    ours = next(j for j in planning.expand(cfg, "dual-transformer", [0]) if j.kind == "evaluate" and j.label == "Ours")
+    linear = next(j for j in planning.expand(cfg, "decay", [0]) if j.kind == "evaluate" and j.label == "linear")
+    assert ours.deps[0] == linear.deps[0]  # the one shared training run
+    GridData(grid_data_dir(cfg, "decay")).save_episodes("linear", 0, _synthetic_episodes(["linear"]))
+    assert linear.deps[0] in recorded_jobs(cfg, ["decay"], [0])
+    assert linear.deps[0] not in recorded_jobs(cfg, ["decay", "dual-transformer"], [0])

@@ -454,15 +454,21 @@ def _recorded(jobs: Sequence[Job], record: GridData) -> set[str]:
 
 def recorded_jobs(cfg: Config, grids: Sequence[str], seeds: Sequence[int] | None = None) -> set[str]:
     """Ids of the jobs of ``grids`` at ``seeds`` that the checkout's records (reference/) leave nothing to run for:
-    :func:`_recorded`'s, and the teachers whose weights are kept. ``sweep --plan --to-reference`` leaves them out."""
+    :func:`_recorded`'s, and the teachers whose weights are kept. ``sweep --plan --to-reference`` leaves them out.
+
+    A job several grids share (one oracle, one encoder) counts as recorded only when no grid still needs it: a run
+    one grid has recorded is not on a fresh machine, so another grid's variant that needs it trains it again."""
     out: set[str] = set()
+    need: set[str] = set()
     for g in grids:
         jobs, record = expand(cfg, g, seeds), GridData(grid_data_dir(cfg, g))
         teachers = _teachers(jobs, _record_targets(jobs))
         seed = {j.id: j.seed for j in jobs}
         kept = {j for j, label in teachers.items() if record.has_weights(label, seed[j], "rl")}
-        out |= _recorded(jobs, record) | kept
-    return out
+        done = _recorded(jobs, record) | kept
+        out |= done
+        need |= {j.id for j in jobs} - done
+    return out - need
 
 
 def rest_plan(cfg: Config, grids: Sequence[str], seeds: Sequence[int] | None = None) -> pd.DataFrame:
