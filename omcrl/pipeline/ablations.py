@@ -33,7 +33,7 @@ from omcrl.eval.ablation import ablation_table, write_ablation, write_findings
 from omcrl.eval.stats import DEFAULT_REPS
 from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.pipeline.grids import ABLATION_GRIDS, GRIDS
-from omcrl.pipeline.ladder import PLAN_RATES, cost_table
+from omcrl.pipeline.ladder import PLAN_RATES, cost_table, estimate_rest
 from omcrl.pipeline.sweep import rest_plan
 from omcrl.utils.io import atomic_write_text
 from omcrl.viz import save_figure
@@ -76,16 +76,7 @@ def account(cfg: Config, seeds: Sequence[int] = ABLATION_SEEDS) -> tuple[pd.Data
         if path.is_file():
             rates = json.loads(path.read_text(encoding="utf-8"))
             break
-    by_kind = ran.groupby("rate_key")[["planned_h", "measured_h"]].sum(min_count=1)
-    ratio = (by_kind["measured_h"] / by_kind["planned_h"]).dropna()
-    total = ran["planned_h"].sum()
-    overall = ran["measured_h"].sum() / total if total > 0 else math.nan
-    rows = []
-    for key, g in rest_plan(cfg, ABLATION_GRIDS, seeds).groupby("rate_key", sort=False):
-        planned = g["work"].sum() / rates[key] / 3600 if key in rates else math.nan
-        r = float(ratio.get(key, overall))
-        rows.append({"rate_key": key, "jobs": len(g), "work": int(g["work"].sum()), "planned_h": planned,
-                     "ratio": r, "estimate_h": planned * r})  # fmt: skip
+    rows = estimate_rest(rest_plan(cfg, ABLATION_GRIDS, seeds), rates, ran)
     rest = pd.DataFrame(rows, columns=["rate_key", "jobs", "work", "planned_h", "ratio", "estimate_h"])
     return ran, rest
 

@@ -228,22 +228,31 @@ def rest_cost(cfg: Config, cost: pd.DataFrame, seeds: Sequence[int] = LADDER_SEE
     ``planned_h × ratio``. A job half run counts whole; a job no plan rate covers has NaN hours.
     """
     cols = ["ladder", "rate_key", "jobs", "work", "planned_h", "ratio", "estimate_h"]
-    measured = cost.groupby("rate_key")[["planned_h", "measured_h"]].sum(min_count=1)
-    ratio = (measured["measured_h"] / measured["planned_h"]).dropna()
-    overall = cost["measured_h"].sum() / cost["planned_h"].sum() if cost["planned_h"].sum() > 0 else math.nan
     rows = []
     for axis, (grid, _) in LADDERS.items():
         folder = grid_data_dir(cfg, grid)
         if not (folder / PLAN_RATES).is_file():
             continue
         rates = json.loads((folder / PLAN_RATES).read_text())
-        rest = rest_plan(cfg, [grid], seeds)
-        for key, g in rest.groupby("rate_key", sort=False):
-            planned = g["work"].sum() / rates[key] / 3600 if key in rates else math.nan
-            r = float(ratio.get(key, overall))
-            rows.append({"ladder": axis, "rate_key": key, "jobs": len(g), "work": int(g["work"].sum()),
-                         "planned_h": planned, "ratio": r, "estimate_h": planned * r})  # fmt: skip
+        rows += [{"ladder": axis, **r} for r in estimate_rest(rest_plan(cfg, [grid], seeds), rates, cost)]
     return pd.DataFrame(rows, columns=cols)
+
+
+def estimate_rest(rest: pd.DataFrame, rates: Mapping[str, float], cost: pd.DataFrame) -> list[dict]:
+    """One row per kind of job of ``rest`` (:func:`omcrl.pipeline.sweep.rest_plan`'s rows): ``rate_key, jobs, work,
+    planned_h, ratio, estimate_h``, its hours at the plan's ``rates`` (NaN for a kind without one) and those × the
+    measured / planned ratio of that kind in ``cost`` (:func:`cost_table`), or of every job there where none of that
+    kind ran (NaN when none has)."""
+    measured = cost.groupby("rate_key")[["planned_h", "measured_h"]].sum(min_count=1)
+    ratio = (measured["measured_h"] / measured["planned_h"]).dropna()
+    overall = cost["measured_h"].sum() / cost["planned_h"].sum() if cost["planned_h"].sum() > 0 else math.nan
+    rows = []
+    for key, g in rest.groupby("rate_key", sort=False):
+        planned = g["work"].sum() / rates[key] / 3600 if key in rates else math.nan
+        r = float(ratio.get(key, overall))
+        rows.append({"rate_key": key, "jobs": len(g), "work": int(g["work"].sum()), "planned_h": planned,
+                     "ratio": r, "estimate_h": planned * r})  # fmt: skip
+    return rows
 
 
 def encoder_rows(cfg: Config, seeds: Sequence[int] = LADDER_SEEDS) -> pd.DataFrame:
