@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import shutil
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,7 @@ from omcrl.eval.stats import aggregate, cell_rng, contrast, term
 from omcrl.eval.table1 import Table1Result, ci_text, paper_table1, read_table1_csv, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, compare_readings, readings_markdown, verdict_counts
 from omcrl.pipeline.ablations import ABLATION_SEEDS, AblationResult, ablations_from_reference, account_markdown
+from omcrl.pipeline.answer import ANSWER_END, ANSWER_START, answer_block, answer_facts
 from omcrl.pipeline.griddata import GridData, grid_data_dir, tables_from_reference
 from omcrl.pipeline.grids import ABLATION_GRIDS, GRIDS
 from omcrl.pipeline.ladder import ladder_markdown, ladder_stage
@@ -41,7 +43,9 @@ from omcrl.pipeline.why import (
     WHY_LOOK_END,
     WHY_LOOK_START,
     attribution_block,
+    attribution_table,
     detour_block,
+    detour_table,
 )
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
 from omcrl.scenes import scene_id, scene_label, scene_spec
@@ -315,7 +319,7 @@ def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tup
     """The README's block (:func:`render_v2`) and docs/results.md's (Table I's six metrics per scene, then every
     hypothesis of the ledger) from a rebuild of ``reference/<preset>/table1-v2/`` under a temporary folder; with
     ``figure_to``, Fig. 5 of the rebuild is copied there."""
-    short, full, _ = _v2(preset, figure_to)
+    short, full, _, _ = _v2(preset, figure_to)
     return short, full
 
 
@@ -370,8 +374,9 @@ def _confirm(preset: str, grid_verdicts: pd.DataFrame) -> tuple[str, str | None]
     return block, line
 
 
-def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str, str]:
-    """The README's v2 block, docs/results.md's and the confirmation's (:func:`v2_blocks`, :func:`_confirm`)."""
+def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str, str, Table1Result]:
+    """The README's v2 block, docs/results.md's and the confirmation's (:func:`v2_blocks`, :func:`_confirm`), and the
+    rebuild they come from."""
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         res = tables_from_reference(cfg)
@@ -388,7 +393,7 @@ def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str
         if figure_to is not None and "fig5" in res.paths:
             Path(figure_to).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(res.paths["fig5"], figure_to)
-        return render_v2(res, line), full, confirm
+        return render_v2(res, line), full, confirm, res
 
 
 def transfer_block(preset: str = "quick") -> str:
@@ -458,6 +463,13 @@ def ablation_block(
     Holm-adjusted p and verdict (paired; Holm over the unseen-scene checks, the stress room a family apart), Tables
     II and III beside the paper's values, SR per variant and scene, Figs. 7–10, and the grids' account. With
     ``figures_to`` (a folder), the figures are copied there (linked from docs/ as :data:`LADDER_FIGURES`)."""
+    return _ablation(preset, seeds, reps, figures_to)[0]
+
+
+def _ablation(
+    preset: str, seeds: tuple[int, ...], reps: int, figures_to: str | Path | None
+) -> tuple[str, AblationResult | None]:
+    """:func:`ablation_block` and the rebuild it comes from (None when no grid has episodes)."""
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         common = {"seeds": list(seeds), "preset": preset}
@@ -465,7 +477,7 @@ def ablation_block(
             res = ablations_from_reference(cfg, seeds, reps)
         except FileNotFoundError:
             cost = _hours_text(rest_hours(cfg, ABLATION_GRIDS, seeds))
-            return render("ablations_v2.md.j2", recorded=[], grids=ABLATION_GRIDS, cost=cost, **common)
+            return render("ablations_v2.md.j2", recorded=[], grids=ABLATION_GRIDS, cost=cost, **common), None
         figures = [path.name for name, path in res.paths.items() if path.suffix == ".png"]
         if figures_to is not None:
             Path(figures_to).mkdir(parents=True, exist_ok=True)
@@ -500,7 +512,7 @@ def ablation_block(
     ]
     paper = [(PAPER_NAMES[PAPER_TABLES[g]], PAPER_TABLES[g], g, _paper_rows(res, g)) for g in PAPER_TABLES]
     rel = LADDER_FIGURES.removeprefix("docs/")
-    return render(
+    text = render(
         "ablations_v2.md.j2",
         recorded=recorded,
         findings=to_markdown(res.summary.set_index("finding"), "finding").strip(),
@@ -513,6 +525,43 @@ def ablation_block(
         account=account_markdown(res.ran, res.rest).strip(),
         **common,
     )
+    return text, res
+
+
+def _complete_grids(res: AblationResult | None, seeds: Sequence[int]) -> int:
+    """How many of the ablation grids have every variant recorded at every one of ``seeds``."""
+    if res is None:
+        return 0
+    done = 0
+    for g, ep in res.episodes.items():
+        done += all(set(seeds) <= set(ep.loc[ep["label"] == v.label, "train_seed"]) for v in GRIDS[g])
+    return done
+
+
+def answer_blocks(
+    preset: str = "quick",
+    table1: Table1Result | None = None,
+    ablation: AblationResult | None = None,
+    attribution: pd.DataFrame | None = None,
+    detour: pd.DataFrame | None = None,
+    seeds: tuple[int, ...] = ABLATION_SEEDS,
+) -> tuple[str, str]:
+    """The answer first (:mod:`omcrl.pipeline.answer`) as the README's block and as docs/results.md's, from Table I's
+    rebuild (:func:`_v2`), the ablations' (:func:`_ablation`), the attribution and the teacher's ceiling
+    (:func:`omcrl.pipeline.why.attribution_table`, :func:`~omcrl.pipeline.why.detour_table`); each one not given is
+    rebuilt here from ``reference/<preset>/``."""
+    table1 = _v2(preset)[3] if table1 is None else table1
+    if ablation is None:
+        ablation = _ablation(preset, seeds, 2000, None)[1]
+    facts = answer_facts(
+        table1.verdicts,
+        table1.table,
+        attribution_table(preset) if attribution is None else attribution,
+        detour_table(preset) if detour is None else detour,
+        None if ablation is None else ablation.summary,
+        (_complete_grids(ablation, seeds), len(ABLATION_GRIDS)),
+    )
+    return answer_block(facts, "docs/results.md"), answer_block(facts, "")
 
 
 def _progress_md(cfg: Any, seeds: int = 5) -> list[str]:
@@ -612,15 +661,20 @@ def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bo
     table (:func:`omcrl.eval.metrics.glossary_markdown`); True when the README changed."""
     root = project_root()
     path = Path(readme) if readme is not None else root / "README.md"
-    short, full, confirm = _v2(preset, figure_to=root / V2_FIGURE)
+    short, full, confirm, table1 = _v2(preset, figure_to=root / V2_FIGURE)
     v1 = render_v1_results(reference_table_dir(preset))
     ladder = ladder_block(preset, figures_to=root / LADDER_FIGURES)
-    ablations = ablation_block(preset, figures_to=root / LADDER_FIGURES)
-    blocks = [(full, FULL_START, FULL_END), (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END),
+    ablations, ablation = _ablation(preset, ABLATION_SEEDS, 2000, root / LADDER_FIGURES)
+    detour, attribution = detour_table(preset), attribution_table(preset)
+    answer_readme, answer_results = answer_blocks(preset, table1, ablation, attribution, detour)
+    blocks = [(answer_results, ANSWER_START, ANSWER_END), (full, FULL_START, FULL_END),
+              (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END),
               (ladder, LADDER_START, LADDER_END), (ablations, ABLATION_START, ABLATION_END),
-              (detour_block(preset), WHY_DETOUR_START, WHY_DETOUR_END),
-              (attribution_block(preset), WHY_LOOK_START, WHY_LOOK_END)]  # fmt: skip
+              (detour_block(preset, detour), WHY_DETOUR_START, WHY_DETOUR_END),
+              (attribution_block(preset, attribution), WHY_LOOK_START, WHY_LOOK_END)]  # fmt: skip
     _rewrite(root / "docs" / "results.md", blocks)
     _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
     _rewrite(root / "docs" / "generalization.md", [(transfer_block(preset), TRANSFER_START, TRANSFER_END)])
-    return _rewrite(path, [(render_glance(reference_table_dir(preset)), START, END), (short, V2_START, V2_END)])
+    v1_glance = render_glance(reference_table_dir(preset))
+    blocks = [(answer_readme, ANSWER_START, ANSWER_END), (v1_glance, START, END), (short, V2_START, V2_END)]
+    return _rewrite(path, blocks)
