@@ -243,3 +243,63 @@ def test_a_teachers_weights_leave_the_checkout_once_its_students_are_recorded_an
     pointer.write_text(json.dumps({"git_blob": blob}))
     with pytest.raises(ArtifactMismatch, match="kept teacher weights .*final.pt.git.json"):
         record.kept_weights("oracle", 0, "rl")
+
+
+def _policy(run_dir):
+    import torch
+
+    return torch.load(run_dir / "final.pt", weights_only=True)["model"]
+
+
+@pytest.mark.stage  # trains the smoke oracle four times
+def test_a_grid_that_reflies_table1_trains_a_run_in_its_stretches_and_refuses_another_policy(tmp_path, monkeypatch):
+    """Issue 75's attribution re-flies Table I's policies from runs retrained here. Table I's run was stopped at a
+    checkpoint and resumed (its envs restarted with a seed of their own): trained again in those stretches it is
+    the same policy, bit for bit; trained in one stretch it is another, which `not_table1_run` names; a checkpoint
+    from an interrupted attempt at another step is moved aside, not resumed."""
+    import torch
+
+    from omcrl.pipeline.plan import Job
+    from omcrl.pipeline.recipes import train_method
+    from omcrl.pipeline.sweep import _run_stage, not_table1_run
+    from omcrl.runs import StopAfter
+
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "table1"))
+    cfg = load_config("smoke")
+    train_method(cfg, "oracle", progress=False, callbacks=(StopAfter(256),))  # Table I's run, stopped at 256
+    first = train_method(cfg, "oracle", progress=False)
+    table1 = GridData(grid_data_dir(cfg, "table1"))
+    table1.save_run("oracle", 0, "rl", first.run.dir)
+    job = Job(id="train/oracle/0", kind="train", method="oracle", seed=0, overrides=())
+    base = {"preset": "smoke", "overrides": [], "as_table1": True}
+
+    def machine(name: str):
+        monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / name))
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "reference").symlink_to(tmp_path / "table1" / "reference")
+        return load_config("smoke")
+
+    machine("again")
+    _, _, (run_dir,), start = _run_stage(base, job)
+    assert start == 0 and not_table1_run(base, job, table1) is None
+    same = _policy(run_dir)
+    assert all(torch.equal(same[k], v) for k, v in _policy(first.run.dir).items())
+
+    cfg = machine("one-stretch")
+    other = train_method(cfg, "oracle", progress=False)
+    why = not_table1_run(base, job, table1)
+    assert why is not None and "[(0, 0)]" in why and "[(0, 0), (256, 100)]" in why
+    assert not all(torch.equal(_policy(other.run.dir)[k], v) for k, v in same.items())
+
+    # Table I's seed 1 trained in one stretch; here an attempt was interrupted at its checkpoint at 256: the
+    # checkpoint is moved aside and the run trained from the start, as Table I's was.
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "table1"))
+    whole = train_method(load_config("smoke").with_seed(1), "oracle", progress=False)
+    table1.save_run("oracle", 1, "rl", whole.run.dir)
+    cfg = machine("interrupted").with_seed(1)
+    cut = train_method(cfg, "oracle", progress=False, callbacks=(StopAfter(256),))
+    assert cut.run.checkpoint_path.exists()
+    job1 = Job(id="train/oracle/1", kind="train", method="oracle", seed=1, overrides=())
+    _, _, (run_dir,), start = _run_stage(base, job1)
+    assert start == 0 and (run_dir / "checkpoint.pt.diverges").exists() and not_table1_run(base, job1, table1) is None
+    assert all(torch.equal(_policy(run_dir)[k], v) for k, v in _policy(whole.run.dir).items())

@@ -65,7 +65,8 @@ from omcrl.pipeline.recipes import pretrain_method, train_method
 from omcrl.pipeline.stages import collect_stage
 from omcrl.pipeline.storage import Storage, job_key
 from omcrl.planners import PLANNERS
-from omcrl.rl.methods import final_policy_path, get_method
+from omcrl.rl.methods import METHODS, final_policy_path, get_method
+from omcrl.runs import StopAfter
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import Progress, log_lines
 from omcrl.utils.runtime import cpu_count
@@ -179,6 +180,7 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
         cfg.eval.workers = job_cpus(cfg, job)
     rows: list[dict] = []
     result: Any = None
+    began: int | None = None  # where a training in Table I's stretches began (its last stretch resumed)
     if job.kind == "collect":
         result = collect_stage(cfg, progress=True)  # with data.policy=oracle, the variant's oracle flies
         skipped = bool(result.skipped)
@@ -188,8 +190,18 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
         if preset_cfg.get("encoder_reports"):
             write_encoder_report(cfg, result.run_dir)
     elif job.kind == "train":
+        # A grid that re-flies Table I's runs trains a run in Table I's stretches: stopped where that one was
+        # stopped, then resumed (:func:`stretches`), so that it learns the same policy.
+        stops: list[int] = []
+        if preset_cfg.get("as_table1"):
+            table1 = GridData(grid_data_dir(cfg, "table1"))
+            restart_if_resume_diverges(preset_cfg, job, table1)
+            stops = stretches(preset_cfg, job, table1)
+        for stop in stops:
+            part = train_method(cfg, job.method, progress=True, callbacks=(StopAfter(stop),))
+            began = part.start if began is None else began
         result = train_method(cfg, job.method, progress=True)
-        skipped = bool(result.skipped)
+        skipped = bool(result.skipped) and began is None
     else:
         path = final_policy_path(cfg, job.method)
         if path is None:
@@ -201,6 +213,8 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
         df = df.drop(columns=["trajectory"], errors="ignore").assign(label=job.label, overrides=" ".join(job.overrides))
         rows = json.loads(df.to_json(orient="records"))
     start = int(getattr(result, "start", 0))  # a stage that resumed says where (training, pretraining)
+    if began is not None:
+        start = began
     return ("skipped" if skipped else "done"), rows, _outputs(cfg, job, result), start
 
 
@@ -304,7 +318,16 @@ def run_sweep(
 
     bar = Progress(len(jobs), f"sweep/{grid}", unit="job", enabled=progress, time_left=time_left)
 
+    # A grid that re-flies Table I's runs flies only Table I's policies: a run retrained here must have trained in
+    # Table I's stretches (a resume restarts the envs with a seed of its own, so it learns another policy).
+    table1 = GridData(grid_data_dir(cfg, "table1")) if grid in EVAL_ONLY_GRIDS and record is not None else None
+    if table1 is not None:
+        base["as_table1"] = True  # its training jobs train as Table I's runs did (_run_stage)
+
     def finish(job: Job, out: dict | None, err: str | None) -> None:
+        learned = job.method in METHODS and METHODS[job.method].learned  # not the local APF, the blind pilot
+        if err is None and table1 is not None and job.kind == "evaluate" and learned:
+            err = not_table1_run(base, job, table1)
         if err is not None:
             res.status[job.id], res.errors[job.id] = "failed", err
         else:
@@ -441,6 +464,72 @@ def _train_run(preset_cfg: dict, job: Job) -> Any:
     cfg = _job_config(preset_cfg, job)
     spec = get_method(job.method)
     return spec.recipe.run(cfg, spec)
+
+
+def _segments(run_json: Path) -> list[tuple[int, int]]:
+    """The stretches of a run's RL training as its ``run.json`` records them: ``[(from_step, env_seed), ...]``."""
+    identity = json.loads(run_json.read_text(encoding="utf-8")) if run_json.is_file() else {}
+    return [(int(s["from_step"]), int(s["env_seed"])) for s in identity.get("segments", [])]
+
+
+def not_table1_run(preset_cfg: dict, job: Job, table1: GridData) -> str | None:
+    """Why the run ``job`` flies here is not Table I's run of the same method and seed, or None when it is.
+
+    The run's key is Table I's (the same config and upstream artifacts: the grids share the training job); what
+    can still differ is how it was trained: on the CPU a run is the same policy when it trained in the same
+    stretches, and a run resumed from a checkpoint restarts its envs with a seed of its own
+    (:func:`omcrl.rl.train.train`), so it learns another one. Compared: the ``segments`` of its ``run.json`` and of
+    Table I's record (``reference/<preset>/table1-<suite>/<method>/seed<k>/rl/run.json``); a method or seed Table I
+    has no record of is not judged here (None).
+    """
+    recorded = _segments(table1.folder(job.method, job.seed) / "rl" / "run.json")
+    run = _train_run(preset_cfg, job)
+    if not recorded or run is None:
+        return None
+    here = _segments(run.dir / "run.json")
+    if here == recorded:
+        return None
+    return (
+        f"{job.method} seed {job.seed}: the run in {run.dir} trained in stretches {here} (from_step, env_seed) where "
+        f"Table I's trained in {recorded}: it is another policy, so its episodes are not recorded; move that run "
+        "folder aside and run the grid again, which trains it in Table I's stretches"
+    )
+
+
+def stretches(preset_cfg: dict, job: Job, table1: GridData) -> list[int]:
+    """The steps at which a training job of a grid that re-flies Table I's runs stops and resumes, to train as
+    Table I's run did (its recorded ``segments`` after the first) and that its run here has not reached yet: a run
+    resumed from a checkpoint at step S restarts its envs with the seed Table I's did at S, so it learns the same
+    policy. Empty when Table I's run trained in one stretch or has no record."""
+    recorded = _segments(table1.folder(job.method, job.seed) / "rl" / "run.json")
+    run = _train_run(preset_cfg, job)
+    if len(recorded) < 2 or run is None or run.finished() is not None:
+        return []
+    ckpt = run.load("checkpoint")
+    at = 0 if ckpt is None else int(ckpt["step"])
+    return [s for s, _ in recorded[1:] if s > at]
+
+
+def restart_if_resume_diverges(preset_cfg: dict, job: Job, table1: GridData) -> Path | None:
+    """Before a training job of a grid that re-flies Table I's runs: when its run holds a checkpoint from an
+    interrupted attempt and Table I's run did not resume at that step, move the checkpoint aside
+    (``checkpoint.pt.diverges``) so the run trains from the start, as Table I's did (:func:`not_table1_run`: a resume
+    would learn another policy). Returns the moved file, or None when nothing was moved."""
+    recorded = _segments(table1.folder(job.method, job.seed) / "rl" / "run.json")
+    run = _train_run(preset_cfg, job)
+    if not recorded or run is None or not run.checkpoint_path.exists() or run.finished() is not None:
+        return None
+    step = int(run.load("checkpoint")["step"])
+    if step in {s for s, _ in recorded[1:]}:
+        return None
+    aside = run.checkpoint_path.with_name(run.checkpoint_path.name + ".diverges")
+    run.checkpoint_path.replace(aside)
+    print(
+        f"[sweep] {job.method} seed {job.seed}: checkpoint at step {step:,} moved to {aside} (Table I's run trained in "
+        f"stretches {recorded}: resuming here would learn another policy); training from the start",
+        flush=True,
+    )
+    return aside
 
 
 def _recorded(jobs: Sequence[Job], record: GridData) -> set[str]:
