@@ -329,6 +329,17 @@ def test_the_attribution_splits_a_loss_into_geometry_and_look_with_the_right_pai
     assert r.look_lo <= -30.0 <= r.look_hi and r.geometry_lo < -20.0 < r.geometry_hi
     assert np.isnan(t[t.scene == "barrier-v2"].iloc[0].look)  # not flown there: no number
     assert "| Ours | 3 | 80 [" in attribution_block(table=t) and "**tree-v2**" in attribution_block(table=t)
+    rows = [line for line in attribution_block(table=t).splitlines() if line.startswith("| Ours |")]
+    assert "| −20 [−" in rows[-1] and "-" not in "".join(rows)  # a minus sign, not a hyphen
+    bounds = t[["geometry_lo", "look_lo", "geometry_hi", "look_hi"]].dropna()
+    assert len(bounds) and bounds.abs().le(100).all().all()  # a difference of two SRs stays in [-100, 100]
+    # Two seeds that disagree completely in tree's own look (0 % and 100 %): the look's interval is cut at ±100.
+    split = pd.DataFrame(
+        eps("box-v2", 80, seeds=(0, 1)) + eps("tree-v2", 0, seeds=(0,)) + eps("tree-v2", 100, seeds=(1,))
+    )
+    wide = attribution(split, pd.DataFrame(eps("tree-v2", 60, seeds=(0, 1))), reps=200)
+    r = wide[wide.scene == "tree-v2"].iloc[0]
+    assert r.look_lo == -100.0 and r.look_hi == 100.0
     assert attribution(own, look.iloc[0:0]).empty
 
 

@@ -139,8 +139,8 @@ def attribution(own: pd.DataFrame, look: pd.DataFrame, reps: int = 2000) -> pd.D
                 if any(t is None for t in terms):
                     row[name] = row[f"{name}_lo"] = row[f"{name}_hi"] = math.nan
                     continue
-                bounded = 100.0 if len(terms) == 1 else None
-                e = contrast(terms, reps, rng=cell_rng(0, "attribution", method, scene, name), bounded=bounded)
+                # SR in %: a cell's interval on the logit scale, a difference's cut to the [-100, 100] it can take.
+                e = contrast(terms, reps, rng=cell_rng(0, "attribution", method, scene, name), bounded=100.0)
                 row[name], row[f"{name}_lo"], row[f"{name}_hi"] = e.estimate, e.lo, e.hi
             rows.append(row)
     return pd.DataFrame(rows)
@@ -156,7 +156,7 @@ def attribution_block(preset: str = "quick", table: pd.DataFrame | None = None) 
         if not math.isfinite(v):
             return "–"
         f = "{:+.0f}" if sign else "{:.0f}"
-        return f"{f.format(v)} [{f.format(lo)}, {f.format(hi)}]"
+        return f"{f.format(v)} [{f.format(lo)}, {f.format(hi)}]".replace("-", "−")  # a minus sign, as every table
 
     scenes = [
         (scene, [[_label(r["method"]), str(r["seeds"]), ci(r, "box"), ci(r, "box_look"), ci(r, "own"),
