@@ -170,6 +170,12 @@ summary() {  # $1: after what; rebuilds and commits the generated blocks and fig
     echo "grid_session: the generated pages have uncommitted edits: blocks not rebuilt (run: python -m omcrl summary --preset $preset --readme)"
     return 0
   fi
+  # The pages are written by this checkout's code: with uncommitted edits in the library or its templates they would
+  # be committed as that code renders them, ahead of the code itself (it happened once, 2cdc2b0).
+  if ! git -C "$root" diff --quiet HEAD -- omcrl; then
+    echo "grid_session: the library has uncommitted edits: blocks not rebuilt (commit them, then run: python -m omcrl summary --preset $preset --readme)"
+    return 0
+  fi
   (cd "$root" && "$py" -m omcrl summary --preset "$preset" --readme) ||
     { echo "grid_session: summary --readme failed (the blocks stay as they were)"; return 0; }
   git_write add -- "${docs[@]}"

@@ -152,3 +152,18 @@ def test_a_bundle_seed_packs_each_variant_into_the_parts_folder_named(checkout: 
     assert "reference bundle: part npe (seed 3) packed" in log
     assert "reference/quick/bundle-parts-seed3/npe/MANIFEST.json" in _git(checkout, "ls-files")
     assert not (checkout / "reference" / "quick" / "bundle-parts").exists()
+
+
+def test_the_pages_are_not_rebuilt_while_the_library_has_uncommitted_edits(checkout: Path) -> None:
+    """The pages are written by the checkout's code: with an uncommitted edit under omcrl/ they would be committed as
+    that code renders them, ahead of the code itself. The ship is committed; the rebuild waits, with a line."""
+    (checkout / "omcrl").mkdir()
+    (checkout / "omcrl" / "why.py").write_text("old\n")
+    _git(checkout, "add", "-A")
+    _git(checkout, "commit", "-q", "-m", "library")
+    (checkout / "omcrl" / "why.py").write_text("new, not committed\n")
+    out, calls = _run(checkout, "--seeds", "4", "--variants", "npe", "--bundle-seed", "none")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert not any("summary --preset quick --readme" in c for c in calls)
+    assert "the library has uncommitted edits: blocks not rebuilt" in out.stdout
+    assert _git(checkout, "log", "--format=%s").splitlines()[0].startswith("table1 grid: seed 4, npe recorded")
