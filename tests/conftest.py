@@ -126,3 +126,12 @@ def pytest_configure(config: pytest.Config) -> None:
 def repo_root() -> Path:
     """The repository root (the folder holding pyproject.toml)."""
     return REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def pages() -> dict:
+    """Every generated block of the pages rebuilt once from ``reference/quick/`` (:func:`omcrl.pipeline.glance.
+    page_blocks`), for the tests that check a page against its data: ``{page: {start marker: block}}``."""
+    from omcrl.pipeline.glance import page_blocks
+
+    return {page: {start: block for block, start, _ in blocks} for page, blocks in page_blocks("quick").items()}

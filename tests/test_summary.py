@@ -135,12 +135,12 @@ def test_results_pages_v1_table_and_orderings_are_what_the_reference_table_gives
     assert block == render_v1_results(reference_table_dir("quick"))
 
 
-def test_readme_v2_table_and_verdicts_are_what_the_grid_data_gives(repo_root):
+def test_readme_v2_table_and_verdicts_are_what_the_grid_data_gives(repo_root, pages):
     """The README's v2 block is rebuilt from reference/quick/table1-v2/ alone (Table I, the ledger's verdicts): re-run
     `python -m omcrl summary --preset quick --readme` after grid data is committed. A hand-edited cell fails here."""
-    from omcrl.pipeline.glance import FULL_END, FULL_START, V2_END, V2_START, current_block, v2_blocks
+    from omcrl.pipeline.glance import FULL_END, FULL_START, V2_END, V2_START, current_block
 
-    short, full = v2_blocks("quick")
+    short, full = pages["README.md"][V2_START], pages["docs/results.md"][FULL_START]
     readme = (repo_root / "README.md").read_text(encoding="utf-8")
     block = current_block(readme, start=V2_START, end=V2_END)
     assert "| Blind pilot (senses nothing) |" in block and "ledger fixed before any v2 evaluation" in block
@@ -150,12 +150,12 @@ def test_readme_v2_table_and_verdicts_are_what_the_grid_data_gives(repo_root):
     assert "**tree-v2 (hard)**" in full and "| E1 | ours > npe on SR in tree-v2 |" in full
 
 
-def test_the_confirmations_block_is_what_its_data_gives(repo_root):
+def test_the_confirmations_block_is_what_its_data_gives(repo_root, pages):
     """docs/results.md's block on Table I's confirmation on fresh layouts is rebuilt from
     reference/quick/table1-confirm-v2/ and the grid's verdicts (summary --readme): a hand-edited cell fails here."""
-    from omcrl.pipeline.glance import CONFIRM_END, CONFIRM_START, confirm_block, current_block
+    from omcrl.pipeline.glance import CONFIRM_END, CONFIRM_START, current_block
 
-    block = confirm_block("quick")
+    block = pages["docs/results.md"][CONFIRM_START]
     page = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
     assert current_block(page, "docs/results.md", CONFIRM_START, CONFIRM_END) == block
     assert block.startswith(("**Flown**", "Not flown yet"))
@@ -164,12 +164,12 @@ def test_the_confirmations_block_is_what_its_data_gives(repo_root):
     assert max(len(line) for line in block.splitlines() if not line.startswith("|")) <= 120
 
 
-def test_the_ladders_block_is_what_its_data_gives(repo_root):
+def test_the_ladders_block_is_what_its_data_gives(repo_root, pages):
     """docs/results.md's budget-ladder block is rebuilt from the grids table1, ladder-pretrain and ladder-rl under
     reference/quick/ (summary --readme): a hand-edited cell fails here, and every figure it shows is in the checkout."""
-    from omcrl.pipeline.glance import LADDER_END, LADDER_START, current_block, ladder_block
+    from omcrl.pipeline.glance import LADDER_END, LADDER_START, current_block
 
-    block = ladder_block("quick")
+    block = pages["docs/results.md"][LADDER_START]
     page = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
     assert current_block(page, "docs/results.md", LADDER_START, LADDER_END) == block
     assert "| pretrain ladder | ×1 | ×4 | ×16 |" in block and "| rl | ours | ×1 | 3 |" in block
@@ -178,12 +178,12 @@ def test_the_ladders_block_is_what_its_data_gives(repo_root):
     assert max(len(line) for line in block.splitlines() if not line.startswith("|")) <= 120
 
 
-def test_the_v2_ablations_block_is_what_its_data_gives(repo_root):
+def test_the_v2_ablations_block_is_what_its_data_gives(repo_root, pages):
     """docs/results.md's v2 ablations block is rebuilt from reference/quick/<grid>-v2/ for the six ablation grids
     (summary --readme): a hand-edited cell fails here."""
-    from omcrl.pipeline.glance import ABLATION_END, ABLATION_START, ablation_block, current_block
+    from omcrl.pipeline.glance import ABLATION_END, ABLATION_START, current_block
 
-    block = ablation_block("quick")
+    block = pages["docs/results.md"][ABLATION_START]
     page = (repo_root / "docs" / "results.md").read_text(encoding="utf-8")
     assert current_block(page, "docs/results.md", ABLATION_START, ABLATION_END) == block
     assert block.startswith(("**Recorded**", "Not run yet"))
@@ -396,3 +396,16 @@ def test_the_readmes_power_sentence_counts_what_the_power_lines_say():
     p = _power(v)
     assert (p["undecided"], p["bound"], p["no_layouts"], p["by_seeds"], p["seed_heavy"]) == (4, 2, 1, 2, 3)
     assert p["layouts_needed"] == ("100", "100", "100") and p["seeds_needed"] == ("12", "21", "30")
+
+
+def test_every_generated_block_of_the_pages_is_what_the_data_gives(repo_root, pages):
+    """Each block between markers in the README and docs/ equals its rebuild from reference/quick/ (the one
+    `summary --readme` writes: omcrl.pipeline.glance.page_blocks); a hand edit, or data committed without the pages
+    rebuilt, fails here and names the page and the block."""
+    from omcrl.pipeline.glance import current_block
+
+    for page, blocks in pages.items():
+        text = (repo_root / page).read_text(encoding="utf-8")
+        for start, block in blocks.items():
+            end = start.split(":")[0] + ": end -->"  # "<!-- name: start (...) -->" ends at "<!-- name: end -->"
+            assert current_block(text, page, start, end) == block, f"{page}: {start}"

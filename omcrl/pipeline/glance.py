@@ -653,28 +653,38 @@ def _rewrite(path: Path, blocks: list[tuple[str, str, str]]) -> bool:
     return new != text
 
 
-def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bool:
-    """Rewrite the README's blocks (v2 from ``reference/<preset>/table1-v2/``, v1 from ``reference/<preset>/table1``),
-    docs/results.md's v2 block and the v2 Fig. 5 beside them (:data:`V2_FIGURE`), its ladder block and figures
-    (:func:`ladder_block`, :data:`LADDER_FIGURES`), its v2 ablations block (:func:`ablation_block`), and
-    docs/glossary.md's metrics
-    table (:func:`omcrl.eval.metrics.glossary_markdown`); True when the README changed."""
-    root = project_root()
-    path = Path(readme) if readme is not None else root / "README.md"
-    short, full, confirm, table1 = _v2(preset, figure_to=root / V2_FIGURE)
-    v1 = render_v1_results(reference_table_dir(preset))
-    ladder = ladder_block(preset, figures_to=root / LADDER_FIGURES)
-    ablations, ablation = _ablation(preset, ABLATION_SEEDS, 2000, root / LADDER_FIGURES)
+def page_blocks(preset: str = "quick", root: Path | None = None) -> dict[str, list[tuple[str, str, str]]]:
+    """Every generated block of the pages, each input rebuilt once from ``reference/<preset>/``: ``{page: [(block,
+    start marker, end marker), ...]}``, pages relative to the project root (``README.md``, ``docs/results.md``,
+    ``docs/glossary.md``, ``docs/generalization.md``). With ``root``, the figures the blocks show (Fig. 5 on v2, the
+    ladder's and the ablations' figures) are copied under it (:data:`V2_FIGURE`, :data:`LADDER_FIGURES`)."""
+    short, full, confirm, table1 = _v2(preset, figure_to=None if root is None else root / V2_FIGURE)
+    figures = None if root is None else root / LADDER_FIGURES
+    ablations, ablation = _ablation(preset, ABLATION_SEEDS, 2000, figures)
     detour, attribution = detour_table(preset), attribution_table(preset)
     answer_readme, answer_results = answer_blocks(preset, table1, ablation, attribution, detour)
-    blocks = [(answer_results, ANSWER_START, ANSWER_END), (full, FULL_START, FULL_END),
-              (confirm, CONFIRM_START, CONFIRM_END), (v1, V1_START, V1_END),
-              (ladder, LADDER_START, LADDER_END), (ablations, ABLATION_START, ABLATION_END),
-              (detour_block(preset, detour), WHY_DETOUR_START, WHY_DETOUR_END),
-              (attribution_block(preset, attribution), WHY_LOOK_START, WHY_LOOK_END)]  # fmt: skip
-    _rewrite(root / "docs" / "results.md", blocks)
-    _rewrite(root / "docs" / "glossary.md", [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)])
-    _rewrite(root / "docs" / "generalization.md", [(transfer_block(preset), TRANSFER_START, TRANSFER_END)])
-    v1_glance = render_glance(reference_table_dir(preset))
-    blocks = [(answer_readme, ANSWER_START, ANSWER_END), (v1_glance, START, END), (short, V2_START, V2_END)]
-    return _rewrite(path, blocks)
+    return {
+        "README.md": [(answer_readme, ANSWER_START, ANSWER_END),
+                      (render_glance(reference_table_dir(preset)), START, END), (short, V2_START, V2_END)],
+        "docs/results.md": [(answer_results, ANSWER_START, ANSWER_END), (full, FULL_START, FULL_END),
+                            (confirm, CONFIRM_START, CONFIRM_END),
+                            (render_v1_results(reference_table_dir(preset)), V1_START, V1_END),
+                            (ladder_block(preset, figures_to=figures), LADDER_START, LADDER_END),
+                            (ablations, ABLATION_START, ABLATION_END),
+                            (detour_block(preset, detour), WHY_DETOUR_START, WHY_DETOUR_END),
+                            (attribution_block(preset, attribution), WHY_LOOK_START, WHY_LOOK_END)],
+        "docs/glossary.md": [(glossary_markdown(), GLOSSARY_START, GLOSSARY_END)],
+        "docs/generalization.md": [(transfer_block(preset), TRANSFER_START, TRANSFER_END)],
+    }  # fmt: skip
+
+
+def update_readme(preset: str = "quick", readme: str | Path | None = None) -> bool:
+    """Rewrite every generated block of the pages (:func:`page_blocks`: the README's answer, v2 and v1 blocks;
+    docs/results.md's answer, Table I, confirmation, v1, ladder, ablations, teacher's ceiling and attribution blocks;
+    docs/glossary.md's metrics table; docs/generalization.md's transfer table) and the figures beside them; True when
+    the README (``readme``, default the project's) changed."""
+    root = project_root()
+    blocks = page_blocks(preset, root)
+    for page in ("docs/results.md", "docs/glossary.md", "docs/generalization.md"):
+        _rewrite(root / page, blocks[page])
+    return _rewrite(Path(readme) if readme is not None else root / "README.md", blocks["README.md"])
