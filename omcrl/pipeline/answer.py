@@ -117,6 +117,7 @@ def answer_facts(
     detour: pd.DataFrame | None = None,
     ablations: pd.DataFrame | None = None,
     ablation_grids: tuple[int, int] | None = None,
+    ablation_budget: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
     """What the answer states, from the data alone.
 
@@ -130,6 +131,8 @@ def answer_facts(
     detour : :func:`omcrl.pipeline.why.detour_table` (shares in %); None or empty: not made.
     ablations : :func:`omcrl.eval.ablation.findings_summary` of the recorded ablation grids; None: none recorded.
     ablation_grids : (grids with every variant at every ablation seed, grids in all); None: (0, the six).
+    ablation_budget : (the ablation grids' RL env steps, Table I's), e.g. ``(cfg.sweep.rl_steps, cfg.rl.total_steps)``;
+        None: not said.
 
     Returns
     -------
@@ -181,7 +184,7 @@ def answer_facts(
         "power": _power(v),
         "look": _look(attribution),
         "ceiling": _ceiling(detour),
-        "ablations": _ablations(ablations, ablation_grids or (0, len(ABLATION_GRIDS))),
+        "ablations": _ablations(ablations, ablation_grids or (0, len(ABLATION_GRIDS)), ablation_budget),
     }
     return facts
 
@@ -286,11 +289,14 @@ def _ceiling(detour: pd.DataFrame | None) -> dict[str, Any] | None:
     }
 
 
-def _ablations(summary: pd.DataFrame | None, grids: tuple[int, int]) -> dict[str, Any]:
-    """Each judged finding with its verdict, and how many of the grids are complete."""
+def _ablations(summary: pd.DataFrame | None, grids: tuple[int, int], budget: tuple[int, int] | None) -> dict[str, Any]:
+    """Each judged finding with its verdict, how many of the grids are complete, and their RL budget against Table
+    I's (``steps``, ``table1_steps``, ``share`` in %; None when not given)."""
     rows = [] if summary is None else [(*str(r["finding"]).split(" ", 1), r["verdict"], int(r["checks"]))
                                        for _, r in summary.iterrows()]  # fmt: skip
-    return {"findings": rows, "complete": grids[0], "grids": grids[1]}
+    steps = None if budget is None else {"steps": f"{budget[0]:,}", "table1_steps": f"{budget[1]:,}",
+                                          "share": f"{100 * budget[0] / budget[1]:.0f}"}  # fmt: skip
+    return {"findings": rows, "complete": grids[0], "grids": grids[1], "budget": steps}
 
 
 def answer_block(facts: dict[str, Any], base: str = "docs/results.md") -> str:

@@ -550,6 +550,7 @@ def answer_blocks(
     rebuild (:func:`_v2`), the ablations' (:func:`_ablation`), the attribution and the teacher's ceiling
     (:func:`omcrl.pipeline.why.attribution_table`, :func:`~omcrl.pipeline.why.detour_table`); each one not given is
     rebuilt here from ``reference/<preset>/``."""
+    cfg = load_config(preset)
     table1 = _v2(preset)[3] if table1 is None else table1
     if ablation is None:
         ablation = _ablation(preset, seeds, 2000, None)[1]
@@ -560,6 +561,7 @@ def answer_blocks(
         detour_table(preset) if detour is None else detour,
         None if ablation is None else ablation.summary,
         (_complete_grids(ablation, seeds), len(ABLATION_GRIDS)),
+        (int(cfg.sweep.rl_steps), int(cfg.rl.total_steps)),
     )
     return answer_block(facts, "docs/results.md"), answer_block(facts, "")
 
