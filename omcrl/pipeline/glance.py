@@ -15,6 +15,7 @@ import math
 import shutil
 import tempfile
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +49,7 @@ from omcrl.pipeline.why import (
     detour_table,
 )
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
+from omcrl.rl.train import rollout_geometry
 from omcrl.scenes import scene_id, scene_label, scene_spec
 from omcrl.utils.io import atomic_write_text
 
@@ -561,7 +563,8 @@ def answer_blocks(
         detour_table(preset) if detour is None else detour,
         None if ablation is None else ablation.summary,
         (_complete_grids(ablation, seeds), len(ABLATION_GRIDS)),
-        (int(cfg.sweep.rl_steps), int(cfg.rl.total_steps)),
+        # the env steps runs train (rollouts round up), as run.json and Table I's text give them
+        tuple(rollout_geometry(replace(cfg.rl, total_steps=n))[3] for n in (cfg.sweep.rl_steps, cfg.rl.total_steps)),
     )
     return answer_block(facts, "docs/results.md"), answer_block(facts, "")
 
