@@ -139,6 +139,12 @@ def paper_table1() -> pd.DataFrame:
     return pd.read_csv(PAPER_TABLE1, comment="#")
 
 
+def signed_points(x: float) -> str:
+    """A difference in whole points with its sign and a minus sign (``+5``, ``−3``; ``0`` without one)."""
+    text = f"{x:+.0f}"
+    return "0" if text in ("+0", "-0") else text.replace("-", "−")
+
+
 def ci_text(mean: float, lo: float, hi: float, digits: int = 0) -> str:
     """``mean [lo, hi]`` at ``digits`` decimals; the interval left out where it is not finite or, at that precision,
     collapses onto the mean (a planner flown once, a cell at 100 %); ``–`` for a mean that is not finite."""

@@ -18,10 +18,11 @@ import pandas as pd
 
 from omcrl import planners
 from omcrl.eval.ledger import LEDGER, TRAINING_METRICS
-from omcrl.eval.table1 import paper_table1
+from omcrl.eval.table1 import paper_table1, signed_points
 from omcrl.eval.verdicts import verdict_counts
 from omcrl.pipeline.grids import ABLATION_GRIDS
 from omcrl.pipeline.pages import render
+from omcrl.pipeline.why import method_label
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
 from omcrl.scenes import SUITES, scene_spec
 
@@ -42,10 +43,6 @@ METRIC_WORDS = {"return_auc": "return over training", "return_final": "final ret
 VERDICTS = ("holds", "reversed", "mixed", "undecided", "one seed", "not run")
 
 
-def _label(name: str) -> str:
-    return METHODS[name].label if name in METHODS else planners.LABELS.get(name, name)
-
-
 def _planner(name: str) -> bool:
     """A planner of the comparison (Hybrid APF, its perceptive variant) or of the kit (local APF, blind pilot)."""
     return name in planners.LABELS or (name in METHODS and METHODS[name].features == "planner")
@@ -61,15 +58,9 @@ def _family(scene: str) -> str:
     return scene_spec(scene).family
 
 
-def _pts(x: float) -> str:
-    """A difference in whole points with its sign (``+5``, ``−3``, ``0``)."""
-    text = f"{x:+.0f}"
-    return "0" if text in ("+0", "-0") else text.replace("-", "−")
-
-
 def _span(xs: Sequence[float], signed: bool = True) -> str:
     """``lo to hi`` of ``xs`` in whole points (one value alone when they agree)."""
-    f = _pts if signed else (lambda x: f"{x:.0f}")
+    f = signed_points if signed else (lambda x: f"{x:.0f}")
     lo, hi = f(min(xs)), f(max(xs))
     return lo if lo == hi else f"{lo} to {hi}"
 
@@ -85,10 +76,10 @@ def claim_words(claim_id: str) -> str:
     c = next(c for c in LEDGER if c.id == claim_id)
     metric = METRIC_WORDS.get(c.metric, c.metric)
     if c.kind == "order":
-        return f"{_label(c.a)} above {_names(_label(b) for b in c.b)} in {metric}"
+        return f"{method_label(c.a)} above {_names(method_label(b) for b in c.b)} in {metric}"
     if c.kind == "drop":
-        return f"{_possessive(_label(c.a))} {metric} lower in {_names(c.scenes[1:])} than in {c.scenes[0]}"
-    lead = f"{_possessive(_label(c.a))} lead over {_label(c.b[0])} in {metric}"
+        return f"{_possessive(method_label(c.a))} {metric} lower in {_names(c.scenes[1:])} than in {c.scenes[0]}"
+    lead = f"{_possessive(method_label(c.a))} lead over {method_label(c.b[0])} in {metric}"
     return f"{lead} larger in {c.scenes[0]} than in {c.scenes[1]}"
 
 
@@ -156,7 +147,7 @@ def answer_facts(
         "anchors": ANCHORS,
         "training": _claims(v, [c.id for c in LEDGER if c.metric in TRAINING_METRICS]),
         "e1": {
-            "versus": _names(_label(m) for m in learned_b),
+            "versus": _names(method_label(m) for m in learned_b),
             "n": len(e1),
             "decided": int((e1["verdict"] != "undecided").sum()),
             "span": _span(list(e1["estimate"])) if len(e1) else "",
@@ -169,7 +160,7 @@ def answer_facts(
             "ours": [(f, _sr(table, "ours", s), paper.get(("ours", f))) for s, f in hard],
         },
         "planner": {
-            "label": _names(_label(m) for m in dict.fromkeys(e1_planner["b"])),
+            "label": _names(method_label(m) for m in dict.fromkeys(e1_planner["b"])),
             "n": len(e1_planner),
             "reversed": int((e1_planner["verdict"] == "reversed").sum()),
             "span": _span(list(e1_planner["estimate"])) if len(e1_planner) else "",

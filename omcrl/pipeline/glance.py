@@ -27,7 +27,7 @@ from omcrl.eval.ablation import PAPER_TABLES, paper_ablations
 from omcrl.eval.metrics import glossary_markdown
 from omcrl.eval.stage import scene_cells, to_markdown
 from omcrl.eval.stats import aggregate, cell_rng, contrast, term
-from omcrl.eval.table1 import Table1Result, ci_text, paper_table1, read_table1_csv, table1_frames
+from omcrl.eval.table1 import Table1Result, ci_text, paper_table1, read_table1_csv, signed_points, table1_frames
 from omcrl.eval.verdicts import changes_from_v1, compare_readings, readings_markdown, verdict_counts
 from omcrl.pipeline.ablations import ABLATION_SEEDS, AblationResult, ablations_from_reference, account_markdown
 from omcrl.pipeline.answer import ANSWER_END, ANSWER_START, answer_block, answer_facts
@@ -47,6 +47,7 @@ from omcrl.pipeline.why import (
     attribution_table,
     detour_block,
     detour_table,
+    method_label,
 )
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
 from omcrl.rl.train import rollout_geometry
@@ -103,12 +104,6 @@ def _read(table_dir: Path) -> tuple[pd.DataFrame, Table1Record]:
     return table[table.metric == "SR"], record
 
 
-def _signed(x: float) -> str:
-    """A difference in whole points with its sign (``+5``, ``−3``; ``0`` without one)."""
-    text = f"{x:+.0f}"
-    return "0" if text in ("+0", "-0") else text.replace("-", "−")
-
-
 def wide_table(rows: pd.DataFrame, with_paper: bool = True, digits: int = 0) -> list[str]:
     """Markdown lines of one metric of Table I, one row per method, one column per scene: ``mean [lo, hi]`` (the
     CI left out where it collapses), with the paper's value in *italics* where it has one (``with_paper``).
@@ -135,7 +130,7 @@ def wide_table(rows: pd.DataFrame, with_paper: bool = True, digits: int = 0) -> 
             if with_paper and psc is not None and (m, psc) in paper.index and pd.notna(paper[(m, psc)]):
                 text += f" *{paper[(m, psc)]:g}*"
             out.append(text)
-        lines.append(f"| {METHODS[m].label if m in METHODS else planners.LABELS.get(m, m)} | " + " | ".join(out) + " |")
+        lines.append(f"| {method_label(m)} | " + " | ".join(out) + " |")
     return lines
 
 
@@ -149,9 +144,9 @@ def render_glance(table_dir: str | Path, figure: str = "docs/figures/quick/v1/fi
         for verdict in ("holds", "reversed", "undecided"):
             sc = g[g.verdict == verdict]
             if len(sc):
+                pts = signed_points
                 where = ", ".join(
-                    f"{r.scene} {_signed(r.diff)} [{_signed(r.lo)}, {_signed(r.hi)}]" if verdict != "undecided"
-                    else r.scene
+                    f"{r.scene} {pts(r.diff)} [{pts(r.lo)}, {pts(r.hi)}]" if verdict != "undecided" else r.scene
                     for r in sc.itertuples()
                 )  # fmt: skip
                 parts.append(f"**{verdict}** in {where}")
@@ -177,7 +172,7 @@ def render_v1_results(table_dir: str | Path) -> str:
             if r is None:
                 out.append("")
                 continue
-            text = f"{_signed(r.diff)} [{_signed(r.lo)}, {_signed(r.hi)}]"
+            text = f"{signed_points(r.diff)} [{signed_points(r.lo)}, {signed_points(r.hi)}]"
             out.append(f"**{r.verdict}** {text}" if r.verdict in ("holds", "reversed") else text)
         rows.append((claim, out))
     return render("table1_v1_full.md.j2", seeds=seeds, episodes=n, table=wide_table(sr, with_paper=False),
@@ -312,22 +307,9 @@ def render_transfer(episodes: pd.DataFrame, reps: int = 2000) -> str:
                 rng=cell_rng(0, "transfer", m, s),
                 bounded=100.0,
             )
-            cells.append(f"{_signed(est.estimate)} [{_signed(est.lo)}, {_signed(est.hi)}]")
+            cells.append(f"{signed_points(est.estimate)} [{signed_points(est.lo)}, {signed_points(est.hi)}]")
         rows.append((METHODS[m].label, f"{sr0.mean():.0f}", cells, base["train_seed"].nunique()))
     return render("transfer_v2.md.j2", train=train, others=[scene_label(s) for s in others], rows=rows)
-
-
-def v2_blocks(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str]:
-    """The README's block (:func:`render_v2`) and docs/results.md's (Table I's six metrics per scene, then every
-    hypothesis of the ledger) from a rebuild of ``reference/<preset>/table1-v2/`` under a temporary folder; with
-    ``figure_to``, Fig. 5 of the rebuild is copied there."""
-    short, full, _, _ = _v2(preset, figure_to)
-    return short, full
-
-
-def confirm_block(preset: str = "quick") -> str:
-    """docs/results.md's block on Table I's confirmation (:func:`_confirm`)."""
-    return _v2(preset)[2]
 
 
 def _confirm(preset: str, grid_verdicts: pd.DataFrame) -> tuple[str, str | None]:
@@ -377,8 +359,10 @@ def _confirm(preset: str, grid_verdicts: pd.DataFrame) -> tuple[str, str | None]
 
 
 def _v2(preset: str = "quick", figure_to: str | Path | None = None) -> tuple[str, str, str, Table1Result]:
-    """The README's v2 block, docs/results.md's and the confirmation's (:func:`v2_blocks`, :func:`_confirm`), and the
-    rebuild they come from."""
+    """The README's v2 block (:func:`render_v2`), docs/results.md's (Table I's six metrics per scene, then every
+    hypothesis of the ledger) and the confirmation's (:func:`_confirm`), from a rebuild of
+    ``reference/<preset>/table1-v2/`` under a temporary folder, and that rebuild; with ``figure_to``, Fig. 5 of the
+    rebuild is copied there."""
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         res = tables_from_reference(cfg)
@@ -496,7 +480,7 @@ def _ablation(
         if not math.isfinite(r["diff"]):
             return ""
         p = f", p {r['p_holm']:.2g}" if math.isfinite(r["p_holm"]) else ""
-        return f"{_signed(r['diff'])} [{_signed(r['lo'])}, {_signed(r['hi'])}] {r['verdict']}{p}"
+        return f"{signed_points(r['diff'])} [{signed_points(r['lo'])}, {signed_points(r['hi'])}] {r['verdict']}{p}"
 
     by_claim = findings.groupby(["finding", "claim"], sort=False) if len(findings) else ()
     checks = [f"| {finding} | {claim} | {scene_cells(g, check_scenes, check)} |" for (finding, claim), g in by_claim]
@@ -541,26 +525,22 @@ def _complete_grids(res: AblationResult | None, seeds: Sequence[int]) -> int:
 
 
 def answer_blocks(
-    preset: str = "quick",
-    table1: Table1Result | None = None,
-    ablation: AblationResult | None = None,
-    attribution: pd.DataFrame | None = None,
-    detour: pd.DataFrame | None = None,
+    preset: str,
+    table1: Table1Result,
+    ablation: AblationResult | None,
+    attribution: pd.DataFrame,
+    detour: pd.DataFrame,
     seeds: tuple[int, ...] = ABLATION_SEEDS,
 ) -> tuple[str, str]:
     """The answer first (:mod:`omcrl.pipeline.answer`) as the README's block and as docs/results.md's, from Table I's
-    rebuild (:func:`_v2`), the ablations' (:func:`_ablation`), the attribution and the teacher's ceiling
-    (:func:`omcrl.pipeline.why.attribution_table`, :func:`~omcrl.pipeline.why.detour_table`); each one not given is
-    rebuilt here from ``reference/<preset>/``."""
+    rebuild (:func:`_v2`), the ablations' (:func:`_ablation`; None when no grid has episodes), the attribution and
+    the teacher's ceiling (:func:`omcrl.pipeline.why.attribution_table`, :func:`~omcrl.pipeline.why.detour_table`)."""
     cfg = load_config(preset)
-    table1 = _v2(preset)[3] if table1 is None else table1
-    if ablation is None:
-        ablation = _ablation(preset, seeds, 2000, None)[1]
     facts = answer_facts(
         table1.verdicts,
         table1.table,
-        attribution_table(preset) if attribution is None else attribution,
-        detour_table(preset) if detour is None else detour,
+        attribution,
+        detour,
         None if ablation is None else ablation.summary,
         (_complete_grids(ablation, seeds), len(ABLATION_GRIDS)),
         # the env steps runs train (rollouts round up), as run.json and Table I's text give them

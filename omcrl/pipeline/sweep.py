@@ -194,9 +194,7 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
         # stopped, then resumed (:func:`stretches`), so that it learns the same policy.
         stops: list[int] = []
         if preset_cfg.get("as_table1"):
-            table1 = GridData(grid_data_dir(cfg, "table1"))
-            restart_if_resume_diverges(preset_cfg, job, table1)
-            stops = stretches(preset_cfg, job, table1)
+            stops = stretches(preset_cfg, job, GridData(grid_data_dir(cfg, "table1")))
         for stop in stops:
             part = train_method(cfg, job.method, progress=True, callbacks=(StopAfter(stop),))
             began = part.start if began is None else began
@@ -497,39 +495,26 @@ def not_table1_run(preset_cfg: dict, job: Job, table1: GridData) -> str | None:
 
 
 def stretches(preset_cfg: dict, job: Job, table1: GridData) -> list[int]:
-    """The steps at which a training job of a grid that re-flies Table I's runs stops and resumes, to train as
-    Table I's run did (its recorded ``segments`` after the first) and that its run here has not reached yet: a run
+    """Before a training job of a grid that re-flies Table I's runs: the steps at which it stops and resumes to train
+    as Table I's run did (that run's recorded ``segments`` after the first, those its run here has not reached): a run
     resumed from a checkpoint at step S restarts its envs with the seed Table I's did at S, so it learns the same
-    policy. Empty when Table I's run trained in one stretch or has no record."""
+    policy (:func:`not_table1_run`). A checkpoint of an interrupted attempt at a step where Table I's run did not
+    resume is moved aside first (``checkpoint.pt.diverges``), so the run trains from the start. Empty when Table I's
+    run trained in one stretch or has no record."""
     recorded = _segments(table1.folder(job.method, job.seed) / "rl" / "run.json")
     run = _train_run(preset_cfg, job)
-    if len(recorded) < 2 or run is None or run.finished() is not None:
+    if not recorded or run is None or run.finished() is not None:
         return []
     ckpt = run.load("checkpoint")
     at = 0 if ckpt is None else int(ckpt["step"])
+    if at and at not in {s for s, _ in recorded[1:]}:
+        aside = run.checkpoint_path.with_name(run.checkpoint_path.name + ".diverges")
+        run.checkpoint_path.replace(aside)
+        print(f"[sweep] {job.method} seed {job.seed}: checkpoint at step {at:,} moved to {aside} (Table I's run "
+              f"trained in stretches {recorded}: resuming here would learn another policy); training from the start",
+              flush=True)  # fmt: skip
+        at = 0
     return [s for s, _ in recorded[1:] if s > at]
-
-
-def restart_if_resume_diverges(preset_cfg: dict, job: Job, table1: GridData) -> Path | None:
-    """Before a training job of a grid that re-flies Table I's runs: when its run holds a checkpoint from an
-    interrupted attempt and Table I's run did not resume at that step, move the checkpoint aside
-    (``checkpoint.pt.diverges``) so the run trains from the start, as Table I's did (:func:`not_table1_run`: a resume
-    would learn another policy). Returns the moved file, or None when nothing was moved."""
-    recorded = _segments(table1.folder(job.method, job.seed) / "rl" / "run.json")
-    run = _train_run(preset_cfg, job)
-    if not recorded or run is None or not run.checkpoint_path.exists() or run.finished() is not None:
-        return None
-    step = int(run.load("checkpoint")["step"])
-    if step in {s for s, _ in recorded[1:]}:
-        return None
-    aside = run.checkpoint_path.with_name(run.checkpoint_path.name + ".diverges")
-    run.checkpoint_path.replace(aside)
-    print(
-        f"[sweep] {job.method} seed {job.seed}: checkpoint at step {step:,} moved to {aside} (Table I's run trained in "
-        f"stretches {recorded}: resuming here would learn another policy); training from the start",
-        flush=True,
-    )
-    return aside
 
 
 def _recorded(jobs: Sequence[Job], record: GridData) -> set[str]:

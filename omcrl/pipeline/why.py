@@ -58,7 +58,8 @@ def detour_table(preset: str = "quick") -> pd.DataFrame:
     )
 
 
-def _label(method: str) -> str:
+def method_label(method: str) -> str:
+    """The name a table shows for ``method``: its label in the method table, or a planner's (local APF, blind)."""
     return METHODS[method].label if method in METHODS else PLANNER_LABELS.get(method, method)
 
 
@@ -73,7 +74,7 @@ def detour_block(preset: str = "quick", table: pd.DataFrame | None = None) -> st
         rows = []
         for method, m in g.groupby("method", sort=False):
             cells = m.set_index("detour")
-            rows.append((_label(method), [f"{cells.SR[b]:.0f} / {cells.CR[b]:.0f} / {cells.TO[b]:.0f}"
+            rows.append((method_label(method), [f"{cells.SR[b]:.0f} / {cells.CR[b]:.0f} / {cells.TO[b]:.0f}"
                                           if b in cells.index else "–" for b in bins]))  # fmt: skip
         scenes.append((scene, [f"{b} ({share.get(b, 0):.0f} % of layouts)" for b in bins], rows))
     return render("why_detour_v2.md.j2", preset=preset, edges=list(DETOUR_BINS)[1:-1], scenes=scenes)
@@ -159,7 +160,7 @@ def attribution_block(preset: str = "quick", table: pd.DataFrame | None = None) 
         return f"{f.format(v)} [{f.format(lo)}, {f.format(hi)}]".replace("-", "−")  # a minus sign, as every table
 
     scenes = [
-        (scene, [[_label(r["method"]), str(r["seeds"]), ci(r, "box"), ci(r, "box_look"), ci(r, "own"),
+        (scene, [[method_label(r["method"]), str(r["seeds"]), ci(r, "box"), ci(r, "box_look"), ci(r, "own"),
                   ci(r, "geometry", True), ci(r, "look", True)] for _, r in g.iterrows()])
         for scene, g in (t.groupby("scene", sort=False) if len(t) else ())
     ]  # fmt: skip
