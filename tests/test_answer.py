@@ -72,10 +72,15 @@ def test_the_sentences_follow_the_verdicts_they_report():
 def test_the_ablations_sentence_names_each_judged_finding():
     finding = "6 linear decay beats exponential and fixed"
     summary = pd.DataFrame([{"finding": finding, "checks": 6, "verdict": "undecided"}])
-    text = _said(_verdicts(), _table(), ablations=summary, ablation_grids=(1, 6), ablation_budget=(50_000, 450_560))
+    text = _said(
+        _verdicts(), _table(), ablations=summary, ablation_grids=(["decay"], 6), ablation_budget=(50_000, 450_560)
+    )
     assert "each variant trained for 50,000 RL env steps (11 % of Table I's 450,560);" in text
     assert "1 of 6 grids complete" in text
-    assert "finding 6 (linear decay beats exponential and fixed) *undecided* in 6 checks" in text
+    assert "finding 6 (linear decay beats exponential and fixed) *undecided* in 6 checks." in text
+    # a finding judged on a grid still running says so: its verdict can move
+    running = _said(_verdicts(), _table(), ablations=summary, ablation_grids=(["mask-prob"], 6))
+    assert "*undecided* in 6 checks (so far: its grid is still running)." in running
     assert "no finding judged yet" in _said(_verdicts(), _table())
 
 

@@ -11,12 +11,13 @@ estimate of the tables the sentences link to, so a sentence changes when the dat
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from typing import Any
 
 import pandas as pd
 
 from omcrl import planners
+from omcrl.eval.ablation import ABLATION_CLAIMS
 from omcrl.eval.ledger import LEDGER, TRAINING_METRICS
 from omcrl.eval.table1 import paper_table1, signed_points
 from omcrl.eval.verdicts import verdict_counts
@@ -107,7 +108,7 @@ def answer_facts(
     attribution: pd.DataFrame | None = None,
     detour: pd.DataFrame | None = None,
     ablations: pd.DataFrame | None = None,
-    ablation_grids: tuple[int, int] | None = None,
+    ablation_grids: tuple[Collection[str], int] | None = None,
     ablation_budget: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
     """What the answer states, from the data alone.
@@ -121,7 +122,8 @@ def answer_facts(
     attribution : :func:`omcrl.pipeline.why.attribution_table` (SR in %, steps in points); None or empty: not flown.
     detour : :func:`omcrl.pipeline.why.detour_table` (shares in %); None or empty: not made.
     ablations : :func:`omcrl.eval.ablation.findings_summary` of the recorded ablation grids; None: none recorded.
-    ablation_grids : (grids with every variant at every ablation seed, grids in all); None: (0, the six).
+    ablation_grids : (the names of the grids with every variant at every ablation seed, grids in all); None: (none,
+        the six). A finding whose grid is not among them is said to be judged on a grid still running.
     ablation_budget : (the ablation grids' RL env steps, Table I's), e.g. ``(cfg.sweep.rl_steps, cfg.rl.total_steps)``;
         None: not said.
 
@@ -175,7 +177,7 @@ def answer_facts(
         "power": _power(v),
         "look": _look(attribution),
         "ceiling": _ceiling(detour),
-        "ablations": _ablations(ablations, ablation_grids or (0, len(ABLATION_GRIDS)), ablation_budget),
+        "ablations": _ablations(ablations, ablation_grids or ((), len(ABLATION_GRIDS)), ablation_budget),
     }
     return facts
 
@@ -280,14 +282,20 @@ def _ceiling(detour: pd.DataFrame | None) -> dict[str, Any] | None:
     }
 
 
-def _ablations(summary: pd.DataFrame | None, grids: tuple[int, int], budget: tuple[int, int] | None) -> dict[str, Any]:
-    """Each judged finding with its verdict, how many of the grids are complete, and their RL budget against Table
-    I's (``steps``, ``table1_steps``, ``share`` in %; None when not given)."""
-    rows = [] if summary is None else [(*str(r["finding"]).split(" ", 1), r["verdict"], int(r["checks"]))
+def _ablations(
+    summary: pd.DataFrame | None, grids: tuple[Collection[str], int], budget: tuple[int, int] | None
+) -> dict[str, Any]:
+    """Each judged finding with its verdict and whether its grid is complete (a verdict of a grid still running
+    can move), how many of the grids are complete, and their RL budget against Table I's (``steps``,
+    ``table1_steps``, ``share`` in %; None when not given)."""
+    grid_of = {finding: grid for finding, grid, _, _ in ABLATION_CLAIMS}
+    complete = set(grids[0])
+    rows = [] if summary is None else [(*str(r["finding"]).split(" ", 1), r["verdict"], int(r["checks"]),
+                                        grid_of.get(str(r["finding"])) in complete)
                                        for _, r in summary.iterrows()]  # fmt: skip
     steps = None if budget is None else {"steps": f"{budget[0]:,}", "table1_steps": f"{budget[1]:,}",
                                           "share": f"{100 * budget[0] / budget[1]:.0f}"}  # fmt: skip
-    return {"findings": rows, "complete": grids[0], "grids": grids[1], "budget": steps}
+    return {"findings": rows, "complete": len(complete), "grids": grids[1], "budget": steps}
 
 
 def answer_block(facts: dict[str, Any], base: str = "docs/results.md") -> str:

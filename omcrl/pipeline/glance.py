@@ -514,14 +514,12 @@ def _ablation(
     return text, res
 
 
-def _complete_grids(res: AblationResult | None, seeds: Sequence[int]) -> int:
-    """How many of the ablation grids have every variant recorded at every one of ``seeds``."""
+def _complete_grids(res: AblationResult | None, seeds: Sequence[int]) -> list[str]:
+    """The ablation grids that have every variant recorded at every one of ``seeds``."""
     if res is None:
-        return 0
-    done = 0
-    for g, ep in res.episodes.items():
-        done += all(set(seeds) <= set(ep.loc[ep["label"] == v.label, "train_seed"]) for v in GRIDS[g])
-    return done
+        return []
+    return [g for g, ep in res.episodes.items()
+            if all(set(seeds) <= set(ep.loc[ep["label"] == v.label, "train_seed"]) for v in GRIDS[g])]  # fmt: skip
 
 
 def answer_blocks(
