@@ -307,9 +307,10 @@ INTERRUPTED = (
 )
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def _parse(argv: list[str]) -> tuple[argparse.Namespace, Any, Any] | int:
+    """The arguments, the validated config and the stage's function; or an exit code, the error printed (2: usage
+    or config, 3: the stage's module cannot be loaded), before any work."""
     ap = build_parser()
-    argv = list(sys.argv[1:] if argv is None else argv)
     first = next((a for a in argv if not a.startswith("-")), None)
     if first is not None and first not in STAGES:
         ap.print_usage(sys.stderr)
@@ -333,35 +334,43 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     try:
-        func = load_stage(args.stage)
+        return args, cfg, load_stage(args.stage)
     except StageUnavailable as e:
         print(f"error: {e}", file=sys.stderr)
         return 3
-    t0 = time.perf_counter()
-    try:
-        result = func(cfg, **{name: getattr(args, name) for name in STAGES[args.stage].args})
-    except ConfigError as e:
-        if args.debug:
-            raise
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
+
+
+def _failed(e: BaseException, args: argparse.Namespace) -> int:
+    """The exit code of a stage that raised ``e``, with one line for the user (130: Ctrl-C, 2: a config error, 1:
+    an expected failure); anything else, and every error under ``--debug``, is raised with its traceback."""
+    if isinstance(e, KeyboardInterrupt):
         print(f"\ninterrupted: stage {args.stage}; {INTERRUPTED}", file=sys.stderr)
         return 130
-    except _expected_errors() as e:
-        # Expected failures (a prerequisite missing, a corrupt or foreign file, a run of another configuration):
-        # one line naming the file and the problem; the traceback only with --debug.
-        if args.debug:
-            raise
-        print(f"error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
-        return 1
+    if args.debug or not isinstance(e, (ConfigError, *_expected_errors())):
+        raise e
+    # Expected failures (a prerequisite missing, a corrupt or foreign file, a run of another configuration): one
+    # line naming the file and the problem.
+    text = str(e) if isinstance(e, ConfigError) else (str(e).splitlines()[0] if str(e) else type(e).__name__)
+    print(f"error: {text}", file=sys.stderr)
+    return 2 if isinstance(e, ConfigError) else 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m omcrl <stage> ...``: the stage's config built and checked, the stage called, the exit code."""
+    parsed = _parse(list(sys.argv[1:] if argv is None else argv))
+    if isinstance(parsed, int):
+        return parsed
+    args, cfg, stage = parsed
+    t0 = time.perf_counter()
+    try:
+        result = stage(cfg, **{name: getattr(args, name) for name in STAGES[args.stage].args})
+    except BaseException as e:  # _failed raises again what it does not report
+        return _failed(e, args)
     if args.stage not in ("config", "summary"):
         if result is not None:
             print(describe(result))
-        print(
-            f"[omcrl] stage {args.stage} (preset {cfg.preset}) finished in {time.perf_counter() - t0:.1f} s",
-            file=sys.stderr,
-        )
+        print(f"[omcrl] stage {args.stage} (preset {cfg.preset}) finished in {time.perf_counter() - t0:.1f} s",
+              file=sys.stderr)  # fmt: skip
     return 0
 
 

@@ -72,7 +72,9 @@ def _episodes(folder: Path) -> str:
         df.to_csv(buf, index=False)
         name = csv.parent.name if csv.name == "episodes.csv" else csv.stem
         rows.append(name.rsplit("-", 1)[0] + ":" + hashlib.sha256(buf.getvalue().encode()).hexdigest())
-    return hashlib.sha256("\n".join(rows).encode()).hexdigest()[:16] + f" ({len(rows)} scenes)"
+    # Sorted by scene, not by folder: the folders' keys carry the policy file's digest, whose meta holds the
+    # results folder's path, so the same episodes under another root would otherwise hash in another order.
+    return hashlib.sha256("\n".join(sorted(rows)).encode()).hexdigest()[:16] + f" ({len(rows)} scenes)"
 
 
 def digests(root: Path, data: Path) -> dict[str, str]:

@@ -212,22 +212,9 @@ def train(
     # An episode in flight cannot be checkpointed: a resumed run restarts its envs with a seed of its own.
     env_seed = cfg.seed * 1000 + 100 * resumes
     with closing(make_env(env_seed)) as env:
-        obs_space = env.single_observation_space
-        features = build_features(obs_space)
-        act_dim = int(np.prod(env.single_action_space.shape))
-        agent = ActorCritic(features, act_dim, rl.hidden, rl.init_log_std, layer_norm=layer_norm).to(device)
-        agent.precision = section_precision(rl)
-        optimizer = torch.optim.Adam([p for p in agent.parameters() if p.requires_grad], lr=float(rl.lr), eps=1e-5)
-        guide = make_guide(env) if (make_guide is not None and rl.alpha_schedule != "none") else None
-        if guide is not None and hasattr(guide, "to"):
-            guide.to(device)
-        step, update = 0, 0
+        agent, optimizer, guide = _learner(rl, env, build_features, make_guide, layer_norm, device)
         with run.claimed(cfg, overwrite):  # only now, with encoder, oracle and env known to fit
-            if ckpt is not None:
-                agent.load_state_dict(ckpt["model"])
-                optimizer.load_state_dict(ckpt["optimizer"])
-                step, update = int(ckpt["step"]), int(ckpt["update"])
-                set_rng_state(ckpt["rng"])
+            step, update = _resume(ckpt, agent, optimizer)
             start = step  # where this call began: a resumed run's earlier part is not timed
             _record_segment(run, step, env_seed, resumed=ckpt is not None)
             runner = Runner(env, agent, guide, seed=env_seed)
@@ -250,15 +237,8 @@ def train(
                     # Advantages (GAE), then the PPO epochs. The env workers sleep during the update, so the
                     # learner may use their cores (the rollout's batch-of-n_envs forwards do not gain from threads).
                     with _threads(update_threads, rollout_threads), _named_nonfinite(run):
-                        batch.advantages, batch.returns = compute_gae(
-                            batch.rewards,
-                            batch.values,
-                            batch.next_values,
-                            batch.terminated,
-                            batch.ends,
-                            float(rl.gamma),
-                            float(rl.gae_lambda),
-                        )
+                        batch.advantages, batch.returns = compute_gae(batch.rewards, batch.values, batch.next_values,
+                            batch.terminated, batch.ends, float(rl.gamma), float(rl.gae_lambda))  # fmt: skip
                         agent.train()
                         stats = ppo_update(agent, optimizer, batch, rl, alpha=alpha, step=step)
                     before, step, update = step, step + per_update, update + 1
@@ -281,8 +261,41 @@ def train(
             if not s.ended:
                 return Result(run, run.checkpoint_path, step, False, start)
             meta = {"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})}
-            final = run.finish({**policy_payload(agent, space_shapes(obs_space), step, meta=meta), "key": run.key})
+            payload = policy_payload(agent, space_shapes(env.single_observation_space), step, meta=meta)
+            final = run.finish({**payload, "key": run.key})
     return Result(run, final, step, False, start)
+
+
+def _learner(
+    rl: Any,
+    env: Any,
+    build_features: Callable[[Any], FeatureExtractor],
+    make_guide: Callable[[Any], Guide | None] | None,
+    layer_norm: bool,
+    device: torch.device,
+) -> tuple[ActorCritic, torch.optim.Optimizer, Guide | None]:
+    """The actor-critic on ``build_features(env's observation space)`` and its Adam (trainable parameters only: a
+    frozen encoder's are not), and the guide (None without one or with ``rl.alpha_schedule == 'none'``)."""
+    act_dim = int(np.prod(env.single_action_space.shape))
+    agent = ActorCritic(build_features(env.single_observation_space), act_dim, rl.hidden, rl.init_log_std,
+                        layer_norm=layer_norm).to(device)  # fmt: skip
+    agent.precision = section_precision(rl)
+    optimizer = torch.optim.Adam([p for p in agent.parameters() if p.requires_grad], lr=float(rl.lr), eps=1e-5)
+    guide = make_guide(env) if (make_guide is not None and rl.alpha_schedule != "none") else None
+    if guide is not None and hasattr(guide, "to"):
+        guide.to(device)
+    return agent, optimizer, guide
+
+
+def _resume(ckpt: dict | None, agent: ActorCritic, optimizer: torch.optim.Optimizer) -> tuple[int, int]:
+    """(env step, update) to go on from: a checkpoint's, its weights, optimizer and random state restored; (0, 0)
+    for a fresh run."""
+    if ckpt is None:
+        return 0, 0
+    agent.load_state_dict(ckpt["model"])
+    optimizer.load_state_dict(ckpt["optimizer"])
+    set_rng_state(ckpt["rng"])
+    return int(ckpt["step"]), int(ckpt["update"])
 
 
 def _record_segment(run: Run, step: int, env_seed: int, *, resumed: bool) -> None:
