@@ -112,3 +112,31 @@ def test_tables_names_the_grids_it_takes(tmp_path, monkeypatch):
     out = subprocess.run([sys.executable, "-m", "omcrl", "tables", "--preset", "quick", "--from-reference", "--grid",
                           "decay"], capture_output=True, text=True, env=dict(os.environ))  # fmt: skip
     assert out.returncode != 0 and "'ablations'" in out.stderr
+
+
+def test_findings_are_judged_again_on_table_i_runs_where_both_variants_are_table_i_methods(tmp_path, monkeypatch):
+    """An ordering whose two variants are Table I methods with no override (ours and ours w/o OT) is judged again on
+    Table I's runs (all their training seeds), in its own file and Holm family; one whose variant is not a Table I
+    method (ours w/o phi) or has overrides (decay's schedules) is not."""
+    from omcrl.pipeline.tables import tables_stage
+
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    cfg = load_config("quick", overrides=[f"results_dir={tmp_path / 'results'}"])
+    rng = np.random.default_rng(5)
+    grid = GridData(grid_data_dir(cfg, "oracle-teacher"))
+    for s in (0, 1, 2):  # the sweep budget: no difference between the two
+        grid.save_episodes("Ours", s, _episodes("Ours", 0.5, s, rng))
+        grid.save_episodes("Ours w/o OT", s, _episodes("Ours w/o OT", 0.5, s, rng))
+    table1 = GridData(grid_data_dir(cfg, "table1"))
+    for s in range(5):  # Table I's budget: ours far above ours w/o OT
+        for method, p in (("ours", 0.9), ("ours-noOT", 0.1), ("ours-noPhi", 0.0)):
+            table1.save_episodes(method, s, _episodes(method, p, s, rng).assign(method=method))
+
+    res = tables_stage(cfg, from_reference=True, grid="ablations")
+    again = res.at_table1.set_index(["claim", "scene"])
+    assert set(again.index.get_level_values("claim")) == {"Ours > Ours w/o OT"}
+    assert again.loc[("Ours > Ours w/o OT", "tree-v2"), "verdict"] == "holds"
+    assert (again["seeds"] == 5).all()
+    assert res.findings.set_index(["claim", "scene"]).loc[("Ours > Ours w/o OT", "tree-v2"), "verdict"] == "undecided"
+    text = (cfg.run_root / "tables" / "ablation_findings_table1.md").read_text(encoding="utf-8")
+    assert text.startswith("The same orderings judged on Table I's runs")

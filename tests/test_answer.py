@@ -81,6 +81,10 @@ def test_the_ablations_sentence_names_each_judged_finding():
     # a finding judged on a grid still running says so: its verdict can move
     running = _said(_verdicts(), _table(), ablations=summary, ablation_grids=(["mask-prob"], 6))
     assert "*undecided* in 6 checks (so far: its grid is still running)." in running
+    # judged again on Table I's runs: said beside the sweep budget's verdict
+    again = pd.DataFrame([{"finding": finding, "checks": 3, "verdict": "holds"}])
+    both = _said(_verdicts(), _table(), ablations=summary, ablation_grids=(["decay"], 6), ablations_table1=again)
+    assert "*undecided* in 6 checks (on Table I's runs, full budget: *holds* in 3)." in both
     assert "no finding judged yet" in _said(_verdicts(), _table())
 
 

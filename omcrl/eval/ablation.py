@@ -174,15 +174,19 @@ def findings_summary(findings: pd.DataFrame) -> pd.DataFrame:
 
 
 def write_findings(
-    episodes: dict[str, pd.DataFrame], directory: str | Path, reps: int = 2000
+    episodes: dict[str, pd.DataFrame],
+    directory: str | Path,
+    reps: int = 2000,
+    name: str = "ablation_findings",
+    intro: str = "",
 ) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, Path]]:
-    """:func:`ablation_findings` and :func:`findings_summary` of ``episodes``, written as
-    ``ablation_findings.csv`` (every check) and ``ablation_findings.md`` (summary, then the checks)."""
+    """:func:`ablation_findings` and :func:`findings_summary` of ``episodes``, written as ``<name>.csv`` (every
+    check) and ``<name>.md`` (``intro``, the summary, then the checks)."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     f = ablation_findings(episodes, reps=reps)
     s = findings_summary(f)
-    paths = {"csv": d / "ablation_findings.csv", "md": d / "ablation_findings.md"}
+    paths = {"csv": d / f"{name}.csv", "md": d / f"{name}.md"}
     atomic_write_text(paths["csv"], f.to_csv(index=False))
 
     ci = [f"{r.diff:+.1f} [{r.lo:+.1f}, {r.hi:+.1f}]" for r in f.itertuples()]
@@ -190,7 +194,8 @@ def write_findings(
         ["finding", "claim", "scene", "SR a − b (pp) [95 % CI]", "verdict"]
     ]
     text = (
-        "The paper's ablation findings (VI-C), checked in SR in every evaluation scene (variants paired layout by "
+        (f"{intro}\n\n" if intro else "")
+        + "The paper's ablation findings (VI-C), checked in SR in every evaluation scene (variants paired layout by "
         "layout, training seeds and layouts crossed, Holm–Bonferroni over the unseen-scene checks and, apart, over "
         "the stress-test checks; a variant of one training seed is shown, not judged): the verdict counts the "
         "paper's unseen scenes; stress-test scenes are counted apart (held / reversed / undecided).\n\n"

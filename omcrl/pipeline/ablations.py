@@ -8,12 +8,16 @@ seeds :data:`ABLATION_SEEDS` and writes, nothing trained or flown::
     tables/table2.*, table3.*               the sequential and decay grids as the paper's Tables II and III
     tables/table{2,3}_vs_paper.{csv,md}     the paper's value beside the kit's mean [95 % CI], cell by cell
     tables/ablation_findings.{csv,md}       the six findings judged (paired, Holm over the unseen-scene checks)
+    tables/ablation_findings_table1.{csv,md}  the same orderings judged on Table I's runs where both variants are
+                                            Table I methods as they are (:func:`table1_counterparts`)
     tables/ablation_account.{csv,md}        jobs and machine-hours per grid and kind, measured against the plan,
                                             and what the grids left to run would cost
     figures/fig7_mask_prob.png ...          Figs. 7–10 (and the other grids' bars) from the same aggregate tables
 
 The variants train at the sweep budgets (``cfg.sweep``: at quick 50,000 env steps and 750 pretraining iterations,
-docs/DEVIATIONS.md), so they compare with each other, not with Table I's runs.
+docs/DEVIATIONS.md), so they compare with each other, not with Table I's runs. Where two variants of a finding are
+Table I methods with no override (ours and ours w/o OT, NPE and NPE w/ OT, CURL and CURL w/ phi), Table I's runs
+(its full budget, five seeds) judge the same ordering again, apart: does a finding's verdict move with the budget?
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.pipeline.grids import ABLATION_GRIDS, GRIDS
 from omcrl.pipeline.ladder import PLAN_RATES, cost_table, estimate_rest
 from omcrl.pipeline.sweep import rest_plan
+from omcrl.rl.methods import TABLE1_METHODS
 from omcrl.utils.io import atomic_write_text
 from omcrl.viz import save_figure
 from omcrl.viz.ablation import plot_ablation
@@ -118,6 +123,30 @@ def account_markdown(ran: pd.DataFrame, rest: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+# What the Table I check is, at the head of its file.
+TABLE1_INTRO = (
+    "The same orderings judged on Table I's runs (its full RL budget and training seeds, its layouts), where both "
+    "variants are Table I methods with no override; chosen after Table I's runs were recorded, so a second look, not "
+    "a declared family."
+)
+
+
+def table1_counterparts(cfg: Config) -> dict[str, pd.DataFrame]:
+    """``{grid: episodes}`` of Table I's recorded runs for each ablation grid's variants that are Table I methods as
+    they are (no override), labelled with the variant's label, so :func:`omcrl.eval.ablation.ablation_findings`
+    judges the paper's orderings between them at Table I's budget and training seeds. Grids with fewer than two such
+    variants, or no Table I record, are left out."""
+    table1 = GridData(grid_data_dir(cfg, "table1")).episodes()
+    out = {}
+    for g in ABLATION_GRIDS:
+        same = {v.label: v.method for v in GRIDS[g] if not v.overrides and v.method in TABLE1_METHODS}
+        frames = [table1[table1["method"] == m].assign(label=label) for label, m in same.items()] if len(table1) else []
+        frames = [f for f in frames if len(f)]
+        if len(frames) >= 2:
+            out[g] = pd.concat(frames, ignore_index=True)
+    return out
+
+
 @dataclass
 class AblationResult:
     """What :func:`ablations_from_reference` read and wrote.
@@ -125,7 +154,8 @@ class AblationResult:
     ``episodes``: ``{grid: episodes}`` (:func:`ablation_records`); ``tables``: ``{grid: aggregate table}``
     (:func:`omcrl.eval.ablation.ablation_table`, index (variant, scene)); ``findings`` / ``summary``: every check and
     one line per finding (:func:`omcrl.eval.ablation.write_findings`); ``ran`` / ``rest``: :func:`account`;
-    ``paths``: every file written; ``seconds``: wall time.
+    ``paths``: every file written; ``seconds``: wall time; ``at_table1`` / ``at_table1_summary``: the same
+    checks and summary on Table I's runs (:func:`table1_counterparts`; empty without them).
     """
 
     episodes: dict[str, pd.DataFrame]
@@ -136,6 +166,8 @@ class AblationResult:
     rest: pd.DataFrame = field(default_factory=pd.DataFrame)
     paths: dict[str, Path] = field(default_factory=dict)
     seconds: float = 0.0
+    at_table1: pd.DataFrame = field(default_factory=pd.DataFrame)
+    at_table1_summary: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     def __repr__(self) -> str:
         grids = ", ".join(f"{g} ({len(t.index.get_level_values(0).unique())} variants)" for g, t in self.tables.items())
@@ -168,6 +200,12 @@ def ablations_from_reference(
         plt.close(fig)
     findings, summary, fpaths = write_findings(episodes, out, reps)
     paths.update({f"ablation_findings.{k}": v for k, v in fpaths.items()})
+    at_table1, at_table1_summary = pd.DataFrame(), pd.DataFrame()
+    if counterparts := table1_counterparts(cfg):
+        at_table1, at_table1_summary, tpaths = write_findings(
+            counterparts, out, reps, "ablation_findings_table1", intro=TABLE1_INTRO
+        )
+        paths.update({f"ablation_findings_table1.{k}": v for k, v in tpaths.items()})
     ran, rest = account(cfg, seeds)
     for suffix, text in (("csv", None), ("md", account_markdown(ran, rest))):
         path = out / f"ablation_account.{suffix}"
@@ -176,4 +214,5 @@ def ablations_from_reference(
             text = both.to_csv(index=False)
         atomic_write_text(path, text)
         paths[path.name] = path
-    return AblationResult(episodes, tables, findings, summary, ran, rest, paths, time.perf_counter() - t0)
+    seconds = time.perf_counter() - t0
+    return AblationResult(episodes, tables, findings, summary, ran, rest, paths, seconds, at_table1, at_table1_summary)

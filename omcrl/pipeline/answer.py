@@ -110,6 +110,7 @@ def answer_facts(
     ablations: pd.DataFrame | None = None,
     ablation_grids: tuple[Collection[str], int] | None = None,
     ablation_budget: tuple[int, int] | None = None,
+    ablations_table1: pd.DataFrame | None = None,
 ) -> dict[str, Any]:
     """What the answer states, from the data alone.
 
@@ -126,6 +127,8 @@ def answer_facts(
         the six). A finding whose grid is not among them is said to be judged on a grid still running.
     ablation_budget : (the ablation grids' RL env steps, Table I's), e.g. ``(cfg.sweep.rl_steps, cfg.rl.total_steps)``;
         None: not said.
+    ablations_table1 : :func:`~omcrl.eval.ablation.findings_summary` of the same orderings judged on Table I's runs
+        (:func:`omcrl.pipeline.ablations.table1_counterparts`); None or empty: not said.
 
     Returns
     -------
@@ -177,7 +180,9 @@ def answer_facts(
         "power": _power(v),
         "look": _look(attribution),
         "ceiling": _ceiling(detour),
-        "ablations": _ablations(ablations, ablation_grids or ((), len(ABLATION_GRIDS)), ablation_budget),
+        "ablations": _ablations(
+            ablations, ablation_grids or ((), len(ABLATION_GRIDS)), ablation_budget, ablations_table1
+        ),
     }
     return facts
 
@@ -283,15 +288,20 @@ def _ceiling(detour: pd.DataFrame | None) -> dict[str, Any] | None:
 
 
 def _ablations(
-    summary: pd.DataFrame | None, grids: tuple[Collection[str], int], budget: tuple[int, int] | None
+    summary: pd.DataFrame | None,
+    grids: tuple[Collection[str], int],
+    budget: tuple[int, int] | None,
+    at_table1: pd.DataFrame | None = None,
 ) -> dict[str, Any]:
-    """Each judged finding with its verdict and whether its grid is complete (a verdict of a grid still running
-    can move), how many of the grids are complete, and their RL budget against Table I's (``steps``,
-    ``table1_steps``, ``share`` in %; None when not given)."""
+    """Each judged finding with its verdict, whether its grid is complete (a verdict of a grid still running can
+    move) and its verdict on Table I's runs ((verdict, checks) or None), how many of the grids are complete, and
+    their RL budget against Table I's (``steps``, ``table1_steps``, ``share`` in %; None when not given)."""
     grid_of = {finding: grid for finding, grid, _, _ in ABLATION_CLAIMS}
     complete = set(grids[0])
+    again = {} if at_table1 is None else {str(r["finding"]): (r["verdict"], int(r["checks"]))
+                                            for _, r in at_table1.iterrows()}  # fmt: skip
     rows = [] if summary is None else [(*str(r["finding"]).split(" ", 1), r["verdict"], int(r["checks"]),
-                                        grid_of.get(str(r["finding"])) in complete)
+                                        grid_of.get(str(r["finding"])) in complete, again.get(str(r["finding"])))
                                        for _, r in summary.iterrows()]  # fmt: skip
     steps = None if budget is None else {"steps": f"{budget[0]:,}", "table1_steps": f"{budget[1]:,}",
                                           "share": f"{100 * budget[0] / budget[1]:.0f}"}  # fmt: skip

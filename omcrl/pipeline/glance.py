@@ -473,17 +473,16 @@ def _ablation(
     for g in ABLATION_GRIDS:
         ep = res.episodes.get(g, pd.DataFrame(columns=["label", "train_seed"]))
         recorded += [(g, v.label, ep.loc[ep["label"] == v.label, "train_seed"].nunique()) for v in GRIDS[g]]
-    findings = res.findings
-    check_scenes = list(dict.fromkeys(findings["scene"])) if len(findings) else []
-
-    def check(r: pd.Series) -> str:
-        if not math.isfinite(r["diff"]):
-            return ""
-        p = f", p {r['p_holm']:.2g}" if math.isfinite(r["p_holm"]) else ""
-        return f"{signed_points(r['diff'])} [{signed_points(r['lo'])}, {signed_points(r['hi'])}] {r['verdict']}{p}"
-
-    by_claim = findings.groupby(["finding", "claim"], sort=False) if len(findings) else ()
-    checks = [f"| {finding} | {claim} | {scene_cells(g, check_scenes, check)} |" for (finding, claim), g in by_claim]
+    check_scenes, checks = _check_rows(res.findings)
+    table1_scenes, table1_checks = _check_rows(res.at_table1)
+    t1, cfg = res.at_table1, load_config(preset)
+    table1 = {
+        "table1_scenes": table1_scenes,
+        "table1_checks": table1_checks,
+        "table1_summary": [(r["finding"], r["verdict"], int(r["checks"])) for _, r in res.at_table1_summary.iterrows()],
+        "table1_steps": f"{rollout_geometry(cfg.rl)[3]:,}",
+        "table1_seeds": int(t1["seeds"].max()) if len(t1) else 0,
+    }
     frames = [e.assign(grid=g) for g, e in res.episodes.items()]
     table = aggregate(pd.concat(frames, ignore_index=True), ("grid", "label", "scene"), reps=reps).reset_index()
     order = {(g, v.label): i for i, (g, v) in enumerate((g, v) for g in ABLATION_GRIDS for v in GRIDS[g])}
@@ -509,9 +508,27 @@ def _ablation(
         paper=paper,
         figures=[f"{rel}/{name}" for name in figures],
         account=account_markdown(res.ran, res.rest).strip(),
+        **table1,
         **common,
     )
     return text, res
+
+
+def _check_rows(findings: pd.DataFrame) -> tuple[list[str], list[str]]:
+    """The scenes and the Markdown rows of :func:`omcrl.eval.ablation.ablation_findings`' checks: per claim, each
+    scene's SR difference with its 95 % CI, verdict and Holm-adjusted p."""
+    if not len(findings):
+        return [], []
+    scenes = list(dict.fromkeys(findings["scene"]))
+
+    def check(r: pd.Series) -> str:
+        if not math.isfinite(r["diff"]):
+            return ""
+        p = f", p {r['p_holm']:.2g}" if math.isfinite(r["p_holm"]) else ""
+        return f"{signed_points(r['diff'])} [{signed_points(r['lo'])}, {signed_points(r['hi'])}] {r['verdict']}{p}"
+
+    by_claim = findings.groupby(["finding", "claim"], sort=False)
+    return scenes, [f"| {finding} | {claim} | {scene_cells(g, scenes, check)} |" for (finding, claim), g in by_claim]
 
 
 def _complete_grids(res: AblationResult | None, seeds: Sequence[int]) -> list[str]:
@@ -543,6 +560,7 @@ def answer_blocks(
         (_complete_grids(ablation, seeds), len(ABLATION_GRIDS)),
         # the env steps runs train (rollouts round up), as run.json and Table I's text give them
         tuple(rollout_geometry(replace(cfg.rl, total_steps=n))[3] for n in (cfg.sweep.rl_steps, cfg.rl.total_steps)),
+        None if ablation is None else ablation.at_table1_summary,
     )
     return answer_block(facts, "docs/results.md"), answer_block(facts, "")
 
