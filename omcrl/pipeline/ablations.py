@@ -137,11 +137,12 @@ def table1_counterparts(cfg: Config) -> dict[str, pd.DataFrame]:
     judges the paper's orderings between them at Table I's budget and training seeds. Grids with fewer than two such
     variants, or no Table I record, are left out."""
     table1 = GridData(grid_data_dir(cfg, "table1")).episodes()
+    if table1.empty:
+        return {}
     out = {}
     for g in ABLATION_GRIDS:
         same = {v.label: v.method for v in GRIDS[g] if not v.overrides and v.method in TABLE1_METHODS}
-        frames = [table1[table1["method"] == m].assign(label=label) for label, m in same.items()] if len(table1) else []
-        frames = [f for f in frames if len(f)]
+        frames = [f for label, m in same.items() if len(f := table1[table1["method"] == m].assign(label=label))]
         if len(frames) >= 2:
             out[g] = pd.concat(frames, ignore_index=True)
     return out

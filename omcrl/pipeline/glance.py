@@ -475,7 +475,7 @@ def _ablation(
         recorded += [(g, v.label, ep.loc[ep["label"] == v.label, "train_seed"].nunique()) for v in GRIDS[g]]
     check_scenes, checks = _check_rows(res.findings)
     table1_scenes, table1_checks = _check_rows(res.at_table1)
-    t1, cfg = res.at_table1, load_config(preset)
+    t1 = res.at_table1
     table1 = {
         "table1_scenes": table1_scenes,
         "table1_checks": table1_checks,
