@@ -140,3 +140,7 @@ def test_findings_are_judged_again_on_table_i_runs_where_both_variants_are_table
     assert res.findings.set_index(["claim", "scene"]).loc[("Ours > Ours w/o OT", "tree-v2"), "verdict"] == "undecided"
     text = (cfg.run_root / "tables" / "ablation_findings_table1.md").read_text(encoding="utf-8")
     assert text.startswith("The same orderings judged on Table I's runs")
+    from omcrl.pipeline.glance import ablation_block
+
+    block = " ".join(ablation_block("quick", reps=200).split())  # the page names the orderings the checks judged
+    assert "Table I methods as they are (Ours > Ours w/o OT), Table I's runs judge it again" in block

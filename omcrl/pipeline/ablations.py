@@ -16,8 +16,9 @@ seeds :data:`ABLATION_SEEDS` and writes, nothing trained or flown::
 
 The variants train at the sweep budgets (``cfg.sweep``: at quick 50,000 env steps and 750 pretraining iterations,
 docs/DEVIATIONS.md), so they compare with each other, not with Table I's runs. Where two variants of a finding are
-Table I methods with no override (ours and ours w/o OT, NPE and NPE w/ OT, CURL and CURL w/ phi), Table I's runs
-(its full budget, five seeds) judge the same ordering again, apart: does a finding's verdict move with the budget?
+Table I methods with no override (today ours / ours w/o OT, NPE / NPE w/ OT, CURL / CURL w/ phi: derived from
+``GRIDS`` by :func:`table1_counterparts`), Table I's runs (its full budget, five seeds) judge the same ordering
+again, apart: does a finding's verdict move with the budget?
 """
 
 from __future__ import annotations

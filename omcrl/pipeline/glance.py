@@ -482,6 +482,8 @@ def _ablation(
         "table1_summary": [(r["finding"], r["verdict"], int(r["checks"])) for _, r in res.at_table1_summary.iterrows()],
         "table1_steps": f"{rollout_geometry(cfg.rl)[3]:,}",
         "table1_seeds": int(t1["seeds"].max()) if len(t1) else 0,
+        # The orderings named from the checks themselves, so the words follow GRIDS if it gains a pair.
+        "table1_claims": list(dict.fromkeys(t1["claim"])) if len(t1) else [],
     }
     frames = [e.assign(grid=g) for g, e in res.episodes.items()]
     table = aggregate(pd.concat(frames, ignore_index=True), ("grid", "label", "scene"), reps=reps).reset_index()
