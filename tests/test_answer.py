@@ -85,6 +85,16 @@ def test_the_ablations_sentence_names_each_judged_finding():
     again = pd.DataFrame([{"finding": finding, "checks": 3, "verdict": "holds"}])
     both = _said(_verdicts(), _table(), ablations=summary, ablation_grids=(["decay"], 6), ablations_table1=again)
     assert "*undecided* in 6 checks (on Table I's runs, full budget: *holds* in 3)." in both
+    # the stress room is judged apart; a resolved check there is said, all-undecided ones are not
+    stressed = summary.assign(stress="0 / 1 / 1")
+    again_stressed = again.assign(stress="0 / 0 / 2")
+    text = _said(
+        _verdicts(), _table(), ablations=stressed, ablation_grids=(["decay"], 6), ablations_table1=again_stressed
+    )
+    assert (
+        "*undecided* in 6 checks (in the stress room, judged apart: 0 of 2 holds, 1 reversed; on Table I's runs, "
+        "full budget: *holds* in 3)." in text
+    )
     assert "no finding judged yet" in _said(_verdicts(), _table())
 
 

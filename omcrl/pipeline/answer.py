@@ -294,18 +294,31 @@ def _ablations(
     at_table1: pd.DataFrame | None = None,
 ) -> dict[str, Any]:
     """Each judged finding with its verdict, whether its grid is complete (a verdict of a grid still running can
-    move) and its verdict on Table I's runs ((verdict, checks) or None), how many of the grids are complete, and
-    their RL budget against Table I's (``steps``, ``table1_steps``, ``share`` in %; None when not given)."""
+    move), its stress-room checks where one is resolved (:func:`_stress`, else None) and its verdict on Table I's runs
+    ((verdict, checks, stress) or None), how many of the grids are complete, and their RL budget against Table I's
+    (``steps``, ``table1_steps``, ``share`` in %; None when not given)."""
     grid_of = {finding: grid for finding, grid, _, _ in ABLATION_CLAIMS}
     complete = set(grids[0])
-    again = {} if at_table1 is None else {str(r["finding"]): (r["verdict"], int(r["checks"]))
+    again = {} if at_table1 is None else {str(r["finding"]): (r["verdict"], int(r["checks"]), _stress(r))
                                             for _, r in at_table1.iterrows()}  # fmt: skip
     rows = [] if summary is None else [(*str(r["finding"]).split(" ", 1), r["verdict"], int(r["checks"]),
-                                        grid_of.get(str(r["finding"])) in complete, again.get(str(r["finding"])))
-                                       for _, r in summary.iterrows()]  # fmt: skip
+                                        grid_of.get(str(r["finding"])) in complete, _stress(r),
+                                        again.get(str(r["finding"]))) for _, r in summary.iterrows()]  # fmt: skip
     steps = None if budget is None else {"steps": f"{budget[0]:,}", "table1_steps": f"{budget[1]:,}",
                                           "share": f"{100 * budget[0] / budget[1]:.0f}"}  # fmt: skip
     return {"findings": rows, "complete": len(complete), "grids": grids[1], "budget": steps}
+
+
+def _stress(row: pd.Series) -> str | None:
+    """A finding's stress-room checks (judged apart from its verdict) in words when any of them held or was reversed,
+    e.g. ``"1 of 3 holds, 1 reversed"``; None when all are undecided or none was flown. A reader of the verdict alone
+    would otherwise not learn that furniture-v0 resolved a check."""
+    if row.get("stress", "–") == "–":
+        return None
+    held, reversed_, undecided = (int(x) for x in str(row["stress"]).split(" / "))
+    if not held and not reversed_:
+        return None
+    return f"{held} of {held + reversed_ + undecided} holds, {reversed_} reversed"
 
 
 def answer_block(facts: dict[str, Any], base: str = "docs/results.md") -> str:
