@@ -64,6 +64,8 @@ def test_tables_from_reference_writes_the_ablations_from_the_grid_records(tmp_pa
     pd.DataFrame([
         {"id": "pretrain:a", "kind": "pretrain", "method": "ours", "seed": 0, "status": "done", "seconds": 720.0,
          "rate_key": "pretrain", "work": 750},
+        {"id": "pretrain:c", "kind": "pretrain", "method": "ours", "seed": 1, "status": "done", "seconds": 240.0,
+         "rate_key": "pretrain", "work": 250},  # resumed at 500 of 750 iterations: the part after its checkpoint
         {"id": "train:b", "kind": "train", "method": "ours", "seed": 0, "status": "skipped", "seconds": 0.1,
          "rate_key": "train:frozen", "work": 50000},
     ]).to_csv(decay.root / "jobs.csv", index=False)  # fmt: skip
@@ -92,12 +94,13 @@ def test_tables_from_reference_writes_the_ablations_from_the_grid_records(tmp_pa
     assert res.summary.set_index("finding").loc["6 linear decay beats exponential and fixed", "checks"] == 6
 
     ran = res.ran.set_index("rate_key")
-    # Only what ran: the skipped training is not counted; 720 s of 750 iterations planned at 1.25/s = 600 s.
-    assert list(ran.index) == ["pretrain"] and ran.loc["pretrain", "measured_h"] == pytest.approx(0.2)
-    assert ran.loc["pretrain", "planned_h"] == pytest.approx(600 / 3600)
+    # Only what ran: the skipped training is not counted; 960 s of 1,000 iterations planned at 1.25/s = 800 s.
+    assert list(ran.index) == ["pretrain"] and ran.loc["pretrain", "measured_h"] == pytest.approx(960 / 3600)
+    assert ran.loc["pretrain", "planned_h"] == pytest.approx(800 / 3600)
+    assert ran.loc["pretrain", "resumed"] == 1
     # The other five grids are left whole (Table I's runs aside): their variants' trainings are in the rest.
     assert res.rest["jobs"].sum() > 0 and "train:frozen" in set(res.rest["rate_key"])
-    assert "| decay | pretrain | 1 | 0.17 | 0.20 | 1.20 |" in (tables / "ablation_account.md").read_text()
+    assert "| decay | pretrain | 2 | 1 | 0.22 | 0.27 | 1.20 |" in (tables / "ablation_account.md").read_text()
 
 
 def test_tables_names_the_grids_it_takes(tmp_path, monkeypatch):

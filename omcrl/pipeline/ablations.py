@@ -68,14 +68,16 @@ def account(cfg: Config, seeds: Sequence[int] = ABLATION_SEEDS) -> tuple[pd.Data
     Returns
     -------
     ran : :func:`omcrl.pipeline.ladder.cost_table` over the ablation grids (``grid, rate_key, jobs, work,
-        planned_h, measured_h``): the jobs each grid's sweeps ran (jobs found finished, a run another grid of the
-        same worktree had trained, are not counted), hours at the rates its plan kept (``plan_rates.json``) and as
-        measured.
+        planned_h, measured_h, resumed``): the jobs each grid's sweeps ran (jobs found finished, a run another grid
+        of the same worktree had trained, are not counted), hours at the rates its plan kept (``plan_rates.json``)
+        and as measured, and how many of them resumed from a checkpoint (:func:`_resumed`).
     rest : ``rate_key, jobs, work, planned_h, ratio, estimate_h``: the jobs of all six grids at ``seeds`` that no
         record holds yet, counted once where grids share them (Table I's runs left out), at the plan's rates, and
         those hours × the measured / planned ratio of that kind (of every job that ran where none of that kind has).
     """
     ran = cost_table(cfg, {g: g for g in ABLATION_GRIDS}, column="grid")
+    resumed = {g: _resumed(grid_data_dir(cfg, g) / "jobs.csv") for g in ran["grid"].unique()}
+    ran["resumed"] = [resumed[g].get(k, 0) for g, k in zip(ran["grid"], ran["rate_key"])]
     rates = {}
     for g in ABLATION_GRIDS:
         path = grid_data_dir(cfg, g) / PLAN_RATES
@@ -87,6 +89,19 @@ def account(cfg: Config, seeds: Sequence[int] = ABLATION_SEEDS) -> tuple[pd.Data
     return ran, rest
 
 
+def _resumed(jobs_csv: Path) -> dict[str, int]:
+    """``{rate_key: jobs}`` of a grid's ``jobs.csv`` that resumed from a checkpoint: a resumed job's work is the part
+    after its checkpoint (:func:`omcrl.pipeline.ladder.cost_table`), so it is below the largest work of its kind.
+    That holds in the ablation grids, whose variants all train at the sweep budgets (not in the ladders, whose
+    variants differ in budget). The time a stopped attempt spent before its checkpoint is in no record."""
+    if not jobs_csv.is_file():
+        return {}
+    jobs = pd.read_csv(jobs_csv)
+    jobs = jobs[(jobs["status"] == "done") & (jobs["seconds"] > 0)]
+    full = jobs.groupby("rate_key")["work"].transform("max")
+    return {str(k): int(n) for k, n in jobs[jobs["work"] < full].groupby("rate_key").size().items()}
+
+
 def account_markdown(ran: pd.DataFrame, rest: pd.DataFrame) -> str:
     """:func:`account`'s two tables in Markdown, each with a total row (hours ``–`` where a kind has none)."""
 
@@ -95,19 +110,21 @@ def account_markdown(ran: pd.DataFrame, rest: pd.DataFrame) -> str:
 
     lines = [
         "Ran: the jobs each grid's sweeps ran (a run found finished, trained by another grid in the same worktree, is "
-        "not counted again), hours at the rates the grid's plan kept and as measured.",
+        "not counted again), how many resumed from a checkpoint (their hours count the part after it), hours at the "
+        "rates the grid's plan kept and as measured.",
         "",
-        "| grid | kind | jobs | planned h | measured h | measured / planned |",
-        "|---|---|---|---|---|---|",
+        "| grid | kind | jobs | of them resumed | planned h | measured h | measured / planned |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in ran.itertuples():
-        lines.append(f"| {r.grid} | {r.rate_key} | {r.jobs} | {h(r.planned_h)} | {h(r.measured_h)} | "
+        lines.append(f"| {r.grid} | {r.rate_key} | {r.jobs} | {r.resumed} | {h(r.planned_h)} | {h(r.measured_h)} | "
                      f"{h(r.measured_h / r.planned_h if r.planned_h else math.nan)} |")  # fmt: skip
     if ran.empty:
-        lines.append("| – | none timed yet | 0 | | | |")
+        lines.append("| – | none timed yet | 0 | 0 | | | |")
     else:
         p, m = ran["planned_h"].sum(min_count=len(ran)), ran["measured_h"].sum()
-        lines.append(f"| all | all | {int(ran['jobs'].sum())} | {h(p)} | {h(m)} | {h(m / p if p else math.nan)} |")
+        lines.append(f"| all | all | {int(ran['jobs'].sum())} | {int(ran['resumed'].sum())} | {h(p)} | {h(m)} | "
+                     f"{h(m / p if p else math.nan)} |")  # fmt: skip
     lines += [
         "",
         "Left: the jobs of the six grids that no record holds yet (shared runs once, Table I's runs left out), at the "
