@@ -711,6 +711,32 @@ def test_a_resumed_pretraining_is_timed_against_the_iterations_it_ran(tmp_path, 
     assert pd.read_csv(tmp_path / "jobs.csv").set_index("id").loc[job.id, "work"] == cfg.pretrain.iterations - 7
 
 
+def test_a_job_a_stopped_session_finished_keeps_its_time_in_the_grid_record(tmp_path):
+    """A session stopped mid-variant: its pretraining finished and was timed in the sweep's own jobs.csv, but the grid
+    record's copy was reset with the worktree, and the next session finds the run finished. The record takes the
+    measured row, not a zero-second skip (which the ablations' account drops: 108 s of projection's CURL seed 2)."""
+    cfg = load_config("smoke", overrides=[f"results_dir={tmp_path}"])
+    job = next(j for j in expand(cfg, "smoke", [0]) if j.kind == "pretrain")
+    first = sweep.SweepResult("smoke", [job], {job.id: "done"})
+    first.seconds = {job.id: 107.7}
+    local = tmp_path / "sweeps" / "jobs.csv"
+    local.parent.mkdir(parents=True)
+    sweep._record_job_times(cfg, first, local)
+    again = sweep.SweepResult("smoke", [job], {job.id: "skipped"})
+    again.seconds = {job.id: 0.1}
+    sweep._record_job_times(cfg, again, local)  # the machine's own file keeps the time it took
+    record = tmp_path / "record" / "jobs.csv"
+    record.parent.mkdir()
+    sweep._record_job_times(cfg, again, record, True, local)
+    row = pd.read_csv(record).iloc[0]
+    assert (row["status"], row["seconds"], row["work"]) == ("done", 107.7, cfg.pretrain.iterations)
+    assert row["id"].startswith("pretrain:<results>")  # still the portable id
+    bare = tmp_path / "bare" / "jobs.csv"
+    bare.parent.mkdir()
+    sweep._record_job_times(cfg, again, bare, True)  # without the machine's file: a skip, as before
+    assert pd.read_csv(bare).iloc[0]["status"] == "skipped"
+
+
 def test_the_plan_prices_a_machine_to_itself_at_the_upper_quartile_of_measured_rates(tmp_path, monkeypatch):
     """Jobs that shared the machine ran slower than jobs alone: the median rate prices the first, the upper quartile
     the second, and the plan says both (a range, not one figure)."""

@@ -345,7 +345,7 @@ def run_sweep(
             # After every job, not at the end: a killed driver loses no measured time.
             _record_job_times(cfg, res, logs_dir.parent / "jobs.csv")
             if record is not None:
-                _record_job_times(cfg, res, record.root / "jobs.csv", portable=True)
+                _record_job_times(cfg, res, record.root / "jobs.csv", True, logs_dir.parent / "jobs.csv")
         bar.update(1, **_postfix(res, running))
 
     running: set[str] = set()
@@ -587,16 +587,22 @@ def _shares(jobs: Sequence[Job], grid: str, store: Storage | None) -> dict[str, 
 JOB_TIME_COLUMNS = ["id", "kind", "method", "seed", "status", "seconds", "rate_key", "work"]
 
 
-def _record_job_times(cfg: Config, res: SweepResult, path: Path, portable: bool = False) -> None:
+def _record_job_times(
+    cfg: Config, res: SweepResult, path: Path, portable: bool = False, measured: Path | None = None
+) -> None:
     """Keep each job's measured wall time in ``jobs.csv`` beside the sweep's logs.
 
     A job that was cached this time keeps the time it took when it really ran, so re-runs do not erase what was
     measured. :func:`measured_rates` reads these files. ``portable``: job ids with this machine's results folder and
-    checkout written ``<results>`` and ``<root>`` (the copy committed beside a grid's data).
+    checkout written ``<results>`` and ``<root>`` (the copy committed beside a grid's data). ``measured``: the sweep's
+    own ``jobs.csv`` on this machine; a job found finished that ``path`` has no row for, but that one timed as done,
+    takes that row (a job a stopped session finished: its grid record's copy was reset with the worktree).
     """
     plan = {r.id: r for r in work_rows(cfg, res.jobs)}
     old = pd.read_csv(path) if path.exists() else pd.DataFrame(columns=JOB_TIME_COLUMNS)
     kept = {r["id"]: r for r in old.to_dict("records")}
+    ran = {} if measured is None or not measured.is_file() else {
+        r["id"]: r for r in pd.read_csv(measured).to_dict("records") if r["status"] == "done"}  # fmt: skip
 
     def name(jid: str) -> str:
         if not portable:
@@ -605,7 +611,9 @@ def _record_job_times(cfg: Config, res: SweepResult, path: Path, portable: bool 
 
     for j in res.jobs:
         st = res.status.get(j.id)
-        if st == "done" or (st == "skipped" and name(j.id) not in kept):
+        if st == "skipped" and name(j.id) not in kept and j.id in ran:
+            kept[name(j.id)] = {**ran[j.id], "id": name(j.id)}
+        elif st == "done" or (st == "skipped" and name(j.id) not in kept):
             w = plan[j.id]
             # A resumed training or pretraining timed only the part after its checkpoint: its work is that part too.
             work = max(0, w.work - res.started.get(j.id, 0))
