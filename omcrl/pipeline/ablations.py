@@ -38,7 +38,7 @@ from omcrl.eval.ablation import ablation_table, write_ablation, write_findings
 from omcrl.eval.stats import DEFAULT_REPS
 from omcrl.pipeline.griddata import GridData, grid_data_dir
 from omcrl.pipeline.grids import ABLATION_GRIDS, GRIDS
-from omcrl.pipeline.ladder import PLAN_RATES, cost_table, estimate_rest
+from omcrl.pipeline.ladder import PLAN_RATES, cost_table, estimate_rest, timed_jobs
 from omcrl.pipeline.sweep import rest_plan
 from omcrl.rl.methods import TABLE1_METHODS
 from omcrl.utils.io import atomic_write_text
@@ -76,7 +76,7 @@ def account(cfg: Config, seeds: Sequence[int] = ABLATION_SEEDS) -> tuple[pd.Data
         those hours × the measured / planned ratio of that kind (of every job that ran where none of that kind has).
     """
     ran = cost_table(cfg, {g: g for g in ABLATION_GRIDS}, column="grid")
-    resumed = {g: _resumed(grid_data_dir(cfg, g) / "jobs.csv") for g in ran["grid"].unique()}
+    resumed = {g: _resumed(grid_data_dir(cfg, g)) for g in ran["grid"].unique()}
     ran["resumed"] = [resumed[g].get(k, 0) for g, k in zip(ran["grid"], ran["rate_key"])]
     rates = {}
     for g in ABLATION_GRIDS:
@@ -89,15 +89,14 @@ def account(cfg: Config, seeds: Sequence[int] = ABLATION_SEEDS) -> tuple[pd.Data
     return ran, rest
 
 
-def _resumed(jobs_csv: Path) -> dict[str, int]:
-    """``{rate_key: jobs}`` of a grid's ``jobs.csv`` that resumed from a checkpoint: a resumed job's work is the part
-    after its checkpoint (:func:`omcrl.pipeline.ladder.cost_table`), so it is below the largest work of its kind.
-    That holds in the ablation grids, whose variants all train at the sweep budgets (not in the ladders, whose
-    variants differ in budget). The time a stopped attempt spent before its checkpoint is in no record."""
-    if not jobs_csv.is_file():
+def _resumed(folder: Path) -> dict[str, int]:
+    """``{rate_key: jobs}`` of a grid's timed jobs (:func:`omcrl.pipeline.ladder.timed_jobs`, under ``folder``)
+    that resumed from a checkpoint: a resumed job's work is the part after its checkpoint, so it is below the largest
+    work of its kind. That holds in the ablation grids, whose variants all train at the sweep budgets (not in the
+    ladders, whose variants differ in budget). The time a stopped attempt spent before its checkpoint is in no
+    record."""
+    if (jobs := timed_jobs(folder)) is None:
         return {}
-    jobs = pd.read_csv(jobs_csv)
-    jobs = jobs[(jobs["status"] == "done") & (jobs["seconds"] > 0)]
     full = jobs.groupby("rate_key")["work"].transform("max")
     return {str(k): int(n) for k, n in jobs[jobs["work"] < full].groupby("rate_key").size().items()}
 

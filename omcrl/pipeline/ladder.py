@@ -180,6 +180,15 @@ def scale_effects(episodes: pd.DataFrame, reps: int = DEFAULT_REPS, seed: int = 
     return out[cols]
 
 
+def timed_jobs(folder: Path) -> pd.DataFrame | None:
+    """The rows of a grid's ``jobs.csv`` (under ``folder``) that ran and were timed (``done``, seconds > 0); None
+    when the grid keeps no ``jobs.csv``."""
+    if not (folder / "jobs.csv").is_file():
+        return None
+    jobs = pd.read_csv(folder / "jobs.csv")
+    return jobs[(jobs["status"] == "done") & (jobs["seconds"] > 0)]
+
+
 def cost_table(cfg: Config, groups: Mapping[str, str] | None = None, column: str = "ladder") -> pd.DataFrame:
     """The plan's predicted cost against the measured time, per ladder and kind of job, for the jobs its grid ran.
 
@@ -199,10 +208,8 @@ def cost_table(cfg: Config, groups: Mapping[str, str] | None = None, column: str
     rows = []
     for axis, grid in (groups or {a: g for a, (g, _) in LADDERS.items()}).items():
         folder = grid_data_dir(cfg, grid)
-        if not (folder / "jobs.csv").is_file():
+        if (jobs := timed_jobs(folder)) is None:
             continue
-        jobs = pd.read_csv(folder / "jobs.csv")
-        jobs = jobs[(jobs["status"] == "done") & (jobs["seconds"] > 0)]
         rates = json.loads((folder / PLAN_RATES).read_text()) if (folder / PLAN_RATES).is_file() else {}
         for key, g in jobs.groupby("rate_key", sort=False):
             rate = rates.get(key)
