@@ -12,8 +12,8 @@ from collections.abc import Callable
 from typing import Any
 
 from omcrl import pretrain
-from omcrl.config import Config, ConfigError
-from omcrl.rl.methods import encoder_config, get_method
+from omcrl.config import Config
+from omcrl.rl.methods import Need, encoder_config, get_method
 from omcrl.rl.policy import CheckpointError
 from omcrl.rl.train import Result
 
@@ -41,10 +41,16 @@ def train_method(
     ``callbacks``: :class:`omcrl.runs.Callback` s of the training lifecycle (e.g. :class:`omcrl.runs.StopAfter`).
     """
     spec = get_method(method)
-    if not spec.learned:
-        raise ConfigError(f"method {method!r} is a planner: it is not trained (evaluate it directly)")
-    # Every missing prerequisite at once, with its command (not one now and the next after 30 minutes).
     needs = spec.recipe.needs(cfg, spec)
+    _require(needs)
+    return spec.recipe.train(
+        cfg, spec, needs, name=spec.name, make_env=make_env, overwrite=overwrite, progress=progress, callbacks=callbacks
+    )
+
+
+def _require(needs: list[Need]) -> None:
+    """Raise :class:`CheckpointError` naming every missing prerequisite at once, with the commands that make them
+    (not one now and the next after 30 minutes)."""
     missing = [n for n in needs if not n.path.exists()]
     if missing:
         raise CheckpointError(
@@ -52,13 +58,3 @@ def train_method(
             + "; run first: "
             + " && ".join(n.command for n in missing)
         )
-    return spec.recipe.train(
-        cfg,
-        spec,
-        needs,
-        name=spec.name,
-        make_env=make_env,
-        overwrite=overwrite,
-        progress=progress,
-        callbacks=tuple(callbacks),
-    )

@@ -4,7 +4,8 @@ paper's comparison (oracle, ours, ours-noOT, ppo, curl, curl-phi, npe, npe-ot; p
 The methods are specs (:mod:`omcrl.rl.methods`); ``omcrl.pipeline.train_method(cfg, "curl")`` trains one by
 name, finding its encoder and oracle. The trainers here take explicit inputs, one per kind of learning:
 ``train_oracle`` (privileged depth and state), ``train_visuomotor`` (the camera: a frozen encoder, or pixels end to
-end) and ``train_ppo`` (a caller's Box-observation env); all three run the one PPO loop, :func:`train`.
+end) and ``train_ppo`` (a caller's Box-observation env); all three run the one PPO loop, :func:`train` (a method's
+recipe hands the loop :func:`omcrl.rl.train.visuomotor_parts` itself).
 """
 
 from omcrl.rl.guidance import Guide, PlannerGuide, PolicyGuide, alpha_at, alpha_from_config, info_at, obs_at

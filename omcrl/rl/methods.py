@@ -35,7 +35,8 @@ from typing import Any, ClassVar
 from omcrl import planners, pretrain
 from omcrl.config import Config, ConfigError
 from omcrl.rl.policy import load_policy
-from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, train_visuomotor
+from omcrl.rl.train import Result, oracle_run, policy_run, train_oracle, visuomotor_parts
+from omcrl.rl.train import train as train_loop
 from omcrl.runs import Run
 
 
@@ -251,11 +252,16 @@ class Recipe:
         oracle = self._path(needs, "oracle")
         return policy_run(cfg, spec.name, enc, oracle, planner_factory(cfg, spec.guide))
 
-    def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:
-        """Train this kind on its prerequisites ``needs`` (:meth:`needs`, present: the caller,
-        :func:`omcrl.pipeline.train_method`, checked them); skip if finished, resume if interrupted. ``common``: the
-        trainer's keywords ``name``, ``make_env``, ``overwrite``, ``progress``, ``callbacks``."""
-        raise NotImplementedError(f"{type(self).__name__} trains nothing")
+    def train(
+        self, cfg: Config, spec: MethodSpec, needs: list[Need], *, name: str, make_env: Any = None, **common: Any
+    ) -> Result:
+        """Train this kind on its prerequisites ``needs`` (present: :func:`omcrl.pipeline.train_method` checked them);
+        skip if finished, resume if interrupted; ``common``: the training loop's ``overwrite``, ``progress``,
+        ``callbacks``. By default a visuomotor policy on the needed encoder (none: end to end) and guide."""
+        enc, oracle = self._path(needs, "encoder"), self._path(needs, "oracle")
+        parts = visuomotor_parts(cfg, enc, oracle, name=name, planner_factory=planner_factory(cfg, spec.guide),
+                                 make_env=make_env)  # fmt: skip
+        return train_loop(cfg, **parts, **common)
 
     def make_agent(self, cfg: Config, spec: MethodSpec, path: Path | None = None) -> Any:
         """The agent this method flies (:class:`omcrl.agent.Agent`): its policy from ``path`` (default its finished
@@ -293,20 +299,12 @@ class FrozenRecipe(Recipe):
     pretrained = True
     camera = True
 
-    def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:
-        enc, oracle = self._path(needs, "encoder"), self._path(needs, "oracle")
-        return train_visuomotor(cfg, enc, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
-
 
 class PixelRecipe(Recipe):
     """A pixel encoder trained end to end with the policy (ppo, npe, npe-ot)."""
 
     kind = "pixel"
     camera = True
-
-    def train(self, cfg: Config, spec: MethodSpec, needs: list[Need], **common: Any) -> Result:
-        oracle = self._path(needs, "oracle")
-        return train_visuomotor(cfg, None, oracle, planner_factory=planner_factory(cfg, spec.guide), **common)
 
     def job_identity(self, cfg: Config) -> dict:
         return {"pixel": {"crop": cfg.pretrain.crop_to, "feature_dim": cfg.pretrain.feature_dim}}

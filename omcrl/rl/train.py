@@ -79,6 +79,7 @@ __all__ = [
     "train_oracle",
     "train_ppo",
     "train_visuomotor",
+    "visuomotor_parts",
 ]
 
 
@@ -173,11 +174,9 @@ def train(
 ) -> Result:
     """Train (or resume, or skip) one PPO run: the one training loop behind every RL method, read top to bottom.
 
-    Each iteration sets the schedules (guide weight α, learning rate), collects ``rl.buffer_size`` env steps with
-    the current policy (and the guide's action distributions while α > 0), computes GAE, runs PPO's minibatch
-    epochs (:func:`omcrl.rl.ppo.ppo_update`; the guide KL is a term of :func:`omcrl.rl.ppo.ppo_loss`), logs, and
-    checkpoints every ``rl.checkpoint_every`` env steps. The finished policy is ``run.finish``'s ``final.pt``. The
-    run's bookkeeping is not in the loop: :meth:`~omcrl.runs.Run.claimed` holds the folder and writes the config,
+    Each iteration: schedules, a rollout, GAE, PPO's epochs (the guide's KL is a term of
+    :func:`omcrl.rl.ppo.ppo_loss`), a log row, a checkpoint every ``rl.checkpoint_every`` env steps. The run's
+    bookkeeping is not in the loop: :meth:`~omcrl.runs.Run.claimed` holds the folder and writes the config,
     :meth:`~omcrl.runs.Run.session` keeps the metrics, the progress bar, the checkpoints and the callbacks.
 
     Parameters
@@ -200,23 +199,15 @@ def train(
     rollout_threads = set_threads(rl.num_threads)
     update_threads = rl.update_threads or cpu_count()
     device = resolve_device(rl.device)
-    if not overwrite:
-        run.check()
-        if (final := run.finished()) is not None:
-            return Result(run, final, int(load_torch(final, "policy file", CheckpointError)["step"]), True)
-    ckpt = run.load("checkpoint", CheckpointError)
-    if ckpt is None:
-        seed_everything(cfg.seed)
+    if not overwrite and (done := _skipped(run)) is not None:
+        return done
+    ckpt, resumes, env_seed = _start(run, cfg.seed)
     length, per_update, _, final_step = rollout_geometry(rl)
-    resumes = 0 if ckpt is None else ckpt["resumes"] + 1
-    # An episode in flight cannot be checkpointed: a resumed run restarts its envs with a seed of its own.
-    env_seed = cfg.seed * 1000 + 100 * resumes
     with closing(make_env(env_seed)) as env:
         agent, optimizer, guide = _learner(rl, env, build_features, make_guide, layer_norm, device)
         with run.claimed(cfg, overwrite):  # only now, with encoder, oracle and env known to fit
-            step, update = _resume(ckpt, agent, optimizer)
+            step, update = _resume(run, ckpt, agent, optimizer, env_seed)
             start = step  # where this call began: a resumed run's earlier part is not timed
-            _record_segment(run, step, env_seed, resumed=ckpt is not None)
             runner = Runner(env, agent, guide, seed=env_seed)
             recent: deque = deque(maxlen=50)  # the last 50 episodes, for the progress bar
             with run.session(total=final_step, start=step, unit="step", progress=progress, callbacks=callbacks) as s:
@@ -251,19 +242,42 @@ def train(
                            "rollout_s": t_rollout, "update_s": dt - t_rollout, **episode_means(eps)}  # fmt: skip
                     s.log(step, row, per_update, **_shown(recent), steps_per_s=f"{row['steps_per_s']:.0f}")
 
-                    # Checkpoint: everything a resume needs (the env's episodes in flight excepted, see above).
+                    # Checkpoint: everything a resume needs (the env's episodes in flight excepted, see _start).
                     if s.due(before, step, rl.checkpoint_every):
                         s.checkpoint(step, {"model": agent.state_dict(), "optimizer": optimizer.state_dict(),
                                             "step": step, "update": update, "rng": rng_state(), "resumes": resumes,
                                             "schedule": {"alpha": alpha, "lr": lr}, "key": run.key})  # fmt: skip
                     if not s.keep_going(step, row):
                         break
-            if not s.ended:
-                return Result(run, run.checkpoint_path, step, False, start)
-            meta = {"method": run.method, "name": run.method, "seed": cfg.seed, "key": run.key, **(meta or {})}
-            payload = policy_payload(agent, space_shapes(env.single_observation_space), step, meta=meta)
-            final = run.finish({**payload, "key": run.key})
+            # Finished: the policy file; stopped early (a callback): the last checkpoint is the result.
+            final = run.finish(_policy_file(run, agent, env, step, meta)) if s.ended else run.checkpoint_path
     return Result(run, final, step, False, start)
+
+
+def _skipped(run: Run) -> Result | None:
+    """The result of a run that is already finished (its folder holds this run's key and a verified ``final.pt``),
+    else None; RunConfigMismatch when the folder holds another run."""
+    run.check()
+    if (final := run.finished()) is None:
+        return None
+    return Result(run, final, int(load_torch(final, "policy file", CheckpointError)["step"]), True)
+
+
+def _start(run: Run, seed: int) -> tuple[dict | None, int, int]:
+    """``(checkpoint or None, resumes, env seed)`` of a run about to train. A fresh run seeds every RNG with
+    ``seed``; a resumed one gets its RNG states back from the checkpoint (:func:`_resume`). An episode in flight
+    cannot be checkpointed: a resumed run restarts its envs with a seed of its own, ``seed·1000 + 100·resumes``."""
+    ckpt = run.load("checkpoint", CheckpointError)
+    if ckpt is None:
+        seed_everything(seed)
+    resumes = 0 if ckpt is None else ckpt["resumes"] + 1
+    return ckpt, resumes, seed * 1000 + 100 * resumes
+
+
+def _policy_file(run: Run, agent: ActorCritic, env: Any, step: int, meta: dict | None) -> dict:
+    """The finished policy's payload (:func:`omcrl.rl.policy.policy_payload`), its ``meta`` naming the run."""
+    meta = {"method": run.method, "name": run.method, "seed": run.seed, "key": run.key, **(meta or {})}
+    return {**policy_payload(agent, space_shapes(env.single_observation_space), step, meta=meta), "key": run.key}
 
 
 def _learner(
@@ -287,22 +301,19 @@ def _learner(
     return agent, optimizer, guide
 
 
-def _resume(ckpt: dict | None, agent: ActorCritic, optimizer: torch.optim.Optimizer) -> tuple[int, int]:
+def _resume(run: Run, ckpt: dict | None, agent: ActorCritic, optimizer: torch.optim.Optimizer, env_seed: int
+            ) -> tuple[int, int]:  # fmt: skip
     """(env step, update) to go on from: a checkpoint's, its weights, optimizer and random state restored; (0, 0)
-    for a fresh run."""
-    if ckpt is None:
-        return 0, 0
-    agent.load_state_dict(ckpt["model"])
-    optimizer.load_state_dict(ckpt["optimizer"])
-    set_rng_state(ckpt["rng"])
-    return int(ckpt["step"]), int(ckpt["update"])
-
-
-def _record_segment(run: Run, step: int, env_seed: int, *, resumed: bool) -> None:
-    """Each stretch of training and the env seed it flew, in run.json: a resumed run's episodes follow from these,
-    not from its config alone (scripts/render_fault_audit.py replays them)."""
-    earlier = (read_identity(run.dir) or {}).get("segments", []) if resumed else []
+    for a fresh run. Each stretch of training and the env seed it flew go into run.json: a resumed run's episodes
+    follow from these, not from its config alone (scripts/render_fault_audit.py replays them)."""
+    step, update = (0, 0) if ckpt is None else (int(ckpt["step"]), int(ckpt["update"]))
+    if ckpt is not None:
+        agent.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        set_rng_state(ckpt["rng"])
+    earlier = (read_identity(run.dir) or {}).get("segments", []) if ckpt is not None else []
     run.record(segments=[*earlier, {"from_step": step, "env_seed": env_seed}])
+    return step, update
 
 
 @contextmanager
@@ -488,7 +499,7 @@ def _custom(custom_env: bool) -> dict:
     return {"custom_env": True} if custom_env else {}
 
 
-def train_visuomotor(
+def visuomotor_parts(
     cfg: Config,
     encoder_path: str | Path | None,
     oracle_path: str | Path | None = None,
@@ -496,11 +507,9 @@ def train_visuomotor(
     name: str,
     planner_factory: Callable[[], Any] | None = None,
     make_env: Callable[[int], Any] | None = None,
-    overwrite: bool = False,
-    progress: bool = True,
-    callbacks: Sequence[Callback] = (),
-) -> Result:
-    """The one trainer of every visuomotor policy (paper IV-C, V-C): PPO on [f(rgb stack), v, ω, θ, Δp_goal].
+) -> dict[str, Any]:
+    """What every visuomotor policy (paper IV-C, V-C) is made of: :func:`train`'s ``run``, ``make_env``,
+    ``build_features``, ``make_guide`` and ``meta`` for PPO on [f(rgb stack), v, ω, θ, Δp_goal].
 
     Features: the frozen pretrained encoder (f and φ) at ``encoder_path`` (``ours``, ``curl``, ...), or, when it is
     None, a pixel encoder f of the same architecture trained end to end with the policy (``ppo``, ``npe``, ...),
@@ -508,9 +517,8 @@ def train_visuomotor(
     ``pretrain.feature_dim`` outputs (both then part of the run's identity). Guide: the oracle at ``oracle_path`` (its
     mean and learned std on the privileged obs), else a planner from ``planner_factory`` with fixed std
     ``rl.guide_std`` (``npe``), else none (``ours-noOT``, ``curl``, ``ppo``); ``rl.alpha_schedule='none'`` also
-    trains without the KL term. Encoder and oracle are checked against the env before any training step. The
-    method recipes call it (:mod:`omcrl.rl.methods`); ``make_env``: a caller's ``seed -> vector env`` in place of
-    the config's scene."""
+    trains without the KL term. Encoder and oracle are checked against the env before any training step.
+    ``make_env``: a caller's ``seed -> vector env`` in place of the config's scene (then part of the identity)."""
     if encoder_path is not None and not Path(encoder_path).exists():
         raise CheckpointError(f"encoder checkpoint {encoder_path} does not exist (run the pretraining stage first)")
     if encoder_path is not None:
@@ -518,14 +526,27 @@ def train_visuomotor(
     else:
         crop, dim = cfg.pretrain.crop_to, cfg.pretrain.feature_dim
         build = lambda space: make_pixel_features(space, crop, dim)  # noqa: E731
-    return train(
-        cfg,
-        run=policy_run(cfg, name, encoder_path, oracle_path, planner_factory, custom_env=make_env is not None),
-        make_env=make_env or _default_make_env(cfg),
-        build_features=build,
-        make_guide=_guide_maker(cfg, oracle_path, planner_factory),
-        overwrite=overwrite,
-        progress=progress,
-        callbacks=callbacks,
-        meta={"encoder": str(encoder_path or ""), "oracle": str(oracle_path or "")},
-    )
+    return {
+        "run": policy_run(cfg, name, encoder_path, oracle_path, planner_factory, custom_env=make_env is not None),
+        "make_env": make_env or _default_make_env(cfg),
+        "build_features": build,
+        "make_guide": _guide_maker(cfg, oracle_path, planner_factory),
+        "meta": {"encoder": str(encoder_path or ""), "oracle": str(oracle_path or "")},
+    }
+
+
+def train_visuomotor(
+    cfg: Config,
+    encoder_path: str | Path | None,
+    oracle_path: str | Path | None = None,
+    *,
+    overwrite: bool = False,
+    progress: bool = True,
+    callbacks: Sequence[Callback] = (),
+    **parts: Any,
+) -> Result:
+    """Train a visuomotor policy on the encoder and oracle files given: :func:`train` on :func:`visuomotor_parts`
+    (``parts``: its ``name``, ``planner_factory``, ``make_env``). The method recipes hand the loop the same parts
+    of the files a method needs (:meth:`omcrl.rl.methods.Recipe.train`)."""
+    made = visuomotor_parts(cfg, encoder_path, oracle_path, **parts)
+    return train(cfg, **made, overwrite=overwrite, progress=progress, callbacks=callbacks)
