@@ -147,3 +147,23 @@ def test_findings_are_judged_again_on_table_i_runs_where_both_variants_are_table
 
     block = " ".join(ablation_block("quick", reps=200).split())  # the page names the orderings the checks judged
     assert "Table I methods as they are (Ours > Ours w/o OT), Table I's runs judge it again" in block
+
+
+def test_a_resumed_job_is_the_one_whose_record_says_it_began_after_zero(tmp_path):
+    """The account's "of them resumed" reads ``start`` where jobs.csv keeps it: a job that ran from 0 at a smaller
+    budget is not a resume, one that began at its checkpoint is, whatever its work. A row written before ``start``
+    was kept (empty) is judged by its work below the largest of its kind, as before."""
+    from omcrl.pipeline.ablations import _resumed
+
+    pd.DataFrame([
+        {"id": "a", "status": "done", "seconds": 9.0, "rate_key": "pretrain", "work": 750, "start": 0},
+        {"id": "b", "status": "done", "seconds": 3.0, "rate_key": "pretrain", "work": 250, "start": 0},  # smaller
+        {"id": "c", "status": "done", "seconds": 8.0, "rate_key": "pretrain", "work": 750, "start": 100},
+        {"id": "g", "status": "done", "seconds": 6.0, "rate_key": "pretrain", "work": 500, "start": 0},  # smaller
+        {"id": "d", "status": "done", "seconds": 2.0, "rate_key": "pretrain", "work": 250, "start": None},  # old row
+        {"id": "e", "status": "done", "seconds": 5.0, "rate_key": "train:frozen", "work": 900, "start": 0},
+        {"id": "f", "status": "skipped", "seconds": 0.1, "rate_key": "train:frozen", "work": 10, "start": 500},
+    ]).to_csv(tmp_path / "jobs.csv", index=False)  # fmt: skip
+    assert _resumed(tmp_path) == {"pretrain": 2}  # c by its start, d by its work; f ran nothing
+    pd.read_csv(tmp_path / "jobs.csv").drop(columns="start").to_csv(tmp_path / "jobs.csv", index=False)
+    assert _resumed(tmp_path) == {"pretrain": 3}  # no start column at all: b, d and g by their work

@@ -692,8 +692,9 @@ def test_a_resumed_training_is_timed_against_the_steps_it_trained(tmp_path):
     res.started = {resumed.id: 384}
     path = tmp_path / "jobs.csv"
     sweep._record_job_times(cfg, res, path)
-    work = pd.read_csv(path).set_index("id")["work"]
-    assert work[fresh.id] == cfg.rl.total_steps and work[resumed.id] == cfg.rl.total_steps - 384
+    rows = pd.read_csv(path).set_index("id")
+    assert rows.loc[fresh.id, "work"] == cfg.rl.total_steps and rows.loc[resumed.id, "work"] == cfg.rl.total_steps - 384
+    assert rows.loc[fresh.id, "start"] == 0 and rows.loc[resumed.id, "start"] == 384  # where each began, kept
 
 
 def test_a_resumed_pretraining_is_timed_against_the_iterations_it_ran(tmp_path, monkeypatch):

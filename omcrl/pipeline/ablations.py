@@ -91,14 +91,16 @@ def account(cfg: Config, seeds: Sequence[int] = ABLATION_SEEDS) -> tuple[pd.Data
 
 def _resumed(folder: Path) -> dict[str, int]:
     """``{rate_key: jobs}`` of a grid's timed jobs (:func:`omcrl.pipeline.ladder.timed_jobs`, under ``folder``)
-    that resumed from a checkpoint: a resumed job's work is the part after its checkpoint, so it is below the largest
-    work of its kind. That holds in the ablation grids, whose variants all train at the sweep budgets (not in the
-    ladders, whose variants differ in budget). The time a stopped attempt spent before its checkpoint is in no
-    record."""
+    that resumed from a checkpoint: ``start`` > 0 in ``jobs.csv``. A row written before ``start`` was kept has none;
+    its work is the part after its checkpoint, so it resumed when that is below the largest work of its kind, which
+    holds in the ablation grids, whose variants all train at the sweep budgets (not in the ladders, whose variants
+    differ in budget). The time a stopped attempt spent before its checkpoint is in no record."""
     if (jobs := timed_jobs(folder)) is None:
         return {}
-    full = jobs.groupby("rate_key")["work"].transform("max")
-    return {str(k): int(n) for k, n in jobs[jobs["work"] < full].groupby("rate_key").size().items()}
+    below = jobs["work"] < jobs.groupby("rate_key")["work"].transform("max")
+    start = jobs["start"] if "start" in jobs else pd.Series(float("nan"), index=jobs.index)
+    resumed = (start > 0) | (start.isna() & below)
+    return {str(k): int(n) for k, n in jobs[resumed].groupby("rate_key").size().items()}
 
 
 def account_markdown(ran: pd.DataFrame, rest: pd.DataFrame) -> str:

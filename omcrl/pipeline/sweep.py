@@ -584,7 +584,9 @@ def _shares(jobs: Sequence[Job], grid: str, store: Storage | None) -> dict[str, 
     }
 
 
-JOB_TIME_COLUMNS = ["id", "kind", "method", "seed", "status", "seconds", "rate_key", "work"]
+# ``start``: the units a resumed job found done in its checkpoint (0: it ran from the start); empty in rows written
+# before it was kept, whose resumes only their work below the kind's largest tells (omcrl.pipeline.ablations).
+JOB_TIME_COLUMNS = ["id", "kind", "method", "seed", "status", "seconds", "rate_key", "work", "start"]
 
 
 def _record_job_times(
@@ -616,10 +618,10 @@ def _record_job_times(
         elif st == "done" or (st == "skipped" and name(j.id) not in kept):
             w = plan[j.id]
             # A resumed training or pretraining timed only the part after its checkpoint: its work is that part too.
-            work = max(0, w.work - res.started.get(j.id, 0))
+            start = res.started.get(j.id, 0)
             kept[name(j.id)] = {"id": name(j.id), "kind": j.kind, "method": j.method, "seed": j.seed, "status": st,
                           "seconds": round(res.seconds.get(j.id, float("nan")), 2), "rate_key": w.rate_key,
-                          "work": work}  # fmt: skip
+                          "work": max(0, w.work - start), "start": start}  # fmt: skip
     # Named columns: a sweep that measured nothing (every job recorded) still writes a file that reads back.
     atomic_write_text(path, pd.DataFrame(list(kept.values()), columns=JOB_TIME_COLUMNS).to_csv(index=False))
 
