@@ -253,7 +253,14 @@ class Recipe:
         return policy_run(cfg, spec.name, enc, oracle, planner_factory(cfg, spec.guide))
 
     def train(
-        self, cfg: Config, spec: MethodSpec, needs: list[Need], *, name: str, make_env: Any = None, **common: Any
+        self,
+        cfg: Config,
+        spec: MethodSpec,
+        needs: list[Need],
+        *,
+        name: str,
+        make_env: Callable[[int], Any] | None = None,
+        **common: Any,
     ) -> Result:
         """Train this kind on its prerequisites ``needs`` (present: :func:`omcrl.pipeline.train_method` checked them);
         skip if finished, resume if interrupted; ``common``: the training loop's ``overwrite``, ``progress``,
