@@ -301,17 +301,19 @@ def _learner(
     return agent, optimizer, guide
 
 
-def _resume(run: Run, ckpt: dict | None, agent: ActorCritic, optimizer: torch.optim.Optimizer, env_seed: int
-            ) -> tuple[int, int]:  # fmt: skip
+def _resume(
+    run: Run, ckpt: dict | None, agent: ActorCritic, optimizer: torch.optim.Optimizer, env_seed: int
+) -> tuple[int, int]:
     """(env step, update) to go on from: a checkpoint's, its weights, optimizer and random state restored; (0, 0)
     for a fresh run. Each stretch of training and the env seed it flew go into run.json: a resumed run's episodes
     follow from these, not from its config alone (scripts/render_fault_audit.py replays them)."""
-    step, update = (0, 0) if ckpt is None else (int(ckpt["step"]), int(ckpt["update"]))
+    step, update, earlier = 0, 0, []
     if ckpt is not None:
         agent.load_state_dict(ckpt["model"])
         optimizer.load_state_dict(ckpt["optimizer"])
         set_rng_state(ckpt["rng"])
-    earlier = (read_identity(run.dir) or {}).get("segments", []) if ckpt is not None else []
+        step, update = int(ckpt["step"]), int(ckpt["update"])
+        earlier = (read_identity(run.dir) or {}).get("segments", [])
     run.record(segments=[*earlier, {"from_step": step, "env_seed": env_seed}])
     return step, update
 
