@@ -86,8 +86,8 @@ def test_the_ablations_sentence_names_each_judged_finding():
     both = _said(_verdicts(), _table(), ablations=summary, ablation_grids=(["decay"], 6), ablations_table1=again)
     assert "*undecided* in 6 checks (on Table I's runs, full budget: *holds* in 3)." in both
     # the stress room is judged apart; a resolved check there is said, all-undecided ones are not
-    stressed = summary.assign(stress="0 / 1 / 1")
-    again_stressed = again.assign(stress="0 / 0 / 2")
+    stressed = summary.assign(**{"stress holds": 0, "stress reversed": 1, "stress undecided": 1})
+    again_stressed = again.assign(**{"stress holds": 0, "stress reversed": 0, "stress undecided": 2})
     text = _said(
         _verdicts(), _table(), ablations=stressed, ablation_grids=(["decay"], 6), ablations_table1=again_stressed
     )

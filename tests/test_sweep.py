@@ -349,6 +349,7 @@ def test_stress_scenes_are_counted_apart_from_the_paper_suite():
     s = findings_summary(f).iloc[0]
     assert (s.checks, s.holds, s.verdict) == (1, 0, "undecided")  # the stress test does not decide the verdict
     assert (s.stress, s["stress verdict"]) == ("1 / 0 / 0", "holds")
+    assert (s["stress holds"], s["stress reversed"], s["stress undecided"]) == (1, 0, 0)
     only = findings_summary(f[f.scene == "furniture-v0"]).iloc[0]
     assert (only.checks, only.verdict) == (0, "not checked")
 

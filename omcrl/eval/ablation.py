@@ -151,6 +151,10 @@ def _verdict(g: pd.DataFrame) -> tuple[int, int, int, str]:
     return h, r, u, verdict
 
 
+# The columns of :func:`findings_summary` that the pages show (the rest are its stress counts as numbers).
+SUMMARY_COLUMNS = ["finding", "checks", "holds", "reversed", "undecided", "verdict", "stress", "stress verdict"]
+
+
 def findings_summary(findings: pd.DataFrame) -> pd.DataFrame:
     """One line per finding: how many (claim, scene) checks in the paper's unseen scenes hold, are reversed or
     undecided, and a verdict ``holds`` (every check holds), ``does not hold`` (any reversed, none holds),
@@ -159,9 +163,11 @@ def findings_summary(findings: pd.DataFrame) -> pd.DataFrame:
     Stress-test scenes (furniture-v0's unseen room) are not the paper's suite, so they do not enter the verdict;
     ``stress`` counts their checks apart, as ``held / reversed / undecided`` ("–" when none was evaluated), and
     ``stress verdict`` is the same rule applied to them alone. A finding checked only in stress scenes has the
-    verdict ``not checked``.
+    verdict ``not checked``. The stress counts are also columns of their own (``stress holds``, ``stress reversed``,
+    ``stress undecided``: ints, 0 when none was evaluated), so a reader of the frame need not parse the text;
+    :data:`SUMMARY_COLUMNS` are the ones a page shows.
     """
-    cols = ["finding", "checks", "holds", "reversed", "undecided", "verdict", "stress", "stress verdict"]
+    cols = [*SUMMARY_COLUMNS, "stress holds", "stress reversed", "stress undecided"]
     out = []
     for finding, g in findings.assign(_stress=findings["scene"].map(is_stress)).groupby("finding", sort=False):
         main, st = g[~g["_stress"]], g[g["_stress"]]
@@ -169,7 +175,8 @@ def findings_summary(findings: pd.DataFrame) -> pd.DataFrame:
         sh, sr_, su, sv = _verdict(st) if len(st) else (0, 0, 0, "–")
         out.append({"finding": finding, "checks": len(main), "holds": h, "reversed": r, "undecided": u,
                     "verdict": verdict, "stress": f"{sh} / {sr_} / {su}" if len(st) else "–",
-                    "stress verdict": sv})  # fmt: skip
+                    "stress verdict": sv, "stress holds": sh, "stress reversed": sr_,
+                    "stress undecided": su})  # fmt: skip
     return pd.DataFrame(out, columns=cols)
 
 
@@ -199,7 +206,7 @@ def write_findings(
         "layout, training seeds and layouts crossed, Holm–Bonferroni over the unseen-scene checks and, apart, over "
         "the stress-test checks; a variant of one training seed is shown, not judged): the verdict counts the "
         "paper's unseen scenes; stress-test scenes are counted apart (held / reversed / undecided).\n\n"
-        + to_markdown(s.set_index("finding"), "finding")
+        + to_markdown(s[SUMMARY_COLUMNS].set_index("finding"), "finding")
         + "\n"
         + to_markdown(detail.set_index("finding"), "finding")
     )

@@ -313,9 +313,8 @@ def _stress(row: pd.Series) -> str | None:
     """A finding's stress-room checks (judged apart from its verdict) in words when any of them held or was reversed,
     e.g. ``"1 of 3 holds, 1 reversed"``; None when all are undecided or none was flown. A reader of the verdict alone
     would otherwise not learn that furniture-v0 resolved a check."""
-    if row.get("stress", "–") == "–":
-        return None
-    held, reversed_, undecided = (int(x) for x in str(row["stress"]).split(" / "))
+    # A frame without the counts (none evaluated in the stress room) reads as zeros.
+    held, reversed_, undecided = (int(row.get(f"stress {k}", 0)) for k in ("holds", "reversed", "undecided"))
     if not held and not reversed_:
         return None
     return f"{held} of {held + reversed_ + undecided} holds, {reversed_} reversed"

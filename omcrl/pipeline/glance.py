@@ -23,7 +23,7 @@ import pandas as pd
 
 from omcrl import planners
 from omcrl.config import load_config, project_root
-from omcrl.eval.ablation import PAPER_TABLES, paper_ablations
+from omcrl.eval.ablation import PAPER_TABLES, SUMMARY_COLUMNS, paper_ablations
 from omcrl.eval.metrics import glossary_markdown
 from omcrl.eval.stage import scene_cells, to_markdown
 from omcrl.eval.stats import aggregate, cell_rng, contrast, term
@@ -502,7 +502,7 @@ def _ablation(
     text = render(
         "ablations_v2.md.j2",
         recorded=recorded,
-        findings=to_markdown(res.summary.set_index("finding"), "finding").strip(),
+        findings=to_markdown(res.summary[SUMMARY_COLUMNS].set_index("finding"), "finding").strip(),
         checks=checks,
         check_scenes=check_scenes,
         sr=sr,

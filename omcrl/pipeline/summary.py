@@ -17,7 +17,7 @@ from typing import Any
 import pandas as pd
 
 from omcrl.config import Config
-from omcrl.eval.ablation import findings_summary
+from omcrl.eval.ablation import SUMMARY_COLUMNS, findings_summary
 from omcrl.eval.metrics import glossary_markdown
 from omcrl.eval.table1 import read_table1_csv
 from omcrl.pipeline.expected import expected_time
@@ -306,7 +306,7 @@ def _section_ablations(d: dict, tables: Path) -> str:
     verdicts = findings_summary(pd.read_csv(tables / "ablation_findings.csv"))
     names = sorted(p.name for p in tables.glob("*.md") if p.stem.startswith(("ablation_", "table2", "table3")))
     names = [n for n in names if n != "ablation_findings.md"]
-    findings = None if verdicts.empty else _md_table(verdicts.to_dict("records"))
+    findings = None if verdicts.empty else _md_table(verdicts[SUMMARY_COLUMNS].to_dict("records"))
     return _page("ablations", findings=findings, names=names)
 
 
