@@ -303,3 +303,45 @@ def test_a_grid_that_reflies_table1_trains_a_run_in_its_stretches_and_refuses_an
     _, _, (run_dir,), start = _run_stage(base, job1)
     assert start == 0 and (run_dir / "checkpoint.pt.diverges").exists() and not_table1_run(base, job1, table1) is None
     assert all(torch.equal(_policy(run_dir)[k], v) for k, v in _policy(whole.run.dir).items())
+
+
+def test_a_grid_that_reflies_table1_refuses_a_run_it_cannot_learn_here(tmp_path, monkeypatch):
+    """Same seed, same result holds on one CPU only: a Table I run trained on another CPU model, or on inputs with
+    another key (an encoder pretrained again elsewhere), cannot be learned again here. The training job is refused
+    before its first step, naming both, and a run trained anyway is not recorded as Table I's."""
+    import json
+
+    from omcrl.pipeline.plan import Job
+    from omcrl.pipeline.sweep import _run_stage, _train_run, not_table1_inputs, not_table1_run
+    from omcrl.utils.runtime import cpu_model
+
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
+    cfg = load_config("smoke")
+    job = Job(id="train/oracle/0", kind="train", method="oracle", seed=0, overrides=())
+    base = {"preset": "smoke", "overrides": [], "as_table1": True}
+    table1 = GridData(grid_data_dir(cfg, "table1"))
+    run = _train_run(base, job)
+    folder = table1.folder("oracle", 0) / "rl"
+    folder.mkdir(parents=True)
+
+    def record(path, **fields):
+        path.mkdir(parents=True, exist_ok=True)
+        rec = {"stage": "rl", "method": "oracle", "seed": 0, "key": run.key, "machines": [{"cpu_model": cpu_model()}]}
+        (path / "run.json").write_text(json.dumps({**rec, **fields}))
+
+    record(folder)
+    assert not_table1_inputs(base, job, table1) is None
+    record(folder, machines=[{"cpu_model": "Another CPU"}])
+    with pytest.raises(RuntimeError, match=f"Another CPU, the run here on {cpu_model()}"):
+        _run_stage(base, job)
+    assert not (run.dir / "final.pt").exists()  # refused before training
+    record(folder, key="0123456789", identity={"encoder_digest": "abcdef"})
+    why = not_table1_inputs(base, job, table1)
+    assert why is not None and f"key {run.key} where Table I's has 0123456789" in why and "abcdef" in why
+    record(folder, machines=[])  # a record older than the machines field: not judged on them
+    assert not_table1_inputs(base, job, table1) is None
+    # after the fact: a run here that says it trained on another CPU than Table I's is not recorded
+    record(folder)
+    record(run.dir, machines=[{"cpu_model": "Another CPU"}])
+    why = not_table1_run(base, job, table1)
+    assert why is not None and "episodes are not recorded" in why and "the run here on Another CPU" in why

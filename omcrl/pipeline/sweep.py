@@ -69,7 +69,7 @@ from omcrl.rl.methods import METHODS, final_policy_path, get_method
 from omcrl.runs import StopAfter
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import Progress, log_lines
-from omcrl.utils.runtime import cpu_count
+from omcrl.utils.runtime import cpu_count, cpu_model
 from omcrl.viz import save_figure
 from omcrl.viz.compare import plot_learning_curves
 
@@ -194,7 +194,14 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
         # stopped, then resumed (:func:`stretches`), so that it learns the same policy.
         stops: list[int] = []
         if preset_cfg.get("as_table1"):
-            stops = stretches(preset_cfg, job, GridData(grid_data_dir(cfg, "table1")))
+            table1 = GridData(grid_data_dir(cfg, "table1"))
+            # Hours of training that could only learn another policy are not spent: refused before the first step
+            # (a finished run, such as a teacher restored from its record, trains nothing and is not judged here).
+            run = _train_run(preset_cfg, job)
+            why = None if run is None or run.finished() is not None else not_table1_inputs(preset_cfg, job, table1)
+            if why is not None:
+                raise RuntimeError(why)
+            stops = stretches(preset_cfg, job, table1)
         for stop in stops:
             part = train_method(cfg, job.method, progress=True, callbacks=(StopAfter(stop),))
             began = part.start if began is None else began
@@ -464,10 +471,51 @@ def _train_run(preset_cfg: dict, job: Job) -> Any:
     return spec.recipe.run(cfg, spec)
 
 
+def _run_record(run_json: Path) -> dict[str, Any]:
+    """A run's ``run.json`` as a dict ({} when there is none)."""
+    return json.loads(run_json.read_text(encoding="utf-8")) if run_json.is_file() else {}
+
+
 def _segments(run_json: Path) -> list[tuple[int, int]]:
     """The stretches of a run's RL training as its ``run.json`` records them: ``[(from_step, env_seed), ...]``."""
-    identity = json.loads(run_json.read_text(encoding="utf-8")) if run_json.is_file() else {}
-    return [(int(s["from_step"]), int(s["env_seed"])) for s in identity.get("segments", [])]
+    return [(int(s["from_step"]), int(s["env_seed"])) for s in _run_record(run_json).get("segments", [])]
+
+
+def _cpus(record: dict[str, Any]) -> list[str]:
+    """The CPU models a run's record says it trained on (empty for a record older than that field)."""
+    return list(dict.fromkeys(str(m["cpu_model"]) for m in record.get("machines", []) if m.get("cpu_model")))
+
+
+def not_table1_inputs(preset_cfg: dict, job: Job, table1: GridData, here: str | None = None) -> str | None:
+    """Why the training job ``job`` cannot learn Table I's policy of its method and seed on this machine, or None.
+
+    Checked before training, from Table I's record (``<method>/seed<k>/rl/run.json``): its run key, which hashes
+    the config and the upstream artifacts (the frozen encoder's digest among them), must be the key of the run here,
+    and it must have trained on this machine's CPU model (``here``; default: :func:`omcrl.utils.runtime.cpu_model`):
+    on the CPU the same seed gives the same result on the same machine only (docs/reproducibility.md), so an encoder
+    pretrained again on another CPU, or a policy trained on one, is another draw of the seed. A record without a key
+    or machines (older than those fields) is not judged on them; a job Table I has no record of, None.
+    """
+    recorded = _run_record(table1.folder(job.method, job.seed) / "rl" / "run.json")
+    run = _train_run(preset_cfg, job)
+    if not recorded or run is None:
+        return None
+    if recorded.get("key") and recorded["key"] != run.key:
+        digest = recorded.get("identity", {}).get("encoder_digest")
+        return (
+            f"{job.method} seed {job.seed}: the run here has key {run.key} where Table I's has {recorded['key']}"
+            + (f" (Table I's trained on the frozen encoder {digest})" if digest else "")
+            + ": its inputs differ (an encoder pretrained again on another machine gives another one), so it would "
+            "learn another policy; not trained"
+        )
+    cpus, here = _cpus(recorded), here or cpu_model()
+    if cpus and here not in cpus:
+        return (
+            f"{job.method} seed {job.seed}: Table I's run trained on {' and '.join(cpus)}, the run here on {here}; "
+            "the same seed gives the same policy only on the same CPU (docs/reproducibility.md), so a retrain here "
+            "is another policy; not trained (run this job on such a machine)"
+        )
+    return None
 
 
 def not_table1_run(preset_cfg: dict, job: Job, table1: GridData) -> str | None:
@@ -477,12 +525,21 @@ def not_table1_run(preset_cfg: dict, job: Job, table1: GridData) -> str | None:
     can still differ is how it was trained: on the CPU a run is the same policy when it trained in the same
     stretches, and a run resumed from a checkpoint restarts its envs with a seed of its own
     (:func:`omcrl.rl.train.train`), so it learns another one. Compared: the ``segments`` of its ``run.json`` and of
-    Table I's record (``reference/<preset>/table1-<suite>/<method>/seed<k>/rl/run.json``); a method or seed Table I
-    has no record of is not judged here (None).
+    Table I's record (``reference/<preset>/table1-<suite>/<method>/seed<k>/rl/run.json``), and, as before training,
+    the run key and the CPU it trained on (:func:`not_table1_inputs`); a method or seed Table I has no record of is
+    not judged here (None).
     """
     recorded = _segments(table1.folder(job.method, job.seed) / "rl" / "run.json")
     run = _train_run(preset_cfg, job)
-    if not recorded or run is None:
+    if run is None:
+        return None
+    ran_on = _cpus(_run_record(run.dir / "run.json"))
+    inputs = not_table1_inputs(preset_cfg, job, table1, ran_on[-1] if ran_on else None)
+    if inputs is not None:
+        return inputs.replace("; not trained", ": its episodes are not recorded").replace(
+            " (run this job on such a machine)", ""
+        )
+    if not recorded:
         return None
     here = _segments(run.dir / "run.json")
     if here == recorded:
