@@ -312,8 +312,8 @@ def test_a_grid_that_reflies_table1_refuses_a_run_it_cannot_learn_here(tmp_path,
     import json
 
     from omcrl.pipeline.plan import Job
-    from omcrl.pipeline.sweep import _run_stage, _train_run, not_table1_inputs, not_table1_run
-    from omcrl.utils.runtime import cpu_model
+    from omcrl.pipeline.sweep import _run_stage, _this_cpu, _train_run, not_table1_inputs, not_table1_run
+    from omcrl.utils.runtime import machine_info
 
     monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
     cfg = load_config("smoke")
@@ -326,13 +326,17 @@ def test_a_grid_that_reflies_table1_refuses_a_run_it_cannot_learn_here(tmp_path,
 
     def record(path, **fields):
         path.mkdir(parents=True, exist_ok=True)
-        rec = {"stage": "rl", "method": "oracle", "seed": 0, "key": run.key, "machines": [{"cpu_model": cpu_model()}]}
+        rec = {"stage": "rl", "method": "oracle", "seed": 0, "key": run.key, "machines": [machine_info()]}
         (path / "run.json").write_text(json.dumps({**rec, **fields}))
 
     record(folder)
     assert not_table1_inputs(base, job, table1) is None
+    # the same model with kernels of another width (AVX2 where this torch picks AVX512, or the reverse) is another CPU
+    other_isa = {**machine_info(), "cpu_capability": "another ISA"}
+    record(folder, machines=[other_isa])
+    assert "another ISA" in (not_table1_inputs(base, job, table1) or "")
     record(folder, machines=[{"cpu_model": "Another CPU"}])
-    with pytest.raises(RuntimeError, match=f"Another CPU, the run here on {cpu_model()}"):
+    with pytest.raises(RuntimeError, match=f"Another CPU, the run here on {_this_cpu()}"):
         _run_stage(base, job)
     assert not (run.dir / "final.pt").exists()  # refused before training
     record(folder, key="0123456789", identity={"encoder_digest": "abcdef"})

@@ -69,7 +69,7 @@ from omcrl.rl.methods import METHODS, final_policy_path, get_method
 from omcrl.runs import StopAfter
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import Progress, log_lines
-from omcrl.utils.runtime import cpu_count, cpu_model
+from omcrl.utils.runtime import cpu_count, machine_info
 from omcrl.viz import save_figure
 from omcrl.viz.compare import plot_learning_curves
 
@@ -482,8 +482,23 @@ def _segments(run_json: Path) -> list[tuple[int, int]]:
 
 
 def _cpus(record: dict[str, Any]) -> list[str]:
-    """The CPU models a run's record says it trained on (empty for a record older than that field)."""
-    return list(dict.fromkeys(str(m["cpu_model"]) for m in record.get("machines", []) if m.get("cpu_model")))
+    """The CPUs a run's record says it trained on, each as its model and the vector ISA torch dispatched to
+    (``"AMD EPYC, AVX512"``: one model runs AVX2 kernels on one host and AVX512 on another, which round apart);
+    empty for a record older than those fields."""
+    return list(
+        dict.fromkeys(
+            ", ".join(str(m[k]) for k in ("cpu_model", "cpu_capability") if m.get(k))
+            for m in record.get("machines", [])
+            if m.get("cpu_model")
+        )
+    )
+
+
+def _this_cpu() -> str:
+    """This machine as :func:`_cpus` names a record's (model, and torch's vector ISA)."""
+    import torch  # noqa: F401  (machine_info reads the ISA from torch only once it is imported)
+
+    return _cpus({"machines": [machine_info()]})[0]
 
 
 def not_table1_inputs(preset_cfg: dict, job: Job, table1: GridData, here: str | None = None) -> str | None:
@@ -491,7 +506,7 @@ def not_table1_inputs(preset_cfg: dict, job: Job, table1: GridData, here: str | 
 
     Checked before training, from Table I's record (``<method>/seed<k>/rl/run.json``): its run key, which hashes
     the config and the upstream artifacts (the frozen encoder's digest among them), must be the key of the run here,
-    and it must have trained on this machine's CPU model (``here``; default: :func:`omcrl.utils.runtime.cpu_model`):
+    and it must have trained on this machine's CPU (``here``, as :func:`_cpus` names one; default: this machine's):
     on the CPU the same seed gives the same result on the same machine only (docs/reproducibility.md), so an encoder
     pretrained again on another CPU, or a policy trained on one, is another draw of the seed. A record without a key
     or machines (older than those fields) is not judged on them; a job Table I has no record of, None.
@@ -508,7 +523,7 @@ def not_table1_inputs(preset_cfg: dict, job: Job, table1: GridData, here: str | 
             + ": its inputs differ (an encoder pretrained again on another machine gives another one), so it would "
             "learn another policy; not trained"
         )
-    cpus, here = _cpus(recorded), here or cpu_model()
+    cpus, here = _cpus(recorded), here or _this_cpu()
     if cpus and here not in cpus:
         return (
             f"{job.method} seed {job.seed}: Table I's run trained on {' and '.join(cpus)}, the run here on {here}; "
