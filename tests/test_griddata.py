@@ -349,3 +349,22 @@ def test_a_grid_that_reflies_table1_refuses_a_run_it_cannot_learn_here(tmp_path,
     record(run.dir, machines=[{"cpu_model": "Another CPU"}])
     why = not_table1_run(base, job, table1)
     assert why is not None and "episodes are not recorded" in why and "the run here on Another CPU" in why
+
+
+def test_a_run_that_learned_otherwise_than_table1s_record_is_not_recorded(tmp_path):
+    """A retrained run's training metrics must reproduce its record's bit for bit (timings aside): the check that
+    tells a run trained on another machine where the record is older than its machines field (CURL seed 0 did)."""
+    import gzip
+
+    from omcrl.pipeline.sweep import _learning_differs
+
+    rows = "step,metric,value\n2048,loss,0.0301849\n2048,steps_per_s,275.068\n4096,loss,0.0183403\n"
+    record, here = tmp_path / "metrics.csv.gz", tmp_path / "metrics.csv"
+    record.write_bytes(gzip.compress(rows.encode()))
+    here.write_text(rows.replace("275.068", "299.017") + "4096,new_metric,1.0\n")  # another timing, a newer metric
+    assert _learning_differs(record, here) is None
+    here.write_text(rows.replace("0.0183403", "0.0182672"))
+    assert _learning_differs(record, here) == "loss at step 4,096: 0.0183403 recorded, 0.0182672 here"
+    here.write_text(rows.replace("4096,loss,0.0183403\n", ""))  # a recorded value the run never logged
+    assert "loss at step 4,096" in (_learning_differs(record, here) or "")
+    assert _learning_differs(tmp_path / "none.csv.gz", here) is None

@@ -533,6 +533,25 @@ def not_table1_inputs(preset_cfg: dict, job: Job, table1: GridData, here: str | 
     return None
 
 
+def _learning_differs(recorded: Path, here: Path) -> str | None:
+    """Where a run's training metrics (``metrics.csv``: ``step, metric, value``) first part from a record's, or None
+    when every recorded value is reproduced exactly. Timings (metrics ending in ``_s``: seconds, steps/s) are left
+    out, and so are metrics the record does not have (it may be older than them); None when either file is missing.
+    On one CPU a retrained run reproduces its record's losses and returns bit for bit, so this tells a run trained on
+    another machine even where the record is older than its ``machines`` field."""
+    if not recorded.is_file() or not here.is_file():
+        return None
+    a, b = (pd.read_csv(f) for f in (recorded, here))
+    a = a[~a["metric"].astype(str).str.endswith("_s")]
+    both = a.merge(b, on=["step", "metric"], how="left", suffixes=("", "_here"), indicator=True)
+    same = (both["value"] == both["value_here"]) | (both["value"].isna() & both["value_here"].isna())
+    off = both[~same]
+    if off.empty:
+        return None
+    r = off.iloc[0]
+    return f"{r['metric']} at step {int(r['step']):,}: {r['value']} recorded, {r['value_here']} here"
+
+
 def not_table1_run(preset_cfg: dict, job: Job, table1: GridData) -> str | None:
     """Why the run ``job`` flies here is not Table I's run of the same method and seed, or None when it is.
 
@@ -540,9 +559,10 @@ def not_table1_run(preset_cfg: dict, job: Job, table1: GridData) -> str | None:
     can still differ is how it was trained: on the CPU a run is the same policy when it trained in the same
     stretches, and a run resumed from a checkpoint restarts its envs with a seed of its own
     (:func:`omcrl.rl.train.train`), so it learns another one. Compared: the ``segments`` of its ``run.json`` and of
-    Table I's record (``reference/<preset>/table1-<suite>/<method>/seed<k>/rl/run.json``), and, as before training,
-    the run key and the CPU it trained on (:func:`not_table1_inputs`); a method or seed Table I has no record of is
-    not judged here (None).
+    Table I's record (``reference/<preset>/table1-<suite>/<method>/seed<k>/rl/run.json``), as before training the
+    run key and the CPU it trained on (:func:`not_table1_inputs`), and its training metrics, which a run learned
+    again on the same CPU reproduces bit for bit (:func:`_learning_differs`); a method or seed Table I has no record
+    of is not judged here (None).
     """
     recorded = _segments(table1.folder(job.method, job.seed) / "rl" / "run.json")
     run = _train_run(preset_cfg, job)
@@ -554,15 +574,20 @@ def not_table1_run(preset_cfg: dict, job: Job, table1: GridData) -> str | None:
         return inputs.replace("; not trained", ": its episodes are not recorded").replace(
             " (run this job on such a machine)", ""
         )
-    if not recorded:
-        return None
+
     here = _segments(run.dir / "run.json")
-    if here == recorded:
+    if recorded and here != recorded:
+        return (
+            f"{job.method} seed {job.seed}: the run in {run.dir} trained in stretches {here} (from_step, env_seed) "
+            f"where Table I's trained in {recorded}: it is another policy, so its episodes are not recorded; move that "
+            "run folder aside and run the grid again, which trains it in Table I's stretches"
+        )
+    why = _learning_differs(table1.folder(job.method, job.seed) / "rl" / "metrics.csv.gz", run.dir / "metrics.csv")
+    if why is None:
         return None
     return (
-        f"{job.method} seed {job.seed}: the run in {run.dir} trained in stretches {here} (from_step, env_seed) where "
-        f"Table I's trained in {recorded}: it is another policy, so its episodes are not recorded; move that run "
-        "folder aside and run the grid again, which trains it in Table I's stretches"
+        f"{job.method} seed {job.seed}: the run in {run.dir} learned otherwise than Table I's ({why}): it is another "
+        "policy (trained on another machine than its record can say), so its episodes are not recorded"
     )
 
 
