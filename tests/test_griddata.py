@@ -312,7 +312,7 @@ def test_a_grid_that_reflies_table1_refuses_a_run_it_cannot_learn_here(tmp_path,
     import json
 
     from omcrl.pipeline.plan import Job
-    from omcrl.pipeline.sweep import _run_stage, _this_cpu, _train_run, not_table1_inputs, not_table1_run
+    from omcrl.pipeline.sweep import _cpu, _run_stage, _train_run, not_table1_inputs, not_table1_run
     from omcrl.utils.runtime import machine_info
 
     monkeypatch.setenv("OMCRL_ROOT", str(tmp_path))
@@ -336,7 +336,7 @@ def test_a_grid_that_reflies_table1_refuses_a_run_it_cannot_learn_here(tmp_path,
     record(folder, machines=[other_isa])
     assert "another ISA" in (not_table1_inputs(base, job, table1) or "")
     record(folder, machines=[{"cpu_model": "Another CPU"}])
-    with pytest.raises(RuntimeError, match=f"Another CPU, the run here on {_this_cpu()}"):
+    with pytest.raises(RuntimeError, match=f"Another CPU, the run here on {_cpu(machine_info())}"):
         _run_stage(base, job)
     assert not (run.dir / "final.pt").exists()  # refused before training
     record(folder, key="0123456789", identity={"encoder_digest": "abcdef"})

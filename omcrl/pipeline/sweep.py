@@ -66,7 +66,7 @@ from omcrl.pipeline.stages import collect_stage
 from omcrl.pipeline.storage import Storage, job_key
 from omcrl.planners import PLANNERS
 from omcrl.rl.methods import METHODS, final_policy_path, get_method
-from omcrl.runs import StopAfter
+from omcrl.runs import StopAfter, read_identity
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.progress import Progress, log_lines
 from omcrl.utils.runtime import cpu_count, machine_info
@@ -195,10 +195,8 @@ def _run_stage(preset_cfg: dict, job: Job) -> tuple[str, list[dict], list[Path],
         stops: list[int] = []
         if preset_cfg.get("as_table1"):
             table1 = GridData(grid_data_dir(cfg, "table1"))
-            # Hours of training that could only learn another policy are not spent: refused before the first step
-            # (a finished run, such as a teacher restored from its record, trains nothing and is not judged here).
-            run = _train_run(preset_cfg, job)
-            why = None if run is None or run.finished() is not None else not_table1_inputs(preset_cfg, job, table1)
+            # Hours of training that could only learn another policy are not spent: refused before the first step.
+            why = not_table1_inputs(preset_cfg, job, table1)
             if why is not None:
                 raise RuntimeError(why)
             stops = stretches(preset_cfg, job, table1)
@@ -471,66 +469,64 @@ def _train_run(preset_cfg: dict, job: Job) -> Any:
     return spec.recipe.run(cfg, spec)
 
 
-def _run_record(run_json: Path) -> dict[str, Any]:
-    """A run's ``run.json`` as a dict ({} when there is none)."""
-    return json.loads(run_json.read_text(encoding="utf-8")) if run_json.is_file() else {}
-
-
-def _segments(run_json: Path) -> list[tuple[int, int]]:
+def _segments(run_dir: Path) -> list[tuple[int, int]]:
     """The stretches of a run's RL training as its ``run.json`` records them: ``[(from_step, env_seed), ...]``."""
-    return [(int(s["from_step"]), int(s["env_seed"])) for s in _run_record(run_json).get("segments", [])]
+    return [(int(s["from_step"]), int(s["env_seed"])) for s in (read_identity(run_dir) or {}).get("segments", [])]
+
+
+def _cpu(machine: dict[str, Any]) -> str:
+    """A machine of a run record (:func:`omcrl.utils.runtime.machine_info`) as its CPU model and the vector ISA torch
+    dispatched to (``"AMD EPYC, AVX512"``: one model runs AVX2 kernels on one host and AVX512 on another, which round
+    apart)."""
+    return ", ".join(str(machine[k]) for k in ("cpu_model", "cpu_capability") if machine.get(k))
 
 
 def _cpus(record: dict[str, Any]) -> list[str]:
-    """The CPUs a run's record says it trained on, each as its model and the vector ISA torch dispatched to
-    (``"AMD EPYC, AVX512"``: one model runs AVX2 kernels on one host and AVX512 on another, which round apart);
-    empty for a record older than those fields."""
-    return list(
-        dict.fromkeys(
-            ", ".join(str(m[k]) for k in ("cpu_model", "cpu_capability") if m.get(k))
-            for m in record.get("machines", [])
-            if m.get("cpu_model")
-        )
-    )
+    """The CPUs (:func:`_cpu`) a run's record says it trained on; empty for a record older than that field."""
+    return list(dict.fromkeys(_cpu(m) for m in record.get("machines", []) if m.get("cpu_model")))
 
 
-def _this_cpu() -> str:
-    """This machine as :func:`_cpus` names a record's (model, and torch's vector ISA)."""
-    import torch  # noqa: F401  (machine_info reads the ISA from torch only once it is imported)
-
-    return _cpus({"machines": [machine_info()]})[0]
-
-
-def not_table1_inputs(preset_cfg: dict, job: Job, table1: GridData, here: str | None = None) -> str | None:
-    """Why the training job ``job`` cannot learn Table I's policy of its method and seed on this machine, or None.
-
-    Checked before training, from Table I's record (``<method>/seed<k>/rl/run.json``): its run key, which hashes
-    the config and the upstream artifacts (the frozen encoder's digest among them), must be the key of the run here,
-    and it must have trained on this machine's CPU (``here``, as :func:`_cpus` names one; default: this machine's):
-    on the CPU the same seed gives the same result on the same machine only (docs/reproducibility.md), so an encoder
-    pretrained again on another CPU, or a policy trained on one, is another draw of the seed. A record without a key
-    or machines (older than those fields) is not judged on them; a job Table I has no record of, None.
-    """
-    recorded = _run_record(table1.folder(job.method, job.seed) / "rl" / "run.json")
-    run = _train_run(preset_cfg, job)
-    if not recorded or run is None:
-        return None
+def _inputs_differ(job: Job, run: Any, recorded: dict[str, Any], here: str | None) -> str | None:
+    """Why ``run`` (the run of ``job`` here, on the CPU ``here``) cannot be Table I's run ``recorded`` (its
+    ``run.json``), or None: another run key, or another CPU. A record without a key or machines, or ``here`` None
+    (unknown), is not judged on them."""
     if recorded.get("key") and recorded["key"] != run.key:
         digest = recorded.get("identity", {}).get("encoder_digest")
         return (
             f"{job.method} seed {job.seed}: the run here has key {run.key} where Table I's has {recorded['key']}"
             + (f" (Table I's trained on the frozen encoder {digest})" if digest else "")
             + ": its inputs differ (an encoder pretrained again on another machine gives another one), so it would "
-            "learn another policy; not trained"
+            "learn another policy"
         )
-    cpus, here = _cpus(recorded), here or _this_cpu()
-    if cpus and here not in cpus:
+    cpus = _cpus(recorded)
+    if cpus and here is not None and here not in cpus:
         return (
             f"{job.method} seed {job.seed}: Table I's run trained on {' and '.join(cpus)}, the run here on {here}; "
             "the same seed gives the same policy only on the same CPU (docs/reproducibility.md), so a retrain here "
-            "is another policy; not trained (run this job on such a machine)"
+            "is another policy"
         )
     return None
+
+
+def not_table1_inputs(preset_cfg: dict, job: Job, table1: GridData) -> str | None:
+    """Why the training job ``job`` cannot learn Table I's policy of its method and seed on this machine, or None.
+
+    Checked before training, from Table I's record (``<method>/seed<k>/rl/run.json``): its run key, which hashes
+    the config and the upstream artifacts (the frozen encoder's digest among them), must be the key of the run here,
+    and it must have trained on this machine's CPU (:func:`_cpu`): on the CPU the same seed gives the same result on
+    the same machine only (docs/reproducibility.md), so an encoder pretrained again on another CPU, or a policy
+    trained on one, is another draw of the seed. A record without a key or machines (older than those fields) is not
+    judged on them; a job Table I has no record of, or a run already finished (a teacher restored from its record
+    trains nothing), None.
+    """
+    recorded = read_identity(table1.folder(job.method, job.seed) / "rl") or {}
+    run = _train_run(preset_cfg, job)
+    if not recorded or run is None or run.finished() is not None:
+        return None
+    import torch  # noqa: F401  (machine_info reads the ISA from torch only once it is imported)
+
+    why = _inputs_differ(job, run, recorded, _cpu(machine_info()))
+    return None if why is None else f"{why}; not trained (run this job on such a machine)"
 
 
 def _learning_differs(recorded: Path, here: Path) -> str | None:
@@ -543,7 +539,7 @@ def _learning_differs(recorded: Path, here: Path) -> str | None:
         return None
     a, b = (pd.read_csv(f) for f in (recorded, here))
     a = a[~a["metric"].astype(str).str.endswith("_s")]
-    both = a.merge(b, on=["step", "metric"], how="left", suffixes=("", "_here"), indicator=True)
+    both = a.merge(b, on=["step", "metric"], how="left", suffixes=("", "_here"))
     same = (both["value"] == both["value_here"]) | (both["value"].isna() & both["value_here"].isna())
     off = both[~same]
     if off.empty:
@@ -564,25 +560,23 @@ def not_table1_run(preset_cfg: dict, job: Job, table1: GridData) -> str | None:
     again on the same CPU reproduces bit for bit (:func:`_learning_differs`); a method or seed Table I has no record
     of is not judged here (None).
     """
-    recorded = _segments(table1.folder(job.method, job.seed) / "rl" / "run.json")
+    folder = table1.folder(job.method, job.seed) / "rl"
+    record = read_identity(folder) or {}
     run = _train_run(preset_cfg, job)
     if run is None:
         return None
-    ran_on = _cpus(_run_record(run.dir / "run.json"))
-    inputs = not_table1_inputs(preset_cfg, job, table1, ran_on[-1] if ran_on else None)
+    ran_on = _cpus(read_identity(run.dir) or {})
+    inputs = _inputs_differ(job, run, record, ran_on[-1] if ran_on else None)
     if inputs is not None:
-        return inputs.replace("; not trained", ": its episodes are not recorded").replace(
-            " (run this job on such a machine)", ""
-        )
-
-    here = _segments(run.dir / "run.json")
+        return f"{inputs}: its episodes are not recorded"
+    recorded, here = _segments(folder), _segments(run.dir)
     if recorded and here != recorded:
         return (
             f"{job.method} seed {job.seed}: the run in {run.dir} trained in stretches {here} (from_step, env_seed) "
             f"where Table I's trained in {recorded}: it is another policy, so its episodes are not recorded; move that "
             "run folder aside and run the grid again, which trains it in Table I's stretches"
         )
-    why = _learning_differs(table1.folder(job.method, job.seed) / "rl" / "metrics.csv.gz", run.dir / "metrics.csv")
+    why = _learning_differs(folder / "metrics.csv.gz", run.dir / "metrics.csv")
     if why is None:
         return None
     return (
@@ -598,7 +592,7 @@ def stretches(preset_cfg: dict, job: Job, table1: GridData) -> list[int]:
     policy (:func:`not_table1_run`). A checkpoint of an interrupted attempt at a step where Table I's run did not
     resume is moved aside first (``checkpoint.pt.diverges``), so the run trains from the start. Empty when Table I's
     run trained in one stretch or has no record."""
-    recorded = _segments(table1.folder(job.method, job.seed) / "rl" / "run.json")
+    recorded = _segments(table1.folder(job.method, job.seed) / "rl")
     run = _train_run(preset_cfg, job)
     if not recorded or run is None or run.finished() is not None:
         return []
