@@ -31,7 +31,9 @@
 #
 # --parts NAME: the folder under reference/<preset>/ the parts go to (default bundle-parts, the published bundle's).
 # Another seed's weights kept the same way (e.g. the look attribution's retrained seeds, issue 75) get a folder of
-# their own: --bundle-seed 3 --parts bundle-parts-seed3.
+# their own: --bundle-seed 3 --parts bundle-parts-seed3. The retrain grid's policies (table1-retrain: a seed whose
+# Table I run cannot be retrained as it was, trained again and flown in all three settings) are not Table I's, so
+# their parts go to a folder that says so: --grid table1-retrain --bundle-seed 0 --parts bundle-parts-retrain-seed0.
 #
 # --also GRID: after each variant of each seed is shipped, GRID's same variant and seed run and are shipped too. It is
 # for a grid that re-flies this grid's runs in other layouts (table1-confirm): a policy's weights live only on the
@@ -200,6 +202,9 @@ release() {  # $1: after what, $2: which grid; commits the teacher weights that 
 
 bundle_part() {  # $1: seed, $2: variant that just finished; packs, commits and retires its bundle part
   [[ "$1" == "$bundle_seed" ]] || return 0
+  # A part holds a method's weights: a variant that re-flies a method's run in other settings (table1-retrain's
+  # "<method> box-look") has none of its own.
+  "$py" -c 'import sys; from omcrl.rl.methods import METHODS; sys.exit(sys.argv[1] not in METHODS)' "$2" || return 0
   local sub="reference/$preset/$parts/$2"
   [[ -f "$root/$sub/MANIFEST.json" ]] && return 0
   echo "grid_session: packing $2 seed $1 as a part of the reference bundle ($sub)"

@@ -167,3 +167,18 @@ def test_the_pages_are_not_rebuilt_while_the_library_has_uncommitted_edits(check
     assert not any("summary --preset quick --readme" in c for c in calls)
     assert "the library has uncommitted edits: blocks not rebuilt" in out.stdout
     assert _git(checkout, "log", "--format=%s").splitlines()[0].startswith("table1 grid: seed 4, npe recorded")
+
+
+def test_a_retrain_grid_packs_a_methods_weights_once_not_its_box_look_flights(checkout: Path) -> None:
+    """Issue 75's retrain grid flies one run as two variants (``curl`` and ``curl box-look``): both are recorded and
+    committed, and the seed's bundle part is packed for the method alone (the box-look variant has no weights of
+    its own), into the folder --parts names."""
+    out, calls = _run(checkout, "--grid", "table1-retrain", "--seeds", "0", "--variants", "curl,curl box-look",
+                      "--bundle-seed", "0", "--parts", "bundle-parts-retrain-seed0")  # fmt: skip
+    assert out.returncode == 0, out.stdout + out.stderr
+    packs = [c.split("|", 1)[1] for c in calls if " --pack " in c]
+    assert len(packs) == 1 and "--methods curl --from" in packs[0] and "bundle-parts-retrain-seed0/curl" in packs[0]
+    for v in ("curl", "curl box-look"):
+        shown = _git(checkout, "show", f"HEAD:reference/quick/table1-retrain-v2/{v}/seed0/episodes.csv.gz")
+        assert shown.split() == ["table1-retrain", *v.split(), "0"]
+    assert (checkout / "reference/quick/bundle-parts-retrain-seed0/curl/runs.tar.xz.git.json").exists()

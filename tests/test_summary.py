@@ -343,6 +343,33 @@ def test_the_attribution_splits_a_loss_into_geometry_and_look_with_the_right_pai
     assert attribution(own, look.iloc[0:0]).empty
 
 
+def test_a_retrained_seed_replaces_table1s_run_of_it_in_all_three_settings():
+    """Issue 75: a seed the retrain grid flew in both its variants is taken whole from there (box-v2, box's look and
+    the own look all its own), Table I's run of that seed left out, even where the box-look grid also flew it; a
+    seed retrained in one variant only changes nothing; the block says how many seeds were retrained."""
+    import pandas as pd
+
+    from omcrl.pipeline.why import attribution, attribution_block
+
+    def eps(scene, rate, seeds, label="ours"):
+        return [{"method": "ours", "label": label, "scene": scene, "train_seed": s, "seed": 1_000_000 + k,
+                 "episode": k, "success": k % 10 < rate // 10} for s in seeds for k in range(20)]  # fmt: skip
+
+    own = pd.DataFrame(eps("box-v2", 80, (0, 1, 2)) + eps("tree-v2", 30, (0, 1, 2)))
+    look = pd.DataFrame(eps("tree-v2", 60, (1, 2)) + eps("tree-v2", 0, (0,)))  # a Table I seed 0 that must go
+    retrain = pd.DataFrame(
+        eps("box-v2", 50, (0,)) + eps("tree-v2", 50, (0,)) + eps("tree-v2", 50, (0,), "ours box-look")
+    )
+    r = attribution(own, look, reps=200, retrain=retrain).set_index("scene").loc["tree-v2"]
+    assert (r.seeds, r.retrained) == (3, 1)
+    # Seeds 1-2 from Table I (80 / 60 / 30) and seed 0 retrained (50 / 50 / 50), every step a mean over three seeds.
+    assert (round(r.box, 6), round(r.box_look, 6), round(r.own, 6)) == (70.0, round(170 / 3, 6), round(110 / 3, 6))
+    assert "| Ours | 3 (1 retrained) | 70 [" in attribution_block(table=attribution(own, look, 200, retrain))
+    half = retrain[retrain["label"] == "ours"]  # its box-look flights not recorded: Table I's seed 0 stays
+    r = attribution(own, look, reps=200, retrain=half).set_index("scene").loc["tree-v2"]
+    assert (r.retrained, r.box, r.box_look) == (0, 80.0, 40.0)
+
+
 def test_a_templates_paragraphs_are_joined_and_a_value_it_lacks_is_an_error():
     """The generated pages' words live in templates (omcrl/pipeline/templates): a paragraph written over several lines
     is one line before wrapping, table rows and list items keep their lines, a trailing backslash breaks a line, and

@@ -779,6 +779,26 @@ def test_table1s_confirmation_grid_reuses_its_training_and_flies_layouts_it_neve
     assert "table1-confirm" in grids.FULL_BUDGET_GRIDS and "table1-confirm" in grids.EVAL_ONLY_GRIDS
 
 
+def test_the_retrain_grid_trains_table1s_jobs_once_and_flies_them_in_both_looks():
+    """Issue 75's retrain grid: Table I's training jobs (the same ids: a run finished on this machine is found, not
+    trained again), each flown in Table I's evaluation and in box-v2's look; a grid that keeps its runs' records
+    (not one of the eval-only grids that re-fly Table I's own policies), at the preset's budgets, no oracle variant."""
+    from omcrl.config import load_config
+    from omcrl.pipeline.plan import expand, job_config
+
+    base = load_config("quick")
+    table1 = [j for j in expand(base, "table1", [0]) if j.method in ("curl", "ours-noOT")]
+    retrain = [j for j in expand(base, "table1-retrain", [0]) if j.method in ("curl", "ours-noOT")]
+    assert [j.id for j in retrain if j.kind != "evaluate"] == [j.id for j in table1 if j.kind != "evaluate"]
+    flights = {j.label: job_config(base, j.overrides, 0).eval for j in retrain if j.kind == "evaluate"}
+    assert list(flights) == ["ours-noOT", "ours-noOT box-look", "curl", "curl box-look"]
+    assert flights["curl"] == base.eval  # Table I's evaluation, box-v2 included
+    assert flights["curl box-look"].look == "box-v2" and "box-v2" not in flights["curl box-look"].scenes
+    assert "table1-retrain" in grids.FULL_BUDGET_GRIDS and "table1-retrain" not in grids.EVAL_ONLY_GRIDS
+    assert "table1-retrain" not in grids.ABLATION_GRIDS
+    assert not any(v.method == "oracle" for v in grids.GRIDS["table1-retrain"])
+
+
 def test_what_a_grid_still_costs_is_its_jobs_at_the_measured_rates_and_says_when_a_kind_has_none(tmp_path, monkeypatch):
     """rest_hours prices the jobs no record holds at the median and upper quartile of the rates the checkout's
     jobs.csv measured: by hand, each job's work / rate; a kind with no measured rate gives no hours (NaN), not a

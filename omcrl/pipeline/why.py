@@ -17,6 +17,7 @@ from omcrl.config import load_config
 from omcrl.eval.stats import Term, cell_rng, contrast, term
 from omcrl.interpret.transfer import DETOUR_BINS, layout_stats, with_detour_bins
 from omcrl.pipeline.griddata import GridData, grid_data_dir
+from omcrl.pipeline.grids import RETRAIN_LOOK
 from omcrl.pipeline.pages import render
 from omcrl.planners import LABELS as PLANNER_LABELS
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
@@ -100,22 +101,51 @@ def attribution_table(preset: str = "quick", reps: int = 2000) -> pd.DataFrame:
     * ``look`` = own − box_look (seeds and layouts paired: the same episodes' starts and goals): what the scene's
       look costs on its own layouts.
 
-    Only methods and seeds flown in both grids enter; ``seeds`` counts them. Empty while the box-look grid holds
-    nothing.
+    Only methods and seeds flown in both grids enter; ``seeds`` counts them. A seed the retrain grid
+    (``table1-retrain``: Table I's run of it could not be retrained as it was) flew in both its variants is taken
+    whole from there, in place of Table I's run of that seed; ``retrained`` counts those. Empty while the box-look
+    grid holds nothing.
     """
     with tempfile.TemporaryDirectory() as tmp:
         cfg = load_config(preset, overrides=[f"results_dir={tmp}"])
         own = GridData(grid_data_dir(cfg, "table1")).episodes()
         look = GridData(grid_data_dir(cfg, "table1-boxlook")).episodes()
-    return attribution(own, look, reps)
+        retrain = GridData(grid_data_dir(cfg, "table1-retrain")).episodes()
+    return attribution(own, look, reps, retrain)
 
 
-def attribution(own: pd.DataFrame, look: pd.DataFrame, reps: int = 2000) -> pd.DataFrame:
+def with_retrained(own: pd.DataFrame, look: pd.DataFrame, retrain: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``own`` and ``look`` with every (method, training seed) that ``retrain`` flew in both its variants (``<method>``
+    in Table I's evaluation, ``<method> box-look`` in box-v2's look: :data:`omcrl.pipeline.grids.RETRAIN_LOOK`)
+    taken from ``retrain`` in place of Table I's run of that seed: a retrained policy is another policy, so all three
+    of its SRs are its own and none is paired with Table I's. A bool column ``retrained`` marks the rows taken."""
+    own, look = own.assign(retrained=False), look.assign(retrained=False)
+    if retrain.empty:
+        return own, look
+    boxlook = retrain["label"].astype(str).str.endswith(RETRAIN_LOOK)
+    mine, theirs = retrain[~boxlook & (retrain["label"] == retrain["method"])], retrain[boxlook]
+    whole = set(zip(mine["method"], mine["train_seed"])) & set(zip(theirs["method"], theirs["train_seed"]))
+    if not whole:
+        return own, look
+
+    def swap(table: pd.DataFrame, new: pd.DataFrame) -> pd.DataFrame:
+        keep = [(m, s) not in whole for m, s in zip(table["method"], table["train_seed"])]
+        took = [(m, s) in whole for m, s in zip(new["method"], new["train_seed"])]
+        return pd.concat([table[keep], new[took].assign(retrained=True)], ignore_index=True)
+
+    return swap(own, mine), swap(look, theirs)
+
+
+def attribution(
+    own: pd.DataFrame, look: pd.DataFrame, reps: int = 2000, retrain: pd.DataFrame | None = None
+) -> pd.DataFrame:
     """:func:`attribution_table` from the episodes themselves: ``own`` (Table I's, with box-v2 and the unseen scenes)
     and ``look`` (the unseen scenes in box-v2's look); one row per episode with ``method``, ``scene``,
-    ``train_seed``, the layout ``seed`` and ``success``."""
+    ``train_seed``, the layout ``seed`` and ``success``. ``retrain``: the retrain grid's episodes (with ``label``),
+    whose whole seeds replace Table I's (:func:`with_retrained`)."""
     if look.empty or own.empty:
         return pd.DataFrame()
+    own, look = with_retrained(own, look, pd.DataFrame() if retrain is None else retrain)
     rows = []
     learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
     for method in [m for m in learned if m in set(look["method"])]:
@@ -135,7 +165,8 @@ def attribution(own: pd.DataFrame, look: pd.DataFrame, reps: int = 2000) -> pd.D
                 ],
                 "look": [_sr_term(o, method, scene, scene, 1.0), _sr_term(lk, method, scene, scene, -1.0)],
             }
-            row: dict = {"method": method, "scene": scene, "seeds": len(seeds)}
+            again = set(o.loc[o["retrained"], "train_seed"])
+            row: dict = {"method": method, "scene": scene, "seeds": len(seeds), "retrained": len(again)}
             for name, terms in parts.items():
                 if any(t is None for t in terms):
                     row[name] = row[f"{name}_lo"] = row[f"{name}_hi"] = math.nan
@@ -159,8 +190,12 @@ def attribution_block(preset: str = "quick", table: pd.DataFrame | None = None) 
         f = "{:+.0f}" if sign else "{:.0f}"
         return f"{f.format(v)} [{f.format(lo)}, {f.format(hi)}]".replace("-", "−")  # a minus sign, as every table
 
+    def seeds(r: pd.Series) -> str:
+        again = int(r.get("retrained", 0))
+        return f"{r['seeds']} ({again} retrained)" if again else str(r["seeds"])
+
     scenes = [
-        (scene, [[method_label(r["method"]), str(r["seeds"]), ci(r, "box"), ci(r, "box_look"), ci(r, "own"),
+        (scene, [[method_label(r["method"]), seeds(r), ci(r, "box"), ci(r, "box_look"), ci(r, "own"),
                   ci(r, "geometry", True), ci(r, "look", True)] for _, r in g.iterrows()])
         for scene, g in (t.groupby("scene", sort=False) if len(t) else ())
     ]  # fmt: skip
