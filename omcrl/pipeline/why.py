@@ -114,24 +114,28 @@ def attribution_table(preset: str = "quick", reps: int = 2000) -> pd.DataFrame:
     return attribution(own, look, reps, retrain)
 
 
-def with_retrained(own: pd.DataFrame, look: pd.DataFrame, retrain: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+def _runs(episodes: pd.DataFrame) -> pd.MultiIndex:
+    """The (method, training seed) of each episode."""
+    return pd.MultiIndex.from_frame(episodes[["method", "train_seed"]])
+
+
+def with_retrained(
+    own: pd.DataFrame, look: pd.DataFrame, retrain: pd.DataFrame | None
+) -> tuple[pd.DataFrame, pd.DataFrame]:
     """``own`` and ``look`` with every (method, training seed) that ``retrain`` flew in both its variants (``<method>``
     in Table I's evaluation, ``<method> box-look`` in box-v2's look: :data:`omcrl.pipeline.grids.RETRAIN_LOOK`)
     taken from ``retrain`` in place of Table I's run of that seed: a retrained policy is another policy, so all three
     of its SRs are its own and none is paired with Table I's. A bool column ``retrained`` marks the rows taken."""
     own, look = own.assign(retrained=False), look.assign(retrained=False)
-    if retrain.empty:
+    if retrain is None or retrain.empty:
         return own, look
     boxlook = retrain["label"].astype(str).str.endswith(RETRAIN_LOOK)
     mine, theirs = retrain[~boxlook & (retrain["label"] == retrain["method"])], retrain[boxlook]
-    whole = set(zip(mine["method"], mine["train_seed"])) & set(zip(theirs["method"], theirs["train_seed"]))
-    if not whole:
-        return own, look
+    whole = _runs(mine).intersection(_runs(theirs))
 
     def swap(table: pd.DataFrame, new: pd.DataFrame) -> pd.DataFrame:
-        keep = [(m, s) not in whole for m, s in zip(table["method"], table["train_seed"])]
-        took = [(m, s) in whole for m, s in zip(new["method"], new["train_seed"])]
-        return pd.concat([table[keep], new[took].assign(retrained=True)], ignore_index=True)
+        took = new[_runs(new).isin(whole)].assign(retrained=True)
+        return pd.concat([table[~_runs(table).isin(whole)], took], ignore_index=True)
 
     return swap(own, mine), swap(look, theirs)
 
@@ -145,7 +149,7 @@ def attribution(
     whose whole seeds replace Table I's (:func:`with_retrained`)."""
     if look.empty or own.empty:
         return pd.DataFrame()
-    own, look = with_retrained(own, look, pd.DataFrame() if retrain is None else retrain)
+    own, look = with_retrained(own, look, retrain)
     rows = []
     learned = [m for m in TABLE1_METHODS if METHODS[m].learned]
     for method in [m for m in learned if m in set(look["method"])]:
@@ -154,6 +158,7 @@ def attribution(
         )
         o = own[(own["method"] == method) & own["train_seed"].isin(seeds)]
         lk = look[(look["method"] == method) & look["train_seed"].isin(seeds)]
+        again = o.loc[o["retrained"], "train_seed"].nunique()
         for scene in SUITES["v2"][1:]:
             parts = {
                 "box": [_sr_term(o, method, TRAIN_SCENE, TRAIN_SCENE, 1.0)],
@@ -165,8 +170,7 @@ def attribution(
                 ],
                 "look": [_sr_term(o, method, scene, scene, 1.0), _sr_term(lk, method, scene, scene, -1.0)],
             }
-            again = set(o.loc[o["retrained"], "train_seed"])
-            row: dict = {"method": method, "scene": scene, "seeds": len(seeds), "retrained": len(again)}
+            row: dict = {"method": method, "scene": scene, "seeds": len(seeds), "retrained": again}
             for name, terms in parts.items():
                 if any(t is None for t in terms):
                     row[name] = row[f"{name}_lo"] = row[f"{name}_hi"] = math.nan
