@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import json
 import os
 import tempfile
 from collections.abc import Callable, Iterator
@@ -129,9 +130,25 @@ def repo_root() -> Path:
 
 
 @pytest.fixture(scope="session")
-def pages() -> dict:
+def pages(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Every generated block of the pages rebuilt once from ``reference/quick/`` (:func:`omcrl.pipeline.glance.
-    page_blocks`), for the tests that check a page against its data: ``{page: {start marker: block}}``."""
+    page_blocks`), for the tests that check a page against its data: ``{page: {start marker: block}}``.
+
+    Built once per run, not once per xdist worker (about 75 s of work each): the first worker to ask writes the
+    blocks as JSON beside the workers' temporary folders (one parent per run), the others wait on its lock and read.
+    """
     from omcrl.pipeline.glance import page_blocks
 
-    return {page: {start: block for block, start, _ in blocks} for page, blocks in page_blocks("quick").items()}
+    def build() -> dict:
+        return {page: {start: block for block, start, _ in blocks} for page, blocks in page_blocks("quick").items()}
+
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return build()
+    shared = tmp_path_factory.getbasetemp().parent / "pages.json"
+    with open(shared.with_suffix(".lock"), "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not shared.exists():
+            tmp = shared.with_suffix(".tmp")
+            tmp.write_text(json.dumps(build()), encoding="utf-8")
+            tmp.replace(shared)
+        return json.loads(shared.read_text(encoding="utf-8"))
