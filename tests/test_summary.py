@@ -436,3 +436,24 @@ def test_every_generated_block_of_the_pages_is_what_the_data_gives(repo_root, pa
         for start, block in blocks.items():
             end = start.split(":")[0] + ": end -->"  # "<!-- name: start (...) -->" ends at "<!-- name: end -->"
             assert current_block(text, page, start, end) == block, f"{page}: {start}"
+
+
+def test_tables_from_reference_writes_the_why_tables_as_the_page_shows_them(tmp_path, monkeypatch):
+    """`tables --from-reference` writes the attribution and the teacher's ceiling beside Table I: the CSV is the
+    table, the .md the block docs/results.md shows; a table with no data is not written."""
+    import pandas as pd
+
+    from omcrl.pipeline import why
+
+    row = {"method": "ours", "scene": "tree-v2", "seeds": 3, "retrained": 1}
+    for i, name in enumerate(("box", "box_look", "own", "geometry", "look")):
+        row |= {name: 80.0 - 10 * i, f"{name}_lo": 70.0 - 10 * i, f"{name}_hi": 90.0 - 10 * i}
+    att = pd.DataFrame([row])
+    monkeypatch.setattr(why, "attribution_table", lambda preset: att)
+    monkeypatch.setattr(why, "detour_table", lambda preset: pd.DataFrame())
+    paths = why.write_why_tables("quick", tmp_path)
+    assert sorted(paths) == ["why_attribution.csv", "why_attribution.md"]
+    assert (tmp_path / "why_attribution.md").read_text(encoding="utf-8") == why.attribution_block("quick", att) + "\n"
+    assert "3 (1 retrained)" in (tmp_path / "why_attribution.md").read_text(encoding="utf-8")
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "why_attribution.csv"), att, check_dtype=False)
+    assert not (tmp_path / "why_detour.csv").exists()

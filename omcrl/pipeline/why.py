@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import tempfile
+from pathlib import Path
 
 import pandas as pd
 
@@ -22,6 +23,7 @@ from omcrl.pipeline.pages import render
 from omcrl.planners import LABELS as PLANNER_LABELS
 from omcrl.rl.methods import METHODS, TABLE1_METHODS
 from omcrl.scenes import SUITES
+from omcrl.utils.io import atomic_write_text
 
 WHY_DETOUR_START = "<!-- why-detour-v2: start (python -m omcrl summary --preset quick --readme writes this block) -->"
 WHY_DETOUR_END = "<!-- why-detour-v2: end -->"
@@ -204,3 +206,23 @@ def attribution_block(preset: str = "quick", table: pd.DataFrame | None = None) 
         for scene, g in (t.groupby("scene", sort=False) if len(t) else ())
     ]  # fmt: skip
     return render("why_look_v2.md.j2", preset=preset, train=TRAIN_SCENE, scenes=scenes)
+
+
+def write_why_tables(preset: str, out: str | Path) -> dict[str, Path]:
+    """The section's two tables as files beside Table I (``tables --from-reference`` writes them):
+    ``why_attribution.{csv,md}`` (:func:`attribution_table`) and ``why_detour.{csv,md}`` (:func:`detour_table`), the
+    ``.md`` the same block docs/results.md shows. A table with no data (no box-look flights yet) is not written.
+    Returns ``{file name: path}`` of what was written."""
+    out = Path(out)
+    paths: dict[str, Path] = {}
+    for name, build, block in (
+        ("why_attribution", attribution_table, attribution_block),
+        ("why_detour", detour_table, detour_block),
+    ):
+        t = build(preset)
+        if t.empty:
+            continue
+        for ext, text in (("csv", t.to_csv(index=False)), ("md", block(preset, table=t) + "\n")):
+            paths[f"{name}.{ext}"] = out / f"{name}.{ext}"
+            atomic_write_text(paths[f"{name}.{ext}"], text)
+    return paths
