@@ -22,8 +22,8 @@ def tables_stage(
     """CLI stage ``tables``: evaluate every finished run and write Table I (:func:`omcrl.eval.table1.tables_stage`),
     or with ``--from-reference`` rebuild it from the data of ``grid`` in the checkout (:func:`omcrl.pipeline.
     griddata.tables_from_reference`; for ``table1`` also the attribution and the teacher's ceiling,
-    :func:`omcrl.pipeline.why.write_why_tables`); ``--grid ablations --from-reference``: Tables II–III, Figs. 7–10 and the six
-    findings from the ablation grids' data (:func:`omcrl.pipeline.ablations.ablations_from_reference`).
+    :func:`omcrl.pipeline.why.write_why_tables`); ``--grid ablations --from-reference``: Tables II–III, Figs. 7–10
+    and the six findings from the ablation grids' data (:func:`omcrl.pipeline.ablations.ablations_from_reference`).
     """
     known = [*TABLE1_GRIDS, ABLATIONS]
     if grid not in known:
