@@ -692,7 +692,7 @@ def load_config(
 @functools.lru_cache(maxsize=256)
 def _parse_yaml(text: str) -> Any:
     # Keyed by the file's text, so an edited file is parsed again. A sweep's plan loads the preset and its configs
-    # for every job (about 1,800 loads in one summary --readme, 13 s of YAML parsing of a few distinct files).
+    # for every job: about 1,800 loads of a few distinct files in one summary --readme (68.3 -> 64.4 s with this).
     return yaml.safe_load(text) or {}
 
 

@@ -138,6 +138,7 @@ def pages(tmp_path_factory: pytest.TempPathFactory) -> dict:
     blocks as JSON beside the workers' temporary folders (one parent per run), the others wait on its lock and read.
     """
     from omcrl.pipeline.glance import page_blocks
+    from omcrl.utils.io import atomic_write_text
 
     def build() -> dict:
         return {page: {start: block for block, start, _ in blocks} for page, blocks in page_blocks("quick").items()}
@@ -148,7 +149,5 @@ def pages(tmp_path_factory: pytest.TempPathFactory) -> dict:
     with open(shared.with_suffix(".lock"), "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
         if not shared.exists():
-            tmp = shared.with_suffix(".tmp")
-            tmp.write_text(json.dumps(build()), encoding="utf-8")
-            tmp.replace(shared)
+            atomic_write_text(shared, json.dumps(build()))
         return json.loads(shared.read_text(encoding="utf-8"))
