@@ -226,6 +226,17 @@ def test_a_notebook_number_may_drop_its_zero_and_a_wrong_one_is_refused_before_a
     assert "--skip 77" in capsys.readouterr().err
 
 
+def test_the_choice_check_loads_neither_torch_nor_the_evaluation_stack():
+    """reproduce.sh runs check_choice before any work: the module it imports must not pull in torch (it did through
+    the summary, 8 s of a refusal under load); checked in a fresh interpreter, whose modules this process cannot see."""
+    import subprocess
+    import sys
+
+    code = "import sys; import omcrl.pipeline.notebooks; print(sorted({'torch', 'omcrl.eval'} & set(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]"
+
+
 def test_a_notebooks_banner_gives_the_estimate_the_chains_plan_gives():
     """Each notebook's first line and the chain's plan estimate alike, from the suite in use: training and Table I
     notebooks from the grid's measured jobs (jobs.csv), 08 and 09 from their v2 measurement, not the v1 table."""

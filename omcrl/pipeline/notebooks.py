@@ -34,7 +34,6 @@ from typing import Any
 
 from omcrl.config import PRESETS, ConfigError, overrides_from_config, resolve_path
 from omcrl.pipeline.expected import chain_plan, grid_evaluation_seconds, grid_training_seconds, notebook_estimate
-from omcrl.pipeline.summary import write_summary
 from omcrl.scenes import suite_of
 from omcrl.utils.io import atomic_write_text
 from omcrl.utils.memory import PeakRSS
@@ -515,6 +514,10 @@ def notebooks_stage(cfg: Any, only: Sequence[str] | None = None, skip: Sequence[
         eval_s=grid_evaluation_seconds(cfg.preset, suite),
         suite=suite,
     )
+    # Imported here: the summary pulls in torch and the evaluation stack (about 4 s), and reproduce.sh imports this
+    # module to check --only / --skip before any work.
+    from omcrl.pipeline.summary import write_summary
+
     path = write_summary(cfg)
     print(path.read_text(encoding="utf-8"))
     print(f"[notebooks] summary: {path}", flush=True)
