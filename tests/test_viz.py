@@ -5,6 +5,7 @@ from __future__ import annotations
 import matplotlib.colors as mcolors
 import numpy as np
 
+from omcrl.rl.methods import TABLE1_METHODS
 from omcrl.viz import METHOD_COLORS, method_color, save_figure
 from omcrl.viz.compare import plot_learning_curves, seed_curves
 
@@ -36,6 +37,10 @@ def test_learning_curves_average_seeds_with_a_band_and_keep_each_methods_colour(
     assert mcolors.same_color(lines["Ours (3 seeds)"].get_color(), METHOD_COLORS["ours"])
     assert mcolors.same_color(lines["PPO (2 seeds)"].get_color(), METHOD_COLORS["ppo"])
     assert ax.get_ylim() == (-0.02, 1.02) and ax.get_xlabel() == "env steps"
+    fig.canvas.draw()  # the legend clear of the data: outside every panel, inside the figure (issue 78)
+    legend = ax.get_legend().get_window_extent()
+    assert not any(legend.overlaps(a.get_window_extent()) for a in fig.axes)
+    assert fig.bbox.contains(legend.x1 - 1, legend.y0 + 1) and fig.bbox.contains(legend.x0, legend.y1 - 1)
     png = save_figure(fig, tmp_path / "figures", "fig5")
     assert png.suffix == ".png" and png.stat().st_size > 10_000
 
@@ -45,6 +50,9 @@ def test_a_method_has_one_colour_by_name_or_by_label():
     assert method_color("HybridAPF") == method_color("hybrid-apf")
     assert len({METHOD_COLORS[m] for m in METHOD_COLORS if m != "HybridAPF"}) == len(METHOD_COLORS) - 1
     assert method_color("something else") == "#4c72b0"
+    # Table I's rows, the controls among them, each in a colour of its own.
+    assert len({method_color(m) for m in TABLE1_METHODS}) == len(TABLE1_METHODS)
+    assert "#4c72b0" not in {method_color(m) for m in TABLE1_METHODS}
 
 
 def test_the_ledger_figure_stacks_each_claims_hypotheses_by_verdict():

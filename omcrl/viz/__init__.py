@@ -32,6 +32,8 @@ METHOD_COLORS = {
     "npe-ot": "#98df8a",
     "npe-expert": "#17becf",
     "ours-lapf": "#e377c2",
+    "ours-random": "#b8860b",  # the controls: without colours of their own both drew in the default blue
+    "ours-blind": "#393b79",
     "curl": "#9467bd",
     "curl-phi": "#c5b0d5",
     "ppo": "#8c564b",
