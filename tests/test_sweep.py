@@ -308,6 +308,10 @@ def test_ablation_tables_and_figures(tmp_path):
     for grid in (*FIGURES, "decay"):
         name, fig = plot_ablation(grid, table)
         assert fig.axes and name
+        fig.canvas.draw()  # a legend, where there is one, clear of every panel (issue 78: legends clear of the data)
+        for legend in [a.get_legend() for a in fig.axes if a.get_legend() is not None]:
+            box = legend.get_window_extent()
+            assert not any(box.overlaps(a.get_window_extent()) for a in fig.axes if a.name != "polar"), (grid, name)
 
 
 def test_normalised_metrics_are_fractions_of_the_best_variant():

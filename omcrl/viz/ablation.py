@@ -23,6 +23,9 @@ def _scenes(table: pd.DataFrame) -> list[str]:
     return list(dict.fromkeys(table.index.get_level_values("scene")))
 
 
+LEGEND_RIGHT = {"loc": "upper left", "bbox_to_anchor": (1.02, 1.0), "borderaxespad": 0.0}
+
+
 def _variants(table: pd.DataFrame) -> list[str]:
     return list(dict.fromkeys(table.index.get_level_values("method")))
 
@@ -31,7 +34,8 @@ def plot_mask_prob(table: pd.DataFrame, reference: str = "CURL") -> plt.Figure:
     """Fig. 7: NE, SR, SPL, CR against the masking probability ρ per scene, CURL as a dashed line."""
     rho = {v: float(m.group(1)) for v in _variants(table) if (m := re.match(r"rho=([0-9.]+)", v))}
     order = sorted(rho, key=rho.get)
-    fig, axes = plt.subplots(1, len(FIG_METRICS), figsize=(3.2 * len(FIG_METRICS), 3.0))
+    # Legends right of the panels, in this figure and the bars: inside one they hid points (fig7 on v2, rho = 0.9).
+    fig, axes = plt.subplots(1, len(FIG_METRICS), figsize=(3.2 * len(FIG_METRICS) + 1.6, 3.0))
     for ax, metric in zip(axes, FIG_METRICS):
         for i, sc in enumerate(_scenes(table)):
             y = [table.loc[(v, sc), metric] for v in order]
@@ -44,7 +48,7 @@ def plot_mask_prob(table: pd.DataFrame, reference: str = "CURL") -> plt.Figure:
                 ax.axhline(table.loc[(reference, sc), metric], color=f"C{i}", ls="--", lw=1)
         ax.set_xlabel("masking probability ρ")
         ax.set_title(metric)
-    axes[0].legend(fontsize=7, title=f"dashed: {reference}", title_fontsize=7)
+    axes[-1].legend(fontsize=7, title=f"dashed: {reference}", title_fontsize=7, **LEGEND_RIGHT)
     fig.tight_layout()
     return fig
 
@@ -95,7 +99,7 @@ def plot_bars(table: pd.DataFrame, metric: str = "SR", title: str = "") -> plt.F
     """Fig. 9: ``metric`` per scene (groups) and variant (bars) with 95 % CIs (training seeds and layouts
     crossed, :func:`omcrl.eval.stats.aggregate`)."""
     scenes, variants = _scenes(table), _variants(table)
-    fig, ax = plt.subplots(figsize=(1.5 + 1.6 * len(scenes), 3.4))
+    fig, ax = plt.subplots(figsize=(2.9 + 1.6 * len(scenes), 3.4))
     w = 0.8 / len(variants)
     for i, v in enumerate(variants):
         x = np.arange(len(scenes)) + (i - (len(variants) - 1) / 2) * w
@@ -109,7 +113,7 @@ def plot_bars(table: pd.DataFrame, metric: str = "SR", title: str = "") -> plt.F
         ax.set_ylim(0, 105)
     ax.set_xlabel("evaluation scene (trained in box only)")
     ax.set_ylabel(UNIT_LABEL.get(metric, metric))
-    ax.legend(fontsize=7, title="variant; bars: 95 % CI", title_fontsize=7)
+    ax.legend(fontsize=7, title="variant; bars: 95 % CI", title_fontsize=7, **LEGEND_RIGHT)
     ax.set_title(title or f"{UNIT_LABEL.get(metric, metric)} per scene and variant", fontsize=9)
     fig.tight_layout()
     return fig
