@@ -24,6 +24,9 @@ ALLOWED_FUNCTION_IMPORTS = {
     "omcrl/__main__.py": 15,
     # PyBullet loads in the evaluation worker that flies, not with omcrl.eval (~1.8 s for every table reader).
     "omcrl/eval/runner.py": 1,
+    # The chain's summary: reproduce.sh checks --only / --skip through this module before any work (0.36 s, against
+    # 8.4 s with the summary's PyTorch and evaluation stack under two training runs).
+    "omcrl/pipeline/notebooks.py": 1,
     # method_color's label lookup: `import omcrl.viz` stays free of PyTorch (0.05 s against ~1.4 s).
     "omcrl/viz/__init__.py": 1,
 }
