@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -229,9 +230,6 @@ def test_a_notebook_number_may_drop_its_zero_and_a_wrong_one_is_refused_before_a
 def test_the_choice_check_loads_neither_torch_nor_the_evaluation_stack():
     """reproduce.sh runs check_choice before any work: the module it imports must not pull in torch (it did through
     the summary, 8 s of a refusal under load); checked in a fresh interpreter, whose modules this process cannot see."""
-    import subprocess
-    import sys
-
     code = "import sys; import omcrl.pipeline.notebooks; print(sorted({'torch', 'omcrl.eval'} & set(sys.modules)))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
@@ -240,8 +238,6 @@ def test_the_choice_check_loads_neither_torch_nor_the_evaluation_stack():
 def test_every_page_quotes_performance_mds_estimate_of_the_v2_chain():
     """The v2 ``--skip 06`` chain's wall time, not measured end to end: performance.md's table row is the estimate,
     and the README's quick start, usage.md and the quick preset quote it (they gave 5 h, 6 h 20 min, 7 h 11 min)."""
-    import re
-
     root = project_root()
     row = next(ln for ln in (root / "docs/performance.md").read_text(encoding="utf-8").splitlines()
                if ln.startswith("| `--skip 06` on v2"))  # fmt: skip
