@@ -3,7 +3,7 @@
 #
 #   scripts/grid_session.sh [--grid table1] [--seeds 0,1,2,3,4] [--variants oracle,ours,...] [--dir ../omcrl-grid]
 #                           [--backend local|ray] [--bundle-seed 2|none] [--parts bundle-parts] [--by seed|variant]
-#                           [--also GRID] [--set FIELD=VALUE ...]
+#                           [--also GRID] [--set FIELD=VALUE ...] [--ship-only]
 #
 # A session is shorter than the grid (about 6 machine-hours a seed at the quick preset), so this is what a session
 # starts first, in the background, with its log on disk:
@@ -39,6 +39,16 @@
 # for a grid that re-flies this grid's runs in other layouts (table1-confirm): a policy's weights live only on the
 # machine that trained it (only the records are committed), so the other grid flies it before a session ends.
 #
+# --ship-only: run nothing; commit what the worktree (--dir) recorded since the last ship, as a finished variant's
+# ship does (records, a teacher's weights, the pages). A variant is shipped when it ends, and one longer than a session
+# (the RL ladder's: its oracle x3, then its student) would otherwise lose its finished teacher with the machine. At
+# the end of a session: stop the stream (kill -INT the sweep; a training keeps its last checkpoint), then
+#
+#   scripts/grid_session.sh --grid ladder-rl --dir ../omcrl-grid-rl --ship-only
+#
+# The next session, on any machine, finds the teacher recorded and trains only its student. Refused while a sweep
+# runs in that worktree (a record half written would be committed).
+#
 # --variants: labels of the grid's variants, in the order to run them (default: Table I's teacher-first order for
 # table1 and table1-confirm, every variant of any other grid in its order, e.g. --grid decay runs linear, exp, fixed).
 #
@@ -63,6 +73,7 @@ bundle_seed=default
 parts=bundle-parts
 by=seed
 also=""
+ship_only=""
 sets=()
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 dir="$(dirname "$root")/omcrl-grid"
@@ -78,6 +89,7 @@ while [[ $# -gt 0 ]]; do
     --parts) parts="$2"; shift 2 ;;
     --by) by="$2"; shift 2 ;;
     --also) also="$2"; shift 2 ;;
+    --ship-only) ship_only=1; shift ;;
     --set) sets+=(--set "$2"); shift 2 ;;  # e.g. --set sweep.storage=/shared/omcrl (an embedded Ray resumes from it)
     *) echo "grid_session: unknown argument $1" >&2; exit 2 ;;
   esac
@@ -114,7 +126,19 @@ print(",".join(v.label for v in grid_variants(sys.argv[1])))' "$grid")" || exit 
   fi
 fi
 
-if [[ ! -d "$dir" ]]; then
+if [[ -n "$ship_only" ]]; then
+  [[ -d "$dir" ]] || { echo "grid_session: --ship-only: no worktree $dir (nothing recorded to ship)" >&2; exit 2; }
+  for proc in /proc/[0-9]*; do
+    [[ "$(readlink "$proc/cwd" 2>/dev/null)" == "$(cd "$dir" && pwd -P)" ]] || continue
+    if tr '\0' ' ' <"$proc/cmdline" 2>/dev/null | grep -q -- "-m omcrl sweep"; then
+      echo "grid_session: --ship-only: a sweep runs in $dir (pid ${proc#/proc/}); stop it first (kill -INT ${proc#/proc/})" >&2
+      exit 2
+    fi
+  done
+fi
+if [[ -n "$ship_only" ]]; then
+  :  # the worktree stays at the commit its sweep ran (checking it out again would not touch results/ or reference/)
+elif [[ ! -d "$dir" ]]; then
   git -C "$root" worktree add --detach "$dir" HEAD >/dev/null
 else
   # A worktree left by an earlier session: bring it to this checkout's HEAD (what it recorded was committed here by
@@ -224,6 +248,11 @@ bundle_part() {  # $1: seed, $2: variant that just finished; packs, commits and 
   echo "grid_session: committed and retired the bundle part $2"
 }
 
+if [[ -n "$ship_only" ]]; then
+  ship "what the stream finished before it was stopped"
+  [[ -n "$also" ]] && ship "what the stream finished before it was stopped" "$also"
+  exit 0
+fi
 release "an earlier session" "$grid"
 IFS=, read -r -a seed_list <<<"$seeds"
 IFS=, read -r -a variant_list <<<"$variants"

@@ -182,3 +182,34 @@ def test_a_retrain_grid_packs_a_methods_weights_once_not_its_box_look_flights(ch
         shown = _git(checkout, "show", f"HEAD:reference/quick/table1-retrain-v2/{v}/seed0/episodes.csv.gz")
         assert shown.split() == ["table1-retrain", *v.split(), "0"]
     assert (checkout / "reference/quick/bundle-parts-retrain-seed0/curl/runs.tar.xz.git.json").exists()
+
+
+def test_ship_only_commits_what_a_stopped_stream_recorded_and_runs_nothing(checkout: Path) -> None:
+    """--ship-only at a session's end: a variant longer than a session (the RL ladder's oracle, then its student)
+    keeps its finished teacher when the stream is stopped; nothing is trained, and a running sweep is refused."""
+    out, _ = _run(checkout, "--grid", "ladder-rl", "--seeds", "0", "--variants", "ours RL x3")
+    assert out.returncode == 0, out.stdout + out.stderr
+    wt = checkout.parent / "wt"
+    teacher = wt / "reference/quick/ladder-rl-v2/oracle_RL_x3/seed1/rl"  # seed 1's teacher, finished when stopped
+    teacher.mkdir(parents=True)
+    (teacher / "run.json").write_text("{}\n")
+    (teacher / "final.pt").write_bytes(b"weights")
+    n_calls = len((checkout.parent / "calls.log").read_text().splitlines())
+    out, calls = _run(checkout, "--grid", "ladder-rl", "--ship-only")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert not any(" sweep ladder-rl " in c and "--to-reference" in c for c in calls[n_calls:])  # nothing ran
+    log = _git(checkout, "log", "--format=%s").splitlines()
+    assert log[0] == ("ladder-rl grid: what the stream finished before it was stopped recorded "
+                      "(reference/quick/ladder-rl-v2/: oracle_RL_x3/seed1)")  # fmt: skip
+    assert "reference/quick/ladder-rl-v2/oracle_RL_x3/seed1/rl/final.pt" in _git(checkout, "ls-files")
+    assert any("summary --preset quick --readme" in c for c in calls[n_calls:])
+
+    stand_in = [sys.executable, "-c", "import time; time.sleep(30)", "-m", "omcrl", "sweep", "ladder-rl"]
+    sweep = subprocess.Popen(stand_in, cwd=wt)
+    try:  # a process whose command line is a sweep's, in the worktree: its records may be half written
+        out, _ = _run(checkout, "--grid", "ladder-rl", "--ship-only")
+    finally:
+        sweep.kill()
+    assert out.returncode == 2 and f"a sweep runs in {wt}" in out.stderr and f"kill -INT {sweep.pid}" in out.stderr
+    missing, _ = _run(checkout, "--grid", "ladder-rl", "--ship-only", "--dir", str(checkout.parent / "none"))
+    assert missing.returncode == 2 and "no worktree" in missing.stderr
