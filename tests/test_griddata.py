@@ -169,6 +169,28 @@ def test_a_teachers_weights_travel_so_a_new_machine_trains_its_students_without_
     assert not list((tmp_path / "machine-c").rglob("final.pt"))
 
 
+@pytest.mark.stage  # runs smoke sweeps end to end
+def test_a_teacher_no_variant_evaluates_is_kept_under_its_student_and_travels(tmp_path, monkeypatch):
+    """The RL ladder's oracle x3 is no variant of any grid: its grid keeps it (``oracle for <student>``) as soon as
+    it finishes, so a session that ends during the student loses no teacher; a new machine lays it out."""
+    from omcrl.pipeline.grids import GRIDS, Variant
+
+    monkeypatch.setitem(GRIDS, "solo", (Variant("ours x", "ours"),))
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-a"))
+    record = GridData(tmp_path / "refs" / "solo")
+    first = run_sweep(load_config("smoke"), "solo", [0], backend="local", progress=False, record=record)
+    assert set(first.status.values()) == {"done"}
+    kept = record.folder("oracle for ours x", 0) / "rl" / "final.pt"
+    (oracle_run,) = (tmp_path / "machine-a" / "results").glob("smoke/runs/rl/oracle-*/seed0")
+    assert kept.read_bytes() == (oracle_run / "final.pt").read_bytes()
+    assert record.episodes()["label"].unique().tolist() == ["ours x"]  # the teacher flies nothing
+    monkeypatch.setenv("OMCRL_ROOT", str(tmp_path / "machine-b"))
+    record.remove("ours x", 0)
+    again = run_sweep(load_config("smoke"), "solo", [0], backend="local", progress=False, record=record)
+    by_kind = {(j.kind, j.method): again.status[j.id] for j in again.jobs}
+    assert by_kind[("train", "oracle")] == "skipped" and by_kind[("train", "ours")] == "done"
+
+
 def _git(repo, *args):
     import subprocess
 

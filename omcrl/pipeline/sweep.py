@@ -341,7 +341,9 @@ def run_sweep(
             if record is not None:
                 for label, stage in targets.get(job.id, ()):
                     record.save_run(label, job.seed, stage, out["outputs"][0])
-                if job.id in teachers:
+                # A teacher no variant of this grid records is kept here unless another grid's record keeps the same
+                # run (Table I's oracle for the budget ladder's pretraining students: one copy in reference/).
+                if job.id in teachers and (job.id in targets or job.id not in kept_elsewhere):
                     if (teachers[job.id], "rl") not in targets.get(job.id, ()):
                         record.save_run(teachers[job.id], job.seed, "rl", out["outputs"][0])
                     record.save_weights(teachers[job.id], job.seed, "rl", out["outputs"][0])
@@ -361,6 +363,7 @@ def run_sweep(
                 rows.extend(json.loads(record.read_episodes(job.label, job.seed).to_json(orient="records")))
             bar.update(1, **_postfix(res, running))
     todo = [j for j in jobs if j.id not in recorded]
+    kept_elsewhere: set[str] = set()  # training jobs whose run a grid record of this preset keeps already
     if record is not None:
         # A training run whose weights a grid record of this preset keeps (this grid's teacher, or the same run
         # kept by another grid: Table I's oracle for the budget ladder) is laid out instead of trained.
@@ -368,6 +371,8 @@ def run_sweep(
             if job.kind != "train" or (run := _train_run(base, job)) is None:
                 continue
             kept = find_kept_run(record.root.parent, run)
+            if kept is not None:
+                kept_elsewhere.add(job.id)
             if kept is not None and kept[0].restore_run(kept[1], "rl", run):
                 where = "" if kept[0].root == record.root else f" (kept by {kept[0].root.name})"
                 print(f"[sweep] {job.method} seed {job.seed}: kept weights restored into {run.dir}{where}", flush=True)
@@ -456,10 +461,21 @@ def only_variants(jobs: list[Job], variants: Sequence[str] | None, grid: str) ->
 
 def _teachers(jobs: Sequence[Job], targets: dict[str, list[tuple[str, str]]]) -> dict[str, str]:
     """``{job id: variant label}`` of the training jobs another training job needs (teachers: the oracle), with
-    the variant whose folder keeps their weights (the first that records the run)."""
+    the variant whose folder keeps their weights: the first that records the run, or, for a teacher no variant
+    evaluates (the RL ladder's oracle x3), a folder of its own named after its first recorded student
+    (``oracle for ours RL x3``). Kept there, a teacher finished in one session is restored in the next on any
+    machine (:func:`omcrl.pipeline.griddata.find_kept_run`) instead of being trained again."""
     by_id = {j.id: j for j in jobs}
     need = {d for j in jobs if j.kind == "train" for d in j.deps if by_id[d].kind == "train"}
-    return {jid: targets[jid][0][0] for jid in sorted(need) if targets.get(jid)}
+    out = {}
+    for jid in sorted(need):
+        if targets.get(jid):
+            out[jid] = targets[jid][0][0]
+            continue
+        student = next((targets[j.id][0][0] for j in jobs if jid in j.deps and targets.get(j.id)), None)
+        if student is not None:
+            out[jid] = f"{by_id[jid].method} for {student}"
+    return out
 
 
 def _train_run(preset_cfg: dict, job: Job) -> Any:
